@@ -1,0 +1,1 @@
+"""The ``starterbus`` command line."""

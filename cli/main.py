@@ -1,0 +1,103 @@
+"""Entry point of the ``starterbus`` command: parser and dispatch; each command lives in its own module."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+
+from starterbus.cli import decode, device_cmds, info, simulate
+from starterbus.core.errors import StarterbusError
+
+Handler = Callable[[argparse.Namespace], int]
+
+
+def _json_flag(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+
+
+def _device_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("url", metavar="URL", help="device URL, e.g. modbus-rtu:///dev/ttyUSB0?unit=2&baudrate=9600")
+    p.add_argument("--model", required=True, help="device model (jjr5000, ssd1, jjr8000) or a profile .toml")
+    _json_flag(p)
+
+
+def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="starterbus",
+        description="Monitor, configure and control soft starters over Modbus RTU, Profibus DP and DeviceNet.",
+    )
+    sub = parser.add_subparsers(dest="command_name", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("models", help="list installed device models")
+    _json_flag(p)
+    p.set_defaults(handler=info.cmd_models)
+
+    p = sub.add_parser("params", help="list a model's parameters and measurements")
+    p.add_argument("model", metavar="MODEL")
+    _json_flag(p)
+    p.set_defaults(handler=info.cmd_params)
+
+    p = sub.add_parser("transports", help="list installed transport plugins, capabilities and load errors")
+    _json_flag(p)
+    p.set_defaults(handler=info.cmd_transports)
+
+    p = sub.add_parser("read", help="read parameters/measurements (all measurements if no KEY)")
+    _device_args(p)
+    p.add_argument("keys", nargs="*", metavar="KEY", help="key or manual address (motor_rated_current, 0x0100, p7, m3)")
+    p.set_defaults(handler=device_cmds.cmd_read)
+
+    p = sub.add_parser("write", help="write parameters (engineering units or enum labels; validated first)")
+    _device_args(p)
+    p.add_argument("assignments", nargs="+", metavar="KEY=VALUE")
+    p.set_defaults(handler=device_cmds.cmd_write)
+
+    p = sub.add_parser("status", help="read the decoded status")
+    _device_args(p)
+    p.set_defaults(handler=device_cmds.cmd_status)
+
+    for name, help_text in (("start", "start the motor"), ("stop", "soft-stop the motor"), ("reset", "fault reset")):
+        p = sub.add_parser(name, help=help_text)
+        _device_args(p)
+        p.add_argument("--show-status", action="store_true", help="read the status after the command")
+        p.set_defaults(handler=device_cmds.cmd_command, command=name)
+
+    wants = argv[0] if argv else ""
+    p = sub.add_parser("simulate", help="serve simulated soft starters behind protocol front ends")
+    if wants == "simulate":  # loading every plugin only when this command is used
+        simulate.add_arguments(p)
+    p.set_defaults(handler=simulate.cmd_simulate)
+
+    p = sub.add_parser("decode", help="annotate frames/telegrams of a protocol")
+    if wants == "decode":
+        decode.add_subparsers(p)
+    p.set_defaults(handler=decode.cmd_decode)
+
+    for extend in _EXTENSIONS:
+        extend(sub, wants)
+    return parser
+
+
+#: later commands (fleet polling, demo, crosscheck, identify) register here: fn(subparsers, wanted_command)
+_EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser], str], None]] = []
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    try:
+        parser = build_parser(args_list)
+        args = parser.parse_args(args_list)
+        handler: Handler = args.handler
+        return handler(args)
+    except StarterbusError as exc:
+        print(f"starterbus: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"starterbus: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

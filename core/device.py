@@ -1,0 +1,137 @@
+"""The Device facade: keys and engineering units in, validated raw values to the transport.
+
+Everything a user can get wrong is checked here BEFORE the transport is called: unknown keys, read-only
+points, values out of range, off the resolution or not in the enum, and capabilities the transport or the
+model lacks. A write that fails validation sends nothing.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from types import TracebackType
+
+from starterbus.core.errors import UnsupportedOperationError, ValidationError
+from starterbus.core.model import Kind, PointDef, Value
+from starterbus.core.profile import Profile
+from starterbus.core.registry import get_profile, get_transport
+from starterbus.core.status import Command, Status
+from starterbus.core.transport import Capability, Transport
+from starterbus.core.url import DeviceUrl
+
+
+class Device:
+    """One soft starter reached through one transport."""
+
+    def __init__(self, transport: Transport, profile: Profile) -> None:
+        self.transport = transport
+        self.profile = profile
+
+    @property
+    def capabilities(self) -> frozenset[Capability]:
+        return self.transport.capabilities
+
+    def describe(self) -> str:
+        return f"{self.profile.display_name} at {self.transport.describe()}"
+
+    # -- lifecycle -----------------------------------------------------------------------------------------
+
+    def open(self) -> Device:
+        self.transport.open()
+        return self
+
+    def close(self) -> None:
+        self.transport.close()
+
+    def __enter__(self) -> Device:
+        return self.open()
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    # -- checks ------------------------------------------------------------------------------------------
+
+    def _require(self, capability: Capability, what: str) -> None:
+        if capability not in self.transport.capabilities:
+            raise UnsupportedOperationError(
+                f"{self.transport.name} ({self.transport.describe()}) cannot {what} "
+                f"(it offers: {', '.join(sorted(c.value for c in self.transport.capabilities)) or 'nothing'})"
+            )
+
+    def resolve(self, keys: Iterable[str | PointDef]) -> list[PointDef]:
+        return [k if isinstance(k, PointDef) else self.profile.point(k) for k in keys]
+
+    def _check_readable(self, points: Iterable[PointDef]) -> None:
+        for point in points:
+            if point.kind is Kind.PARAMETER:
+                self._require(Capability.READ_PARAMETERS, f"read parameters such as {point.key}")
+            else:
+                self._require(Capability.READ_MEASUREMENTS, f"read measurements such as {point.key}")
+
+    def validate_write(self, key: str | PointDef, value: float | int | str) -> tuple[PointDef, int]:
+        """Resolve and validate one write; returns the point and its raw value. Sends nothing."""
+        point = key if isinstance(key, PointDef) else self.profile.point(key)
+        if point.kind is not Kind.PARAMETER:
+            raise ValidationError(f"{point.key} ({point.address}) is a measurement, not a writable parameter")
+        if not point.writable:
+            raise ValidationError(f"{point.key} ({point.address}) is read-only")
+        raw = point.to_raw(value)
+        self._require(Capability.WRITE_PARAMETERS, f"write parameters such as {point.key}")
+        return point, raw
+
+    # -- operations -----------------------------------------------------------------------------------------
+
+    def read(self, *keys: str | PointDef) -> dict[str, Value]:
+        """Read parameters and/or measurements by key or manual address; values in engineering units."""
+        points = self.resolve(keys)
+        self._check_readable(points)
+        readings = self.transport.read_points(points)
+        return {r.point.key: r.value(self.transport.name) for r in readings}
+
+    def read_value(self, key: str | PointDef) -> Value:
+        return next(iter(self.read(key).values()))
+
+    def write(self, key: str | PointDef, value: float | int | str) -> Value:
+        """Validate, then write one parameter. Returns the value written."""
+        point, raw = self.validate_write(key, value)
+        self.transport.write_parameter(point, raw)
+        return Value.from_raw(point, raw, source=self.transport.name)
+
+    def write_many(self, values: Mapping[str, float | int | str]) -> list[Value]:
+        """Validate ALL values first; only if every one is valid, write them in order."""
+        checked = [self.validate_write(k, v) for k, v in values.items()]
+        written = []
+        for point, raw in checked:
+            self.transport.write_parameter(point, raw)
+            written.append(Value.from_raw(point, raw, source=self.transport.name))
+        return written
+
+    def status(self) -> Status:
+        self._require(Capability.STATUS, "read the status")
+        return self.transport.read_status()
+
+    def command(self, command: Command) -> None:
+        self._require(Capability.COMMANDS, f"send the command {command.value!r}")
+        self.transport.send_command(command)
+
+    def start(self) -> None:
+        self.command(Command.START)
+
+    def stop(self) -> None:
+        self.command(Command.SOFT_STOP)
+
+    def reset(self) -> None:
+        self.command(Command.FAULT_RESET)
+
+
+def open_device(url: str | DeviceUrl, model: str | Profile) -> Device:
+    """Build a :class:`Device` (not yet opened) from a URL whose scheme names the transport plugin."""
+    parsed = url if isinstance(url, DeviceUrl) else DeviceUrl.parse(url)
+    profile = model if isinstance(model, Profile) else get_profile(model)
+    plugin = get_transport(parsed.transport)
+    if not profile.supports(plugin.name):
+        raise UnsupportedOperationError(
+            f"{profile.display_name} has no {plugin.name} interface (it speaks: {', '.join(profile.transports)})"
+        )
+    return Device(plugin.open(parsed, profile), profile)

@@ -1,0 +1,135 @@
+"""The one exception hierarchy of starterbus.
+
+Everything starterbus raises on purpose derives from :class:`StarterbusError`. Errors caused by bytes on the
+wire carry those bytes (``data``) so a message always shows what was received.
+"""
+
+from __future__ import annotations
+
+import builtins
+import enum
+
+
+def _hex(data: bytes) -> str:
+    return data.hex(" ").upper()
+
+
+class StarterbusError(Exception):
+    """Root of every error starterbus raises on purpose."""
+
+
+class ConfigurationError(StarterbusError):
+    """A profile, URL, fleet file or option is invalid."""
+
+
+class ProfileError(ConfigurationError):
+    """A device profile file is invalid; names the file and the offending key."""
+
+    def __init__(self, source: str, key: str, message: str) -> None:
+        self.source = source
+        self.key = key
+        super().__init__(f"{source}: {key}: {message}")
+
+
+class PluginError(StarterbusError):
+    """A plugin could not be found or loaded, or two plugins claim one name."""
+
+
+class UnknownPointError(StarterbusError, KeyError):
+    """A key or manual address names no parameter or measurement of the model."""
+
+    def __str__(self) -> str:  # KeyError quotes its argument; keep the plain message
+        return str(self.args[0]) if self.args else ""
+
+
+class ValidationError(StarterbusError, ValueError):
+    """A value was refused before anything was sent (range, access, enum, resolution)."""
+
+
+class UnsupportedOperationError(StarterbusError):
+    """The transport or the device model lacks the requested capability."""
+
+
+class TransportError(StarterbusError):
+    """Moving bytes or frames failed (port, socket, bus)."""
+
+
+class TimeoutError(TransportError, builtins.TimeoutError):
+    """No (complete) answer arrived in time. Also a builtin ``TimeoutError``."""
+
+
+class CodecError(StarterbusError):
+    """A frame or telegram could not be encoded or decoded.
+
+    ``data`` holds the offending bytes; ``field`` names the failing field where one is known.
+    """
+
+    def __init__(self, message: str, data: bytes = b"", field: str | None = None) -> None:
+        self.data = bytes(data)
+        self.field = field
+        text = message
+        if field:
+            text = f"{field}: {text}"
+        if data:
+            text = f"{text} [{_hex(self.data)}]"
+        super().__init__(text)
+
+
+class EncodeError(CodecError):
+    """A value cannot be encoded into a frame."""
+
+
+class DecodeError(CodecError):
+    """Bytes received do not form a valid frame."""
+
+
+class ChecksumError(DecodeError):
+    """A frame's checksum (CRC) is wrong."""
+
+
+class RemoteDeviceError(StarterbusError):
+    """The device answered with an error of its own (Modbus exception, PKW error number, CIP status).
+
+    ``code`` is the device's own code, ``meaning`` its text from the manual, ``protocol`` where it came from.
+    """
+
+    def __init__(
+        self,
+        protocol: str,
+        code: int,
+        meaning: str,
+        detail: str = "",
+        data: bytes = b"",
+        additional: int | None = None,
+    ) -> None:
+        self.protocol = protocol
+        self.code = code
+        self.meaning = meaning
+        self.additional = additional
+        self.data = bytes(data)
+        text = f"{protocol} error {code:#04x}: {meaning}"
+        if additional is not None:
+            text += f" (additional code {additional:#04x})"
+        if detail:
+            text += f" ({detail})"
+        if data:
+            text += f" [{_hex(self.data)}]"
+        super().__init__(text)
+
+
+class Refusal(enum.Enum):
+    """Why the simulated starter refused an operation (protocol simulators map it to their own codes)."""
+
+    NOT_AVAILABLE = "not available"  # no such parameter/measurement
+    READ_ONLY = "read only"
+    OUT_OF_RANGE = "out of range"
+    WRITE_PROTECTED = "write protected"  # "parameter modify" = 0
+    WHILE_RUNNING = "cannot modify while running"
+
+
+class SimulatorRefusal(StarterbusError):
+    """The simulated starter refused an operation; protocol simulators map ``reason`` to their own codes."""
+
+    def __init__(self, reason: Refusal, message: str) -> None:
+        self.reason = reason
+        super().__init__(message)

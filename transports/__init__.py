@@ -1,0 +1,1 @@
+"""Transport plugins shipped with starterbus (each registered through entry points like any third-party one)."""

@@ -1,0 +1,1 @@
+"""The devicenet transport plugin."""

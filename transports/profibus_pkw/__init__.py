@@ -1,0 +1,1 @@
+"""The profibus-pkw transport plugin."""
