@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import enum
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from types import TracebackType
 
@@ -92,6 +92,10 @@ class Transport(ABC):
     def send_command(self, command: Command) -> None:
         raise self.unsupported(f"send the command {command.value!r}")
 
+    def identify(self) -> dict[str, object]:
+        """The device's identity as the protocol reports it (DeviceNet identity object), if it has one."""
+        raise self.unsupported("identify the device")
+
     def preview_write(self, point: PointDef, raw: int) -> list[str]:
         """The frames a write would send, as text, without sending them (``--dry-run``)."""
         raise self.unsupported("preview frames")
@@ -125,10 +129,6 @@ class RunningSimulator(ABC):
 
     @abstractmethod
     def close(self) -> None: ...
-
-
-#: called by a plugin to get the shared simulated starter for a device address (unit, station, MAC)
-StarterLookup = Callable[[int], "object"]
 
 
 class TransportPlugin(ABC):
