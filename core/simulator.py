@@ -102,7 +102,7 @@ class SimulatedStarter:
             self.params[point.key] = default
         for key, raw in (values or {}).items():
             self.params[profile.point(key).key] = raw
-        self.phase = Phase.STOPPED
+        self._phase = Phase.STOPPED
         self.phase_since = self.clock()
         self.fault_code: int | None = None
         self.control_word = 0
@@ -170,8 +170,15 @@ class SimulatedStarter:
             return max(0.0, self._stop_from_current * (1 - elapsed / stop))
         return 0.0
 
+    @property
+    def phase(self) -> Phase:
+        """The motor's state now (advances the state machine to the clock)."""
+        with self.lock:
+            self._advance()
+            return self._phase
+
     def _set_phase(self, phase: Phase, at: float, why: str) -> None:
-        self.phase = phase
+        self._phase = phase
         self.phase_since = at
         self.events.append((at, f"{phase.value}: {why}"))
 
@@ -179,22 +186,22 @@ class SimulatedStarter:
         now = self.clock()
         while True:
             elapsed = now - self.phase_since
-            if self.phase is Phase.STARTING:
+            if self._phase is Phase.STARTING:
                 ramp = self._seconds("ramp_time", 10.0)
                 end = min(elapsed, ramp)
                 self.max_start_current = max(self.max_start_current, self._current_at(Phase.STARTING, end))
                 if elapsed >= ramp:
                     self._set_phase(Phase.RUNNING, self.phase_since + ramp, "ramp complete")
                     continue
-            elif self.phase is Phase.RUNNING:
+            elif self._phase is Phase.RUNNING:
                 self.max_run_current = max(self.max_run_current, self._current_at(Phase.RUNNING, elapsed))
-            elif self.phase is Phase.STOPPING:
+            elif self._phase is Phase.STOPPING:
                 stop = self._seconds("stop_time", 0.0)
                 if elapsed >= stop:
                     self._set_phase(Phase.STOPPED, self.phase_since + stop, "soft stop complete")
                     continue
             break
-        if self.phase in (Phase.STARTING, Phase.RUNNING, Phase.STOPPING):
+        if self._phase in (Phase.STARTING, Phase.RUNNING, Phase.STOPPING):
             self.run_seconds += max(0.0, now - self._last_tick)
         self._last_tick = now
 
@@ -202,7 +209,7 @@ class SimulatedStarter:
         """Phase current now, in A."""
         with self.lock:
             self._advance()
-            return self._current_at(self.phase, self.clock() - self.phase_since)
+            return self._current_at(self._phase, self.clock() - self.phase_since)
 
     def snapshot(self) -> StarterSnapshot:
         with self.lock:
@@ -213,7 +220,7 @@ class SimulatedStarter:
     def start(self, why: str = "start command") -> bool:
         with self.lock:
             self._advance()
-            if self.phase is not Phase.STOPPED or not self.mains_on:
+            if self._phase is not Phase.STOPPED or not self.mains_on:
                 return False
             self.start_count += 1
             self._set_phase(Phase.STARTING, self.clock(), why)
@@ -222,10 +229,10 @@ class SimulatedStarter:
     def soft_stop(self, why: str = "soft stop command") -> bool:
         with self.lock:
             self._advance()
-            if self.phase not in (Phase.STARTING, Phase.RUNNING):
+            if self._phase not in (Phase.STARTING, Phase.RUNNING):
                 return False
             now = self.clock()
-            self._stop_from_current = self._current_at(self.phase, now - self.phase_since)
+            self._stop_from_current = self._current_at(self._phase, now - self.phase_since)
             self._set_phase(Phase.STOPPING, now, why)
             self._advance()
             return True
@@ -233,7 +240,7 @@ class SimulatedStarter:
     def fault_reset(self) -> bool:
         with self.lock:
             self._advance()
-            if self.phase is not Phase.FAULT:
+            if self._phase is not Phase.FAULT:
                 return False
             self.fault_code = None
             self._set_phase(Phase.STOPPED, self.clock(), "fault reset")
@@ -245,7 +252,7 @@ class SimulatedStarter:
             raise ValueError(f"fault code {code} is not 1..63")
         with self.lock:
             self._advance()
-            self.last_fault_current = self._current_at(self.phase, self.clock() - self.phase_since)
+            self.last_fault_current = self._current_at(self._phase, self.clock() - self.phase_since)
             self.last_fault_code = code
             self.fault_code = code
             self._set_phase(Phase.FAULT, self.clock(), f"fault {code}: {self.profile.faults.text(code)}")
@@ -279,7 +286,7 @@ class SimulatedStarter:
     def status_word(self) -> int:
         with self.lock:
             self._advance()
-            phase = self.phase
+            phase = self._phase
             return encode_status_word(
                 fault_code=self.fault_code,
                 starting=phase is Phase.STARTING,
@@ -294,7 +301,7 @@ class SimulatedStarter:
     def at_reference(self) -> bool:
         with self.lock:
             self._advance()
-            return self.phase is Phase.RUNNING
+            return self._phase is Phase.RUNNING
 
     def _amps_raw(self, point: PointDef, amps: float) -> int:
         return max(point.raw_min, min(point.raw_max, round(amps / point.scale)))
@@ -341,7 +348,7 @@ class SimulatedStarter:
             if protect and point.key != protect and self.params[protect] == 0:
                 raise SimulatorRefusal(Refusal.WRITE_PROTECTED, f"parameter writes are forbidden ({protect} = 0)")
             self._advance()
-            if point.key in self.profile.control.locked_while_running and self.phase in (
+            if point.key in self.profile.control.locked_while_running and self._phase in (
                 Phase.STARTING, Phase.RUNNING, Phase.STOPPING,
             ):  # fmt: skip
                 raise SimulatorRefusal(Refusal.WHILE_RUNNING, f"{point.key} cannot be modified while running")

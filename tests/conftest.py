@@ -1,0 +1,34 @@
+"""Shared fixtures: the built-in profiles and a deterministic clock."""
+
+from __future__ import annotations
+
+import pytest
+
+from starterbus.core.profile import Profile
+from starterbus.core.registry import get_profile
+from starterbus.core.simulator import ManualClock
+
+
+@pytest.fixture(params=["jjr5000", "ssd1", "jjr8000"])
+def any_profile(request: pytest.FixtureRequest) -> Profile:
+    return get_profile(request.param)
+
+
+@pytest.fixture
+def jjr5000() -> Profile:
+    return get_profile("jjr5000")
+
+
+@pytest.fixture
+def ssd1() -> Profile:
+    return get_profile("ssd1")
+
+
+@pytest.fixture
+def jjr8000() -> Profile:
+    return get_profile("jjr8000")
+
+
+@pytest.fixture
+def clock() -> ManualClock:
+    return ManualClock(1000.0)

@@ -1,0 +1,148 @@
+"""The shared simulated soft starter: state machine on a manual clock, control word, faults, write rules."""
+
+from __future__ import annotations
+
+import pytest
+
+from starterbus.core.errors import Refusal, SimulatorRefusal
+from starterbus.core.profile import Profile
+from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
+from starterbus.core.status import decode_status_word
+
+
+def starter_for(profile: Profile, clock: ManualClock, **values: int) -> SimulatedStarter:
+    return SimulatedStarter(profile, clock, load=0.8, values=values)
+
+
+def status(starter: SimulatedStarter) -> int:
+    return starter.status_word()
+
+
+def test_full_cycle_with_currents(jjr5000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr5000, clock, motor_rated_current=100, current_limit=300, ramp_time=8, soft_stop_time=4)
+    decoded = decode_status_word(status(sim), jjr5000.faults, bit12_is_mains_voltage=True)
+    assert decoded.ready and not decoded.running and decoded.mains_voltage
+    sim.write_control_word(0x0009)
+    assert sim.phase is Phase.STARTING
+    clock.advance(1.0)  # a quarter of the ramp is 2 s: half-way up to 3 x 100 A
+    assert sim.current() == pytest.approx(150.0)
+    clock.advance(1.0)
+    assert sim.current() == pytest.approx(300.0)
+    clock.advance(5.9)
+    assert sim.phase is Phase.STARTING
+    assert sim.current() <= 300.0
+    clock.advance(0.2)
+    assert sim.phase is Phase.RUNNING
+    assert sim.current() == pytest.approx(80.0)
+    word = status(sim)
+    assert word & (1 << 9) and not word & (1 << 8) and not word & (1 << 13)
+    sim.write_control_word(0x0008)
+    assert sim.phase is Phase.STOPPING
+    clock.advance(2.0)
+    assert sim.current() == pytest.approx(40.0)
+    clock.advance(2.0)
+    assert sim.phase is Phase.STOPPED
+    assert sim.start_count == 1
+    phase_a = jjr5000.point("phase_a_current")
+    assert sim.read(phase_a) == 0
+    assert sim.read(jjr5000.point("max_start_current")) == 3000  # 300.0 A in 0.1 A
+    assert sim.read(jjr5000.point("max_run_current")) == 800
+
+
+def test_fault_stops_motor_and_reset_needs_new_start(jjr8000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr8000, clock)
+    sim.write_control_word(0x0009, cyclic=True)
+    clock.advance(1.0)
+    sim.inject_fault(6)
+    decoded = decode_status_word(status(sim), jjr8000.faults)
+    assert decoded.fault and decoded.fault_code == 6
+    assert decoded.fault_text == jjr8000.faults.text(6)
+    assert sim.current() == 0
+    sim.write_control_word(0x000D, cyclic=True)  # reset while start bit still held
+    assert sim.phase is Phase.STOPPED
+    sim.write_control_word(0x0009, cyclic=True)
+    assert sim.phase is Phase.STOPPED, "a held start bit must not restart after a fault reset"
+    sim.write_control_word(0x0008, cyclic=True)
+    sim.write_control_word(0x0009, cyclic=True)
+    assert sim.phase is Phase.STARTING
+
+
+def test_unknown_fault_code_decodes_as_unknown(jjr8000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr8000, clock)
+    sim.inject_fault(63)
+    decoded = decode_status_word(status(sim), jjr8000.faults)
+    assert decoded.fault_code == 63
+    assert decoded.fault_text == "unknown fault 63"
+
+
+def test_jjr8000_needs_bus_control_bit(jjr8000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr8000, clock)
+    sim.write_control_word(0x0001)
+    assert sim.phase is Phase.STOPPED
+    sim.write_control_word(0x0009)
+    assert sim.phase is Phase.STARTING
+
+
+def test_jjr5000_starts_without_bus_control_bit(jjr5000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr5000, clock)
+    sim.write_control_word(0x0001)
+    assert sim.phase is Phase.STARTING
+
+
+@pytest.mark.parametrize(("model", "protect"), [("jjr5000", "0x0147"), ("ssd1", "0x0125")])
+def test_parameter_modify_zero_refuses_writes(model: str, protect: str, clock: ManualClock) -> None:
+    from starterbus.core.registry import get_profile
+
+    profile = get_profile(model)
+    sim = SimulatedStarter(profile, clock)
+    limit = profile.point("current_limit")
+    sim.write(limit, 380)
+    assert sim.read(limit) == 380
+    sim.write(profile.point(protect), 0)
+    with pytest.raises(SimulatorRefusal) as info:
+        sim.write(limit, 400)
+    assert info.value.reason is Refusal.WRITE_PROTECTED
+    assert sim.read(limit) == 380
+    sim.write(profile.point(protect), 1)  # the switch itself stays writable
+    sim.write(limit, 400)
+    assert sim.read(limit) == 400
+
+
+def test_out_of_range_and_read_only_refused(jjr5000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr5000, clock)
+    with pytest.raises(SimulatorRefusal) as info:
+        sim.write(jjr5000.point("current_limit"), 149)
+    assert info.value.reason is Refusal.OUT_OF_RANGE
+    with pytest.raises(SimulatorRefusal) as info:
+        sim.write(jjr5000.point("status_word"), 1)
+    assert info.value.reason is Refusal.READ_ONLY
+
+
+def test_jjr8000_locked_while_running(jjr8000: Profile, clock: ManualClock) -> None:
+    locked = sorted(jjr8000.control.locked_while_running)
+    assert locked, "the JJR8000 profile must name parameters that cannot change while running"
+    point = jjr8000.point(locked[0])
+    sim = starter_for(jjr8000, clock)
+    sim.write_control_word(0x0009)
+    with pytest.raises(SimulatorRefusal) as info:
+        sim.write(point, sim.read(point))
+    assert info.value.reason is Refusal.WHILE_RUNNING
+
+
+def test_point_at_unknown_address(jjr5000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr5000, clock)
+    from starterbus.core.model import Kind
+
+    assert sim.point_at("modbus", Kind.PARAMETER, 0x0103).key == "current_limit"
+    with pytest.raises(SimulatorRefusal) as info:
+        sim.point_at("modbus", Kind.PARAMETER, 0x0107)
+    assert info.value.reason is Refusal.NOT_AVAILABLE
+
+
+def test_command_lost_soft_stops(jjr8000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr8000, clock)
+    sim.write_control_word(0x0009, cyclic=True)
+    clock.advance(60)
+    assert sim.phase is Phase.RUNNING
+    sim.command_lost()
+    assert sim.phase in (Phase.STOPPING, Phase.STOPPED)
