@@ -4,8 +4,8 @@ from starterbus.core import (
     Command,
     Device,
     Profile,
-    Status,
     StarterbusError,
+    Status,
     load_profile,
     open_device,
 )

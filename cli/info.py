@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from starterbus.cli.output import emit_json, table
 from starterbus.core.model import PointDef
@@ -11,28 +12,40 @@ from starterbus.core.registry import get_profile, profiles, transports
 
 
 def cmd_models(args: argparse.Namespace) -> int:
-    rows = []
+    rows: list[dict[str, Any]] = []
     for entry in profiles.load_all():
         prof = entry.loaded
-        rows.append({
-            "name": entry.name,
-            "display_name": prof.display_name if prof else None,
-            "vendor": prof.vendor if prof else None,
-            "transports": sorted(prof.transports) if prof else [],
-            "parameters": len(prof.parameters) if prof else 0,
-            "measurements": len(prof.measurements) if prof else 0,
-            "source": ", ".join(entry.distributions),
-            "error": entry.error,
-        })  # fmt: skip
+        rows.append(
+            {
+                "name": entry.name,
+                "display_name": prof.display_name if prof else None,
+                "vendor": prof.vendor if prof else None,
+                "transports": sorted(prof.transports) if prof else [],
+                "parameters": len(prof.parameters) if prof else 0,
+                "measurements": len(prof.measurements) if prof else 0,
+                "source": ", ".join(entry.distributions),
+                "error": entry.error,
+            }
+        )
     if args.json:
         emit_json(rows)
     else:
         table(
             ["model", "name", "transports", "params", "measurements", "from", "error"],
-            [[r["name"], r["display_name"], ", ".join(r["transports"]), r["parameters"], r["measurements"],
-              r["source"], r["error"] or ""] for r in rows],
-        )  # fmt: skip
-    return 1 if any(r["error"] for r in rows) and not rows else 0
+            [
+                [
+                    r["name"],
+                    r["display_name"],
+                    ", ".join(r["transports"]),
+                    r["parameters"],
+                    r["measurements"],
+                    r["source"],
+                    r["error"] or "",
+                ]
+                for r in rows
+            ],
+        )
+    return 0
 
 
 def point_json(point: PointDef) -> dict[str, object]:
@@ -52,7 +65,10 @@ def point_json(point: PointDef) -> dict[str, object]:
         "access": point.access.value,
         "default": point.default,
         "enum": (
-            {"name": point.enum.name, "values": {str(k): {"en": v.en, "zh": v.zh} for k, v in point.enum.labels.items()}}
+            {
+                "name": point.enum.name,
+                "values": {str(k): {"en": v.en, "zh": v.zh} for k, v in point.enum.labels.items()},
+            }
             if point.enum
             else None
         ),
@@ -106,10 +122,19 @@ def cmd_params(args: argparse.Namespace) -> int:
         print(f"{profile.display_name} {title}")
         table(
             ["address", "key", "name", "名称", *protos, "range", "access"],
-            [[p.address, p.key, p.name_en, p.name_zh,
-              *[f"0x{p.addresses[x]:04X}" if x in p.addresses else "" for x in protos],
-              _range_text(p), p.access.value] for p in points],
-        )  # fmt: skip
+            [
+                [
+                    p.address,
+                    p.key,
+                    p.name_en,
+                    p.name_zh,
+                    *[f"0x{p.addresses[x]:04X}" if x in p.addresses else "" for x in protos],
+                    _range_text(p),
+                    p.access.value,
+                ]
+                for p in points
+            ],
+        )
         print()
     if profile.notes:
         print("notes:")
@@ -119,19 +144,21 @@ def cmd_params(args: argparse.Namespace) -> int:
 
 
 def cmd_transports(args: argparse.Namespace) -> int:
-    rows = []
+    rows: list[dict[str, Any]] = []
     for entry in transports.load_all():
         plugin = entry.loaded
-        rows.append({
-            "name": entry.name,
-            "summary": plugin.summary if plugin else None,
-            "capabilities": sorted(c.value for c in plugin.capabilities) if plugin else [],
-            "url_forms": list(plugin.url_forms) if plugin else [],
-            "decoder": plugin.has_decoder if plugin else False,
-            "target": entry.target,
-            "source": ", ".join(entry.distributions),
-            "error": entry.error,
-        })  # fmt: skip
+        rows.append(
+            {
+                "name": entry.name,
+                "summary": plugin.summary if plugin else None,
+                "capabilities": sorted(c.value for c in plugin.capabilities) if plugin else [],
+                "url_forms": list(plugin.url_forms) if plugin else [],
+                "decoder": plugin.has_decoder if plugin else False,
+                "target": entry.target,
+                "source": ", ".join(entry.distributions),
+                "error": entry.error,
+            }
+        )
     if args.json:
         emit_json(rows)
     else:

@@ -6,7 +6,7 @@ import argparse
 import sys
 from collections.abc import Callable, Sequence
 
-from starterbus.cli import decode, device_cmds, info, simulate
+from starterbus.cli import crosscheck, decode, demo, device_cmds, info, poll, simulate
 from starterbus.core.errors import StarterbusError
 
 Handler = Callable[[argparse.Namespace], int]
@@ -20,6 +20,18 @@ def _device_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("url", metavar="URL", help="device URL, e.g. modbus-rtu:///dev/ttyUSB0?unit=2&baudrate=9600")
     p.add_argument("--model", required=True, help="device model (jjr5000, ssd1, jjr8000) or a profile .toml")
     _json_flag(p)
+
+
+def _guard_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--yes", "-y", action="store_true", help="do it without asking (required without a terminal)")
+    p.add_argument("--dry-run", action="store_true", help="print the exact frames that would be sent; send nothing")
+    p.add_argument(
+        "--audit-log",
+        metavar="PATH",
+        default=None,
+        help="append to this JSON-lines audit log (default $STARTERBUS_AUDIT_LOG or "
+        "~/.local/state/starterbus/audit.jsonl)",
+    )
 
 
 def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
@@ -50,16 +62,22 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     p = sub.add_parser("write", help="write parameters (engineering units or enum labels; validated first)")
     _device_args(p)
     p.add_argument("assignments", nargs="+", metavar="KEY=VALUE")
+    _guard_args(p)
     p.set_defaults(handler=device_cmds.cmd_write)
 
     p = sub.add_parser("status", help="read the decoded status")
     _device_args(p)
     p.set_defaults(handler=device_cmds.cmd_status)
 
-    for name, help_text in (("start", "start the motor"), ("stop", "soft-stop the motor"), ("reset", "fault reset")):
+    for name, help_text in (
+        ("start", "start the motor"),
+        ("stop", "soft-stop the motor"),
+        ("reset", "fault reset"),
+    ):
         p = sub.add_parser(name, help=help_text)
         _device_args(p)
         p.add_argument("--show-status", action="store_true", help="read the status after the command")
+        _guard_args(p)
         p.set_defaults(handler=device_cmds.cmd_command, command=name)
 
     wants = argv[0] if argv else ""
@@ -72,6 +90,18 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     if wants == "decode":
         decode.add_subparsers(p)
     p.set_defaults(handler=decode.cmd_decode)
+
+    p = sub.add_parser("poll", help="poll a fleet file: live table, JSON lines, CSV log")
+    poll.add_arguments(p)
+    p.set_defaults(handler=poll.cmd_poll)
+
+    p = sub.add_parser("demo", help="the main job on a simulated mixed fleet (no hardware needed)")
+    demo.add_arguments(p)
+    p.set_defaults(handler=demo.cmd_demo)
+
+    p = sub.add_parser("crosscheck", help="read one device through several URLs and compare")
+    crosscheck.add_arguments(p)
+    p.set_defaults(handler=crosscheck.cmd_crosscheck)
 
     for extend in _EXTENSIONS:
         extend(sub, wants)

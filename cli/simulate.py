@@ -17,9 +17,12 @@ from starterbus.core.transport import RunningSimulator
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", required=True, help="device model (jjr5000, ssd1, jjr8000) or a profile .toml")
     parser.add_argument(
-        "--unit", type=int, action="append", default=None,
+        "--unit",
+        type=int,
+        action="append",
+        default=None,
         help="device address of a simulated starter (Modbus unit id); repeat for several on one line (default 1)",
-    )  # fmt: skip
+    )
     parser.add_argument("--load", type=float, default=0.8, help="running current as a fraction of rated current")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     for entry in transports.load_all():

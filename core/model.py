@@ -117,10 +117,8 @@ class PointDef:
             exact = float(value) / self.scale
             raw = round(exact)
             if abs(exact - raw) > 1e-6 * max(1.0, abs(exact)):
-                raise ValidationError(
-                    f"{self.key}: {value} {self.unit} is not a multiple of the resolution {self.scale:g} {self.unit}"
-                    .rstrip()
-                )
+                step = f"{self.scale:g} {self.unit}".rstrip()
+                raise ValidationError(f"{self.key}: {value} {self.unit} is not a multiple of the resolution {step}")
         self.check_raw(raw)
         return raw
 

@@ -26,13 +26,37 @@ SCHEMA_VERSION = 1
 PROTOCOL_FIELDS = ("modbus", "profibus", "devicenet")
 _KEY_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 _POINT_FIELDS = {
-    "key", "address", "name_zh", "name_en", "min", "max", "scale", "unit", "enum", "default", "access",
-    "format", "scale_assumed", "note", *PROTOCOL_FIELDS,
-}  # fmt: skip
+    "key",
+    "address",
+    "name_zh",
+    "name_en",
+    "min",
+    "max",
+    "scale",
+    "unit",
+    "enum",
+    "default",
+    "access",
+    "format",
+    "scale_assumed",
+    "note",
+    *PROTOCOL_FIELDS,
+}
 _ROLE_NAMES = {
-    "control_word", "status_word", "phase_currents", "rated_current", "current_limit", "ramp_time", "stop_time",
-    "max_start_current", "max_run_current", "start_count", "run_time", "last_fault_code", "last_fault_current",
-}  # fmt: skip
+    "control_word",
+    "status_word",
+    "phase_currents",
+    "rated_current",
+    "current_limit",
+    "ramp_time",
+    "stop_time",
+    "max_start_current",
+    "max_run_current",
+    "start_count",
+    "run_time",
+    "last_fault_code",
+    "last_fault_current",
+}
 _REQUIRED_ROLES = ("control_word", "status_word", "phase_currents", "rated_current", "current_limit")
 
 
@@ -148,7 +172,7 @@ def load_profile_text(text: str, source: str = "<profile>") -> Profile:
     return build_profile(data, source)
 
 
-def build_profile(data: Mapping[str, Any], source: str) -> Profile:  # noqa: C901
+def build_profile(data: Mapping[str, Any], source: str) -> Profile:
     def fail(key: str, message: str) -> ProfileError:
         return ProfileError(source, key, message)
 
@@ -166,15 +190,20 @@ def build_profile(data: Mapping[str, Any], source: str) -> Profile:  # noqa: C90
     for enum_name, table in _table(data, "enums", source, required=False).items():
         if not isinstance(table, Mapping) or not table:
             raise fail(f"enums.{enum_name}", "must be a non-empty table of raw value -> {en, zh}")
-        enums[enum_name] = EnumTable(enum_name, {
-            _int_key(k, source, f"enums.{enum_name}"): _label(v, source, f"enums.{enum_name}.{k}")
-            for k, v in table.items()
-        })  # fmt: skip
+        enums[enum_name] = EnumTable(
+            enum_name,
+            {
+                _int_key(k, source, f"enums.{enum_name}"): _label(v, source, f"enums.{enum_name}.{k}")
+                for k, v in table.items()
+            },
+        )
 
-    faults = FaultTable({
-        _int_key(k, source, "faults"): _label(v, source, f"faults.{k}")
-        for k, v in _table(data, "faults", source, required=False).items()
-    })  # fmt: skip
+    faults = FaultTable(
+        {
+            _int_key(k, source, "faults"): _label(v, source, f"faults.{k}")
+            for k, v in _table(data, "faults", source, required=False).items()
+        }
+    )
     for code in faults.labels:
         if not 0 <= code <= 63:
             raise fail(f"faults.{code}", "fault codes are 6 bits (0-63)")
@@ -247,7 +276,9 @@ def build_profile(data: Mapping[str, Any], source: str) -> Profile:  # noqa: C90
         for table in ("exceptions", "errors"):
             if table in settings:
                 settings[table] = {
-                    _int_key(k, source, f"transports.{tname}.{table}"): _label(v, source, f"transports.{tname}.{table}.{k}")
+                    _int_key(k, source, f"transports.{tname}.{table}"): _label(
+                        v, source, f"transports.{tname}.{table}.{k}"
+                    )
                     for k, v in settings[table].items()
                 }
 

@@ -17,7 +17,6 @@ import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib.metadata import EntryPoint, entry_points
-from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Generic, TypeVar
 
@@ -138,16 +137,21 @@ def _to_transport(name: str, obj: object) -> TransportPlugin:
     return obj
 
 
+def _is_resource(obj: object) -> bool:
+    """An ``importlib.resources`` file (a Traversable): read it, do not call it."""
+    return hasattr(obj, "read_text") and hasattr(obj, "is_file")
+
+
 def _to_profile(name: str, obj: object) -> Profile:
-    if callable(obj) and not isinstance(obj, (Profile, Path, Traversable)):
+    if callable(obj) and not isinstance(obj, (Profile, Path)) and not _is_resource(obj):
         obj = obj()
     profile: Profile
     if isinstance(obj, Profile):
         profile = obj
     elif isinstance(obj, Path):
         profile = load_profile_file(obj)
-    elif isinstance(obj, Traversable):
-        profile = load_profile_text(obj.read_text(encoding="utf-8"), str(obj))
+    elif _is_resource(obj):
+        profile = load_profile_text(obj.read_text(encoding="utf-8"), str(obj))  # type: ignore[attr-defined]
     elif isinstance(obj, str):
         profile = load_profile_file(obj)
     else:

@@ -340,16 +340,18 @@ class SimulatedStarter:
         with self.lock:
             if point.kind is not Kind.PARAMETER or not point.writable:
                 raise SimulatorRefusal(Refusal.READ_ONLY, f"{point.key} is read-only")
-            if not point.raw_min <= raw <= point.raw_max or (
-                point.enum is not None and raw not in point.enum.labels
-            ):
-                raise SimulatorRefusal(Refusal.OUT_OF_RANGE, f"{point.key}: {raw} outside {point.raw_min}..{point.raw_max}")
+            if not point.raw_min <= raw <= point.raw_max or (point.enum is not None and raw not in point.enum.labels):
+                raise SimulatorRefusal(
+                    Refusal.OUT_OF_RANGE, f"{point.key}: {raw} outside {point.raw_min}..{point.raw_max}"
+                )
             protect = self.profile.control.write_protect_key
             if protect and point.key != protect and self.params[protect] == 0:
                 raise SimulatorRefusal(Refusal.WRITE_PROTECTED, f"parameter writes are forbidden ({protect} = 0)")
             self._advance()
             if point.key in self.profile.control.locked_while_running and self._phase in (
-                Phase.STARTING, Phase.RUNNING, Phase.STOPPING,
-            ):  # fmt: skip
+                Phase.STARTING,
+                Phase.RUNNING,
+                Phase.STOPPING,
+            ):
                 raise SimulatorRefusal(Refusal.WHILE_RUNNING, f"{point.key} cannot be modified while running")
             self.params[point.key] = raw

@@ -130,6 +130,10 @@ class RunningSimulator(ABC):
     @abstractmethod
     def close(self) -> None: ...
 
+    def client_urls(self) -> dict[int, str]:
+        """Device address (unit, MAC, station) -> the URL a client in this process uses to reach it."""
+        return {}
+
 
 class TransportPlugin(ABC):
     """What a ``starterbus.transports`` entry point resolves to."""

@@ -28,7 +28,9 @@ class DeviceUrl:
     @classmethod
     def parse(cls, text: str) -> DeviceUrl:
         if "://" not in text:
-            raise ConfigurationError(f"{text!r} is not a device URL (expected SCHEME://..., e.g. modbus-rtu:///dev/ttyUSB0?unit=2)")
+            raise ConfigurationError(
+                f"{text!r} is not a device URL (expected SCHEME://..., e.g. modbus-rtu:///dev/ttyUSB0?unit=2)"
+            )
         parts = urlsplit(text)
         scheme = parts.scheme.lower()
         transport, _, variant = scheme.partition("+")

@@ -10,7 +10,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import pytest
-
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import (
     PluginError,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import pytest
-
 from starterbus.core.errors import ProfileError, UnknownPointError
 from starterbus.core.profile import load_profile_text
 
@@ -78,21 +77,21 @@ def test_base_loads_and_resolves_manual_addresses() -> None:
 @pytest.mark.parametrize(
     ("mutation", "key", "message"),
     [
-        (("key = \"limit\"", "key = \"rated\""), "parameters.rated", "duplicate key"),
+        (('key = "limit"', 'key = "rated"'), "parameters.rated", "duplicate key"),
         (("modbus = 0x0103", "modbus = 0x0100"), "parameters.limit", "overlaps rated"),
         (("min = 150\nmax = 500", "min = 500\nmax = 150"), "parameters.limit.min", "inverted range"),
-        (("unit = \"%\"", "unit = \"%\"\nenum = \"F9\""), "parameters.limit.enum", "unknown enum 'F9'"),
-        (("current_limit = \"limit\"", "current_limit = \"nope\""), "roles.current_limit", "names no point"),
-        (("address = \"0x0103\"", "address = \"0x0100\""), "parameters.limit.address", "also the address"),
+        (('unit = "%"', 'unit = "%"\nenum = "F9"'), "parameters.limit.enum", "unknown enum 'F9'"),
+        (('current_limit = "limit"', 'current_limit = "nope"'), "roles.current_limit", "names no point"),
+        (('address = "0x0103"', 'address = "0x0100"'), "parameters.limit.address", "also the address"),
         (("schema = 1", "schema = 2"), "schema", "expected schema"),
-        (("key = \"limit\"", "key = \"Limit\""), "parameters[1].key", "snake_case"),
-        (("unit = \"%\"", "unit = \"%\"\ncolour = 3"), "parameters.limit", "unknown field"),
+        (('key = "limit"', 'key = "Limit"'), "parameters[1].key", "snake_case"),
+        (('unit = "%"', 'unit = "%"\ncolour = 3'), "parameters.limit", "unknown field"),
     ],
 )
 def test_invalid_profiles_name_file_and_key(mutation: tuple[str, str], key: str, message: str) -> None:
     old, new = mutation
     assert old in BASE
-    text = BASE.replace(old, new, 1) if old != "key = \"limit\"" else BASE.replace(old, new)
+    text = BASE.replace(old, new, 1) if old != 'key = "limit"' else BASE.replace(old, new)
     with pytest.raises(ProfileError) as info:
         load_profile_text(text, "toy.toml")
     assert info.value.source == "toy.toml"

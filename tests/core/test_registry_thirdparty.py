@@ -15,7 +15,7 @@ from pathlib import Path
 
 from starterbus.core.registry import get_profile
 
-PLUGIN_SOURCE = '''
+PLUGIN_SOURCE = """
 from pathlib import Path
 from starterbus.core.errors import UnsupportedOperationError
 from starterbus.core.transport import Capability, TransportPlugin
@@ -32,7 +32,7 @@ class LoopPlugin(TransportPlugin):
 
 PLUGIN = LoopPlugin()
 PROFILE = Path(__file__).with_name("acme9000.toml")
-'''
+"""
 
 
 def make_dist(root: Path, dist: str, module: str, entry_points: str, files: dict[str, str]) -> None:
@@ -56,13 +56,19 @@ def run_cli(*args: str, path: Path) -> subprocess.CompletedProcess[str]:
     env = dict(os.environ, PYTHONPATH=str(path))
     return subprocess.run(
         [sys.executable, "-m", "starterbus.cli.main", *args],
-        capture_output=True, text=True, env=env, timeout=60, check=False,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=60,
+        check=False,
+    )
 
 
 def test_third_party_profile_and_transport_show_up(tmp_path: Path) -> None:
     make_dist(
-        tmp_path, "acme_starterbus", "acme_starterbus",
+        tmp_path,
+        "acme_starterbus",
+        "acme_starterbus",
         """
         [starterbus.transports]
         acme-loop = acme_starterbus:PLUGIN
@@ -70,7 +76,7 @@ def test_third_party_profile_and_transport_show_up(tmp_path: Path) -> None:
         acme9000 = acme_starterbus:PROFILE
         """,
         {"__init__.py": PLUGIN_SOURCE, "acme9000.toml": acme_profile_text()},
-    )  # fmt: skip
+    )
     models = run_cli("models", "--json", path=tmp_path)
     assert models.returncode == 0, models.stderr
     by_name = {m["name"]: m for m in json.loads(models.stdout)}
@@ -92,13 +98,15 @@ def test_third_party_profile_and_transport_show_up(tmp_path: Path) -> None:
 
 def test_broken_plugin_is_reported_and_others_still_load(tmp_path: Path) -> None:
     make_dist(
-        tmp_path, "broken_plugin", "broken_plugin",
+        tmp_path,
+        "broken_plugin",
+        "broken_plugin",
         """
         [starterbus.transports]
         broken = broken_plugin:PLUGIN
         """,
         {"__init__.py": "import this_module_does_not_exist\n"},
-    )  # fmt: skip
+    )
     listed = run_cli("transports", "--json", path=tmp_path)
     assert listed.returncode == 0, listed.stderr
     transports = {t["name"]: t for t in json.loads(listed.stdout)}
@@ -113,7 +121,9 @@ def test_broken_plugin_is_reported_and_others_still_load(tmp_path: Path) -> None
 
 def test_two_plugins_with_one_name_is_an_error_not_an_override(tmp_path: Path) -> None:
     make_dist(
-        tmp_path, "impostor", "impostor",
+        tmp_path,
+        "impostor",
+        "impostor",
         """
         [starterbus.transports]
         modbus-rtu = impostor:PLUGIN
@@ -121,7 +131,7 @@ def test_two_plugins_with_one_name_is_an_error_not_an_override(tmp_path: Path) -
         jjr5000 = impostor:PROFILE
         """,
         {"__init__.py": PLUGIN_SOURCE.replace('"acme-loop"', '"modbus-rtu"'), "acme9000.toml": acme_profile_text()},
-    )  # fmt: skip
+    )
     listed = run_cli("transports", "--json", path=tmp_path)
     transports = {t["name"]: t for t in json.loads(listed.stdout)}
     assert "2 plugins claim the name 'modbus-rtu'" in transports["modbus-rtu"]["error"]
