@@ -1,0 +1,200 @@
+"""The ``modbus-rtu`` client transport: points, status and commands over FC03/FC06.
+
+Reads are grouped: the registers asked for are sorted, adjacent ones merged into one FC03 request of at most
+the profile's ``max_read_registers``, and the values handed back in the order asked. The status is one merged
+read of the status word and the phase currents. Commands write the control word (FC06) through the core
+:class:`ControlWordState`: the bus-control bit is held, a fault reset is the word with bit 2, then without.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from starterbus.core.errors import ConfigurationError, RemoteDeviceError, UnsupportedOperationError
+from starterbus.core.model import PointDef, Reading, Value
+from starterbus.core.profile import Profile
+from starterbus.core.sharing import SharedPool
+from starterbus.core.status import Command, ControlWordState, Status, decode_status_word
+from starterbus.core.transport import ALL_CAPABILITIES, Capability, Transport
+from starterbus.core.url import DeviceUrl
+from starterbus.transports.modbus.annotate import exception_meaning
+from starterbus.transports.modbus.config import ModbusRtuConfig
+from starterbus.transports.modbus.frames import (
+    ExceptionResponse,
+    ReadRequest,
+    ReadResponse,
+    Request,
+    Response,
+    WriteRequest,
+)
+from starterbus.transports.modbus.line import Link, RtuLine
+from starterbus.transports.modbus.slave import PROTOCOL, TRANSPORT, max_read_registers
+
+#: one line object per serial port / TCP endpoint in this process
+LINES: SharedPool[RtuLine] = SharedPool()
+
+PHASE_NAMES = ("a", "b", "c")
+
+
+def plan_reads(addresses: Sequence[int], limit: int) -> list[tuple[int, int]]:
+    """(start, count) requests covering ``addresses``: adjacent registers merged, at most ``limit`` each."""
+    plan: list[tuple[int, int]] = []
+    for address in sorted(set(addresses)):
+        if plan:
+            start, count = plan[-1]
+            if address == start + count and count < limit:
+                plan[-1] = (start, count + 1)
+                continue
+        plan.append((address, 1))
+    return plan
+
+
+class ModbusRtuTransport(Transport):
+    name = TRANSPORT
+
+    def __init__(self, url: DeviceUrl, profile: Profile, config: ModbusRtuConfig | None = None) -> None:
+        super().__init__(url, profile)
+        self.config = config or ModbusRtuConfig.from_url(url, profile)
+        self.unit = self.config.unit
+        self.max_read = max_read_registers(profile)
+        self.control = ControlWordState()
+        self._line: RtuLine | None = None
+        control = profile.role("control_word")
+        self._control_address = control.address_for(PROTOCOL) if control is not None else None
+
+    # -- lifecycle ------------------------------------------------------------------------------------------
+
+    def _make_line(self) -> RtuLine:
+        cfg = self.config
+        if cfg.variant == "tcp":
+            link = Link.connect_tcp(cfg.host, cfg.port, cfg.policy.timeout)
+        else:
+            link = Link.open_serial(cfg.path, cfg.serial)
+        return RtuLine(link, cfg.serial)
+
+    def open(self) -> None:
+        if self._line is not None:
+            return
+        line = LINES.acquire(self.config.line_key, self._make_line)
+        try:
+            line.check_settings(self.config.serial)
+        except ConfigurationError:
+            LINES.release(self.config.line_key)
+            raise
+        self._line = line
+
+    def close(self) -> None:
+        if self._line is not None:
+            self._line = None
+            LINES.release(self.config.line_key)
+
+    @property
+    def line(self) -> RtuLine:
+        if self._line is None:
+            raise ConfigurationError(f"{self.describe()} is not open (use the device as a context manager)")
+        return self._line
+
+    @property
+    def capabilities(self) -> frozenset[Capability]:
+        return ALL_CAPABILITIES
+
+    def describe(self) -> str:
+        where = "broadcast" if self.config.broadcast else f"unit {self.unit}"
+        return f"{self.config.target} {where}"
+
+    # -- transactions ------------------------------------------------------------------------------------------
+
+    def _remote_error(self, request: Request, response: ExceptionResponse) -> RemoteDeviceError:
+        if isinstance(request, ReadRequest):
+            what = f"FC03 read {request.count} register(s) from 0x{request.address:04X}"
+        else:
+            what = f"FC06 write 0x{request.value:04X} to 0x{request.address:04X}"
+        return RemoteDeviceError(
+            TRANSPORT,
+            response.code,
+            exception_meaning(self.profile, response.code),
+            detail=f"{what} at {self.describe()}",
+            data=response.encode(),
+        )
+
+    def execute(self, request: Request) -> Response | None:
+        """One transaction; an exception answer becomes :class:`RemoteDeviceError`."""
+        response = self.line.transact(request, self.config.policy)
+        if isinstance(response, ExceptionResponse):
+            raise self._remote_error(request, response)
+        return response
+
+    def _no_broadcast_reads(self) -> None:
+        if self.config.broadcast:
+            raise ConfigurationError(
+                f"{self.url.text}: unit 0 is the broadcast address: no device answers a read (give one device's unit)"
+            )
+
+    def read_registers(self, address: int, count: int) -> tuple[int, ...]:
+        """Raw FC03 (no splitting): ``count`` registers from ``address``."""
+        self._no_broadcast_reads()
+        response = self.execute(ReadRequest(self.unit, address, count))
+        assert isinstance(response, ReadResponse)
+        return response.values
+
+    def write_register(self, address: int, value: int) -> None:
+        """Raw FC06 (checked echo; nothing to check for a broadcast)."""
+        self.execute(WriteRequest(self.unit, address, value))
+
+    # -- Transport operations ----------------------------------------------------------------------------------
+
+    def _address(self, point: PointDef) -> int:
+        address = point.address_for(PROTOCOL)
+        if address is None:
+            raise UnsupportedOperationError(f"{self.profile.display_name} {point.key} has no Modbus register")
+        return address
+
+    def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
+        self._no_broadcast_reads()
+        addresses = [self._address(p) for p in points]
+        raw: dict[int, int] = {}
+        for start, count in plan_reads(addresses, self.max_read):
+            for offset, value in enumerate(self.read_registers(start, count)):
+                raw[start + offset] = value
+        return [Reading(point, raw[address]) for point, address in zip(points, addresses, strict=True)]
+
+    def write_parameter(self, point: PointDef, raw: int) -> None:
+        self.write_register(self._address(point), raw)
+
+    def read_status(self) -> Status:
+        self._no_broadcast_reads()
+        status_point = self.profile.role("status_word")
+        if status_point is None:
+            raise UnsupportedOperationError(f"{self.profile.display_name} has no status word")
+        currents = self.profile.phase_currents()
+        readings = self.read_points([status_point, *currents])
+        values = {
+            name: Value.from_raw(r.point, r.raw, source=TRANSPORT)
+            for name, r in zip(PHASE_NAMES, readings[1:], strict=False)
+        }
+        return decode_status_word(
+            readings[0].raw,
+            self.profile.faults,
+            bit12_is_mains_voltage=self.profile.control.bit12_is_mains_voltage,
+            currents=values,
+            source=f"{TRANSPORT} {self.describe()}",
+        )
+
+    def _control_requests(self, command: Command) -> list[WriteRequest]:
+        if self._control_address is None:
+            raise UnsupportedOperationError(f"{self.profile.display_name} has no control word register")
+        state = ControlWordState(self.control.bus_control, self.control.run)
+        return [WriteRequest(self.unit, self._control_address, word) for word in state.apply(command)]
+
+    def send_command(self, command: Command) -> None:
+        requests = self._control_requests(command)
+        for request in requests:
+            self.execute(request)
+        self.control.apply(command)
+
+    def preview_write(self, point: PointDef, raw: int) -> list[str]:
+        frame = WriteRequest(self.unit, self._address(point), raw).encode()
+        return [frame.hex(" ").upper()]
+
+    def preview_command(self, command: Command) -> list[str]:
+        return [request.encode().hex(" ").upper() for request in self._control_requests(command)]
