@@ -1,0 +1,280 @@
+"""Channels: how the 4 (PPO1) or 2 (PPO3) words of one DP slave are exchanged once.
+
+A :class:`Channel` knows nothing of PKW or PZD: :meth:`Channel.exchange` writes the master's output words and
+returns the slave's input words. Two channels are built in:
+
+- :class:`SimChannel` (``profibus-pkw+sim://NAME``): an in-process :class:`SimulatedDpSlave`, either attached
+  under a name with :func:`attach_slave` (so a test or a demo can hold the :class:`SimulatedStarter`) or a private
+  one per transport when the URL names none;
+- :class:`GatewayChannel` (``profibus-pkw+gateway://HOST:PORT?out=0&in=0&unit=1``): a Profibus master gateway or
+  PLC that shows the slave's output words as Modbus TCP holding registers (written with FC16) and its input
+  words as holding registers (FC03) or input registers (FC04). One Modbus TCP connection per gateway is shared
+  by every station mapped on it (:data:`GATEWAYS`, a :class:`SharedPool`).
+
+A third channel (a DP master card, pyprofibus) implements the same three methods; see docs/profibus.md.
+"""
+
+from __future__ import annotations
+
+import threading
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from starterbus.core.errors import (
+    ConfigurationError,
+    DecodeError,
+    RemoteDeviceError,
+    StarterbusError,
+    TransportError,
+)
+from starterbus.core.sharing import SharedPool
+from starterbus.core.simulator import SimulatedStarter
+from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
+from starterbus.transports.profibus_pkw.telegram import Ppo
+
+__all__ = [
+    "GATEWAYS",
+    "Channel",
+    "GatewayChannel",
+    "GatewayConnection",
+    "SimChannel",
+    "Snapshot",
+    "attach_slave",
+    "attached_slaves",
+    "detach_slave",
+    "get_slave",
+]
+
+
+@dataclass(frozen=True, slots=True)
+class Snapshot:
+    """What a channel can tell without writing: the output words as the slave last got them (if known)
+    and the input words now."""
+
+    outputs: tuple[int, ...] | None
+    inputs: tuple[int, ...]
+
+
+class Channel(ABC):
+    """One DP slave's data exchange. Called by one cycle driver at a time (the driver serialises)."""
+
+    ppo: Ppo
+
+    @abstractmethod
+    def exchange(self, out_words: Sequence[int]) -> tuple[int, ...]:
+        """Send the output words, return the input words (``ppo.words`` each). Raise :class:`TransportError`."""
+
+    @abstractmethod
+    def snapshot(self) -> Snapshot:
+        """Read the current input words (and the output words if the channel can) WITHOUT writing anything.
+
+        The driver calls it once on open so that its first exchange repeats the control word already in
+        force instead of stopping a running motor.
+        """
+
+    def close(self) -> None:
+        """Release the channel (the slave keeps its state; a gateway keeps sending its output image)."""
+
+    def describe(self) -> str:
+        return type(self).__name__
+
+
+# -- in-process simulated slaves -------------------------------------------------------------------------------
+
+_slaves: dict[str, SimulatedDpSlave] = {}
+_slaves_lock = threading.Lock()
+
+
+def attach_slave(
+    name: str, starter: SimulatedStarter | SimulatedDpSlave, ppo: Ppo | int = Ppo.PPO1, *, latency: int = 0
+) -> SimulatedDpSlave:
+    """Make a simulated starter reachable as ``profibus-pkw+sim://NAME?ppo=N`` in this process.
+
+    Pass a :class:`SimulatedStarter` (wrapped in a new :class:`SimulatedDpSlave` of the given PPO type) or a
+    ready slave. A name can be attached once; :func:`detach_slave` frees it.
+    """
+    if not name or not name.replace("-", "").replace("_", "").replace(".", "").isalnum():
+        raise ConfigurationError(f"{name!r} is not a slave name (letters, digits, '-', '_', '.')")
+    slave = starter if isinstance(starter, SimulatedDpSlave) else SimulatedDpSlave(starter, ppo, latency=latency)
+    slave.name = name
+    with _slaves_lock:
+        if name.lower() in _slaves:
+            raise ConfigurationError(f"a simulated DP slave named {name!r} is already attached")
+        _slaves[name.lower()] = slave
+    return slave
+
+
+def detach_slave(name: str) -> None:
+    with _slaves_lock:
+        _slaves.pop(name.lower(), None)
+
+
+def get_slave(name: str) -> SimulatedDpSlave:
+    with _slaves_lock:
+        slave = _slaves.get(name.lower())
+        known = ", ".join(sorted(_slaves)) or "none"
+    if slave is None:
+        raise ConfigurationError(
+            f"no simulated DP slave named {name!r} in this process (attached: {known}; "
+            "use attach_slave(), or profibus-pkw+sim:// without a name for a private one)"
+        )
+    return slave
+
+
+def attached_slaves() -> list[str]:
+    with _slaves_lock:
+        return sorted(_slaves)
+
+
+class SimChannel(Channel):
+    """Exchange with an in-process :class:`SimulatedDpSlave` (no I/O; each call is one DP cycle)."""
+
+    def __init__(self, slave: SimulatedDpSlave) -> None:
+        self.slave = slave
+        self.ppo = slave.ppo
+
+    def exchange(self, out_words: Sequence[int]) -> tuple[int, ...]:
+        return self.slave.exchange(out_words)
+
+    def snapshot(self) -> Snapshot:
+        return Snapshot(self.slave.outputs, self.slave.inputs())
+
+    def describe(self) -> str:
+        return f"simulated {self.ppo.name} slave {self.slave.name or '(private)'}"
+
+
+# -- Modbus TCP gateway --------------------------------------------------------------------------------------
+
+
+class GatewayConnection:
+    """One pymodbus sync TCP client for one gateway, shared by its stations; a lock serialises requests."""
+
+    def __init__(self, host: str, port: int, timeout: float) -> None:
+        from pymodbus.client import ModbusTcpClient  # the one place this transport touches pymodbus' client
+
+        self.host = host
+        self.port = port
+        self.lock = threading.Lock()
+        self._client: Any = ModbusTcpClient(host, port=port, timeout=timeout, retries=0, reconnect_delay=0)
+
+    def _call(self, what: str, fn: Any, *args: Any, **kwargs: Any) -> Any:
+        from pymodbus.exceptions import ModbusException
+
+        try:
+            response = fn(*args, **kwargs)
+        except (ModbusException, OSError) as exc:
+            self._client.close()  # reconnect on the next request
+            raise TransportError(f"gateway {self.host}:{self.port}: {what}: {exc}") from exc
+        if response.isError():
+            code = int(getattr(response, "exception_code", 0))
+            raise RemoteDeviceError(
+                "modbus-tcp",
+                code,
+                _MODBUS_EXCEPTIONS.get(code, "unknown exception"),
+                detail=f"gateway {self.host}:{self.port}: {what}",
+            )
+        return response
+
+    def write(self, address: int, values: Sequence[int], unit: int) -> None:
+        with self.lock:
+            self._call(
+                f"FC16 write {len(values)} registers at {address}",
+                self._client.write_registers,
+                address,
+                list(values),
+                device_id=unit,
+            )
+
+    def read(self, address: int, count: int, unit: int, function: int) -> tuple[int, ...]:
+        fn = self._client.read_input_registers if function == 4 else self._client.read_holding_registers
+        with self.lock:
+            response = self._call(
+                f"FC{function:02d} read {count} registers at {address}", fn, address, count=count, device_id=unit
+            )
+        registers = tuple(int(r) for r in response.registers)
+        if len(registers) != count:
+            raise DecodeError(f"gateway {self.host}:{self.port} returned {len(registers)} registers, asked {count}")
+        return registers
+
+    def close(self) -> None:
+        with self.lock:
+            self._client.close()
+
+
+_MODBUS_EXCEPTIONS = {
+    1: "illegal function",
+    2: "illegal data address",
+    3: "illegal data value",
+    4: "server device failure",
+    6: "server device busy",
+    10: "gateway path unavailable",
+    11: "gateway target device failed to respond",
+}
+
+#: one connection per (host, port) in this process
+GATEWAYS: SharedPool[GatewayConnection] = SharedPool()
+
+
+class GatewayChannel(Channel):
+    """A station mapped on a Modbus TCP gateway: outputs at register ``out``, inputs at ``inp`` (FC03 or FC04)."""
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        ppo: Ppo,
+        *,
+        out: int = 0,
+        inp: int = 0,
+        unit: int = 1,
+        input_function: int = 3,
+        timeout: float = 1.0,
+    ) -> None:
+        if input_function not in (3, 4):
+            raise ConfigurationError(f"inputs are read with FC03 or FC04, not FC{input_function:02d}")
+        for name, address in (("out", out), ("in", inp)):
+            if not 0 <= address <= 0xFFFF - ppo.words + 1:
+                raise ConfigurationError(f"gateway register offset {name}={address} is not a register address")
+        self.host, self.port, self.ppo = host, port, ppo
+        self.out, self.inp, self.unit, self.input_function = out, inp, unit, input_function
+        self._key = (host, port)
+        self._conn = GATEWAYS.acquire(self._key, lambda: GatewayConnection(host, port, timeout))
+        self._closed = False
+
+    @property
+    def outputs_readable(self) -> bool:
+        """Can the output area be read back? Not when it shares its registers with the input area."""
+        if self.input_function == 4:
+            return True
+        n = self.ppo.words
+        return self.out + n <= self.inp or self.inp + n <= self.out
+
+    def exchange(self, out_words: Sequence[int]) -> tuple[int, ...]:
+        self._conn.write(self.out, out_words, self.unit)
+        return self._conn.read(self.inp, self.ppo.words, self.unit, self.input_function)
+
+    def snapshot(self) -> Snapshot:
+        inputs = self._conn.read(self.inp, self.ppo.words, self.unit, self.input_function)
+        outputs = self._conn.read(self.out, self.ppo.words, self.unit, 3) if self.outputs_readable else None
+        return Snapshot(outputs, inputs)
+
+    def close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            GATEWAYS.release(self._key)
+
+    def describe(self) -> str:
+        fc = "FC04 input" if self.input_function == 4 else "FC03 holding"
+        return (
+            f"{self.ppo.name} via gateway {self.host}:{self.port} unit {self.unit}: outputs at holding register "
+            f"{self.out}, inputs at {fc} register {self.inp}"
+        )
+
+
+def channel_error(exc: BaseException) -> StarterbusError:
+    """Any failure of a channel as a starterbus error (TransportError unless it already is one)."""
+    if isinstance(exc, StarterbusError):
+        return exc
+    return TransportError(f"channel failed: {type(exc).__name__}: {exc}")

@@ -1,0 +1,212 @@
+"""The simulated DP slave: the server half of the telegram codec in front of the shared SimulatedStarter.
+
+One :meth:`SimulatedDpSlave.exchange` is one DP data exchange: it takes the master's output words and returns the
+input words. Behaviour (the rules the master's handshake relies on, see ``handshake.py``):
+
+- PZD: the STW goes to ``starter.write_control_word(word, cyclic=True)`` on every exchange (edges act, a held
+  start bit does not restart a motor after a fault reset); ZSW is the starter's status word, ACT its phase
+  current in 0.1 A.
+- PKW: a task is executed once, when the PKW words change; while the master keeps sending the same words the
+  slave keeps showing the same response. Task 0 is answered with response 0 ("no response", INDL 0, PWE 0).
+  ``latency`` delays every new PKW response by that many exchanges (a slow slave or gateway) so that masters
+  can be tested against stale input.
+- Refusals of the simulated starter become the model's own response/error numbers (:data:`REFUSAL_ANSWERS`).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+from starterbus.core.errors import ConfigurationError, DecodeError, Refusal, SimulatorRefusal
+from starterbus.core.model import Kind
+from starterbus.core.profile import Profile
+from starterbus.core.simulator import SimulatedStarter
+from starterbus.transports.profibus_pkw.telegram import (
+    NO_RESPONSE,
+    PROTOCOL,
+    PkwRequest,
+    PkwResponse,
+    Ppo,
+    ResponseCode,
+    TaskCode,
+)
+
+#: key for the answer to a task code the slave does not know (INDH 4-255 from the master)
+UNSUPPORTED_TASK = "unsupported_task"
+
+
+@dataclass(frozen=True, slots=True)
+class PkwAnswer:
+    """How a slave answers a refused task: response 2 (error unused) or response 3 with an error number."""
+
+    response: ResponseCode
+    error: int = 0
+
+
+_R2 = PkwAnswer(ResponseCode.NO_WRITE_PERMISSION)
+
+
+def _r3(error: int) -> PkwAnswer:
+    return PkwAnswer(ResponseCode.CANNOT_EXECUTE, error)
+
+
+#: Per model: refusal of the simulated starter -> answer. Decisions (docs/profibus.md, "Simulator answers"):
+#: a read-only parameter answers response 2 "no write permission" (neither manual ties response 2 to any other
+#: condition); everything else is response 3 with the number from the model's own table.
+REFUSAL_ANSWERS: Mapping[str, Mapping[Refusal | str, PkwAnswer]] = {
+    "jjr5000": {
+        Refusal.NOT_AVAILABLE: _r3(2),  # illegal data address
+        Refusal.READ_ONLY: _R2,
+        Refusal.OUT_OF_RANGE: _r3(3),  # illegal data value
+        Refusal.WRITE_PROTECTED: _r3(4),  # parameter modify (0x0147) = 0
+        Refusal.WHILE_RUNNING: _r3(3),  # "parameter cannot be modified" is part of error 3's text
+        UNSUPPORTED_TASK: _r3(1),  # illegal function
+    },
+    "jjr8000": {
+        Refusal.NOT_AVAILABLE: _r3(0),  # parameter not available
+        Refusal.READ_ONLY: _R2,
+        Refusal.OUT_OF_RANGE: _r3(2),  # value out of limits
+        Refusal.WRITE_PROTECTED: _r3(1),  # value cannot be modified (the model has no write lock)
+        Refusal.WHILE_RUNNING: _r3(3),  # cannot modify while running
+        UNSUPPORTED_TASK: _r3(4),  # service not supported
+    },
+}
+
+_KEYWORDS: Mapping[Refusal | str, tuple[str, ...]] = {
+    Refusal.NOT_AVAILABLE: ("not available", "address"),
+    Refusal.OUT_OF_RANGE: ("out of limits", "limit", "value"),
+    Refusal.WRITE_PROTECTED: ("forbidden", "cannot be modified", "protect"),
+    Refusal.WHILE_RUNNING: ("while running", "running", "cannot be modified"),
+    UNSUPPORTED_TASK: ("not supported", "function"),
+}
+
+
+def refusal_answers(profile: Profile) -> dict[Refusal | str, PkwAnswer]:
+    """The answer table for a model.
+
+    Order: the profile's optional ``[transports.profibus-pkw.refusals]`` table (keys: ``not_available``,
+    ``read_only``, ``out_of_range``, ``write_protected``, ``while_running``, ``unsupported_task``; values: an
+    error number for response 3, or ``"response 2"``), else the built-in table of the model, else the first
+    error of the model's table whose English text has a matching keyword (response 2 for read-only).
+    """
+    settings = profile.transport_settings(PROTOCOL)
+    errors: Mapping[int, object] = settings.get("errors", {})
+    answers: dict[Refusal | str, PkwAnswer] = dict(REFUSAL_ANSWERS.get(profile.name, {}))
+    if not answers:
+        answers[Refusal.READ_ONLY] = _R2
+        for key, words in _KEYWORDS.items():
+            for word in words:
+                hit = next((n for n, label in sorted(errors.items()) if word in str(label).lower()), None)
+                if hit is not None:
+                    answers[key] = _r3(hit)
+                    break
+            else:
+                answers[key] = _r3(min(errors) if errors else 0)
+    custom = settings.get("refusals", {})
+    if not isinstance(custom, Mapping):
+        raise ConfigurationError(f"{profile.source}: transports.{PROTOCOL}.refusals must be a table")
+    names: dict[str, Refusal | str] = {r.name.lower(): r for r in Refusal}
+    names[UNSUPPORTED_TASK] = UNSUPPORTED_TASK
+    for name, value in custom.items():
+        if name not in names:
+            raise ConfigurationError(f"{profile.source}: transports.{PROTOCOL}.refusals.{name}: unknown refusal")
+        if value == "response 2":
+            answers[names[name]] = _R2
+        elif isinstance(value, int) and 0 <= value <= 0xFFFF:
+            answers[names[name]] = _r3(value)
+        else:
+            raise ConfigurationError(
+                f"{profile.source}: transports.{PROTOCOL}.refusals.{name}: {value!r} is not an error number "
+                "or 'response 2'"
+            )
+    return answers
+
+
+class SimulatedDpSlave:
+    """A DP slave of one PPO type around a :class:`SimulatedStarter`. Thread-safe (uses the starter's lock)."""
+
+    def __init__(
+        self, starter: SimulatedStarter, ppo: Ppo | int = Ppo.PPO1, *, latency: int = 0, name: str = ""
+    ) -> None:
+        self.starter = starter
+        self.profile = starter.profile
+        self.ppo = Ppo(ppo)
+        if self.ppo.value not in self.profile.transport_settings(PROTOCOL).get("ppo", []):
+            raise ConfigurationError(f"{self.profile.display_name} does not offer {self.ppo.name} (profile 'ppo')")
+        if latency < 0:
+            raise ValueError("latency is a number of exchanges >= 0")
+        self.latency = latency
+        self.name = name
+        self.answers = refusal_answers(self.profile)
+        self.exchanges = 0
+        self.outputs: tuple[int, ...] | None = None  # the last output words received
+        self._request: PkwRequest | None = None
+        self._shown: PkwResponse = NO_RESPONSE
+        self._pending: deque[tuple[int, PkwResponse]] = deque()
+        self.tasks_executed = 0
+        currents = self.profile.phase_currents()
+        self._phase_a = currents[0] if currents else None
+
+    # -- one exchange ------------------------------------------------------------------------------------
+
+    def exchange(self, out_words: Sequence[int]) -> tuple[int, ...]:
+        words = tuple(out_words)
+        if len(words) != self.ppo.words or any(not 0 <= w <= 0xFFFF for w in words):
+            raise DecodeError(
+                f"{self.ppo.name} slave {self.name!r} expects {self.ppo.words} 16-bit output words, got {list(words)}"
+            )
+        with self.starter.lock:
+            self.exchanges += 1
+            self.outputs = words
+            if self.ppo is Ppo.PPO1:
+                stw = words[2]
+                self._pkw(PkwRequest(words[0], words[1]))
+            else:
+                stw = words[0]
+            self.starter.write_control_word(stw, cyclic=True)
+            return self.inputs()
+
+    def inputs(self) -> tuple[int, ...]:
+        """The input words as they stand (what the next exchange returns before its own effects)."""
+        with self.starter.lock:
+            zsw = self.starter.status_word()
+            act = max(0, min(0xFFFF, round(self.starter.current() * 10)))
+            if self.ppo is Ppo.PPO1:
+                return (self._shown.ind, self._shown.pwe, zsw, act)
+            return (zsw, act)
+
+    # -- PKW ---------------------------------------------------------------------------------------------
+
+    def _pkw(self, request: PkwRequest) -> None:
+        if request != self._request:
+            self._request = request
+            self._pending.append((self.exchanges + self.latency, self.execute(request)))
+        while self._pending and self._pending[0][0] <= self.exchanges:
+            self._shown = self._pending.popleft()[1]
+
+    def execute(self, request: PkwRequest) -> PkwResponse:
+        """Carry out one PKW task on the starter now and return the response (no latching)."""
+        task = request.task
+        index = request.indl
+        if task == TaskCode.NO_TASK:
+            return NO_RESPONSE
+        if task not in (TaskCode.READ_PARAMETER, TaskCode.WRITE_PARAMETER, TaskCode.READ_MEASUREMENT):
+            return self._refused(UNSUPPORTED_TASK, index)
+        kind = Kind.MEASUREMENT if task == TaskCode.READ_MEASUREMENT else Kind.PARAMETER
+        try:
+            point = self.starter.point_at("profibus", kind, index)
+            if task == TaskCode.WRITE_PARAMETER:
+                self.starter.write(point, request.pwe)
+                value = request.pwe
+            else:
+                value = self.starter.read(point)
+        except SimulatorRefusal as refusal:
+            return self._refused(refusal.reason, index)
+        self.tasks_executed += 1
+        return PkwResponse((ResponseCode.VALUE << 8) | index, value & 0xFFFF)
+
+    def _refused(self, why: Refusal | str, index: int) -> PkwResponse:
+        answer = self.answers.get(why) or self.answers[UNSUPPORTED_TASK]
+        return PkwResponse((answer.response << 8) | index, answer.error)

@@ -1,0 +1,292 @@
+"""The ``profibus-pkw`` transport: status and commands through PZD, parameters and measurements through PKW.
+
+URL forms (the part after ``+`` picks the channel)::
+
+    profibus-pkw+sim://[NAME]?ppo=1            in-process simulated slave (NAME: attach_slave(); none: private)
+    profibus-pkw+gateway://HOST:PORT?ppo=1&out=0&in=0&unit=1&cycle=0.01
+                                                Modbus TCP gateway / PLC showing the DP words as registers
+
+Common parameters: ``ppo`` (1 or 3, default 1), ``cycle`` (s between DP exchanges; 0 = on demand, no thread),
+``timeout`` (PKW time limit, s), ``max_cycles`` (PKW cycle limit), ``hold`` (exchanges per command word),
+``pulse`` (minimum s per command word), ``station`` (the DP address, for messages; checked against the model).
+Sim only: ``latency`` (exchanges before a private slave's PKW response shows). Gateway only: ``out``, ``in``
+(register offsets of the output and input words), ``unit`` (Modbus unit id), ``in_fc`` (3 or 4: how inputs
+are read).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from starterbus.core.errors import ConfigurationError, DecodeError, UnsupportedOperationError
+from starterbus.core.model import Kind, PointDef, Reading, Value
+from starterbus.core.profile import Profile
+from starterbus.core.simulator import SimulatedStarter
+from starterbus.core.status import Command, ControlWordState, Status, decode_status_word
+from starterbus.core.transport import Capability, Transport
+from starterbus.core.url import DeviceUrl
+from starterbus.transports.profibus_pkw.channels import Channel, GatewayChannel, SimChannel, get_slave
+from starterbus.transports.profibus_pkw.handshake import Limits, PkwEngine
+from starterbus.transports.profibus_pkw.link import CyclicLink
+from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
+from starterbus.transports.profibus_pkw.telegram import (
+    NO_TASK,
+    PROTOCOL,
+    PkwRequest,
+    Ppo,
+    TaskCode,
+    hex_text,
+    output_words,
+    pkw_request,
+)
+
+VARIANTS = ("sim", "gateway")
+PPO1_CAPABILITIES = frozenset(Capability)
+PPO3_CAPABILITIES = frozenset({Capability.STATUS, Capability.COMMANDS})
+ACT_SCALE = 0.1  # PZD ACT: phase A current in 0.1 A (MANUALS.md section 3)
+
+_COMMON = ("ppo", "cycle", "timeout", "max_cycles", "hold", "pulse", "station")
+_SIM = (*_COMMON, "latency")
+_GATEWAY = (*_COMMON, "out", "in", "unit", "in_fc")
+
+
+@dataclass(frozen=True, slots=True)
+class LinkSettings:
+    """A ``profibus-pkw`` URL, checked and typed."""
+
+    variant: str
+    ppo: Ppo
+    cycle: float
+    limits: Limits
+    hold: int
+    pulse: float
+    station: int | None = None
+    name: str = ""  # sim: attached slave name
+    latency: int = 0  # sim: private slave latency
+    host: str = ""
+    port: int = 502
+    out: int = 0
+    inp: int = 0
+    unit: int = 1
+    in_fc: int = 3
+
+    @classmethod
+    def from_url(cls, url: DeviceUrl, profile: Profile) -> LinkSettings:
+        if url.variant not in VARIANTS:
+            raise ConfigurationError(
+                f"{url.text}: choose a channel: profibus-pkw+sim://[NAME]?ppo=1 or "
+                "profibus-pkw+gateway://HOST:PORT?ppo=1&out=0&in=0&unit=1"
+            )
+        url.check_known(_SIM if url.variant == "sim" else _GATEWAY)
+        number = url.get_int("ppo", 1)
+        if number not in (1, 3):
+            raise ConfigurationError(f"{url.text}: ppo: {number} is not 1 (PPO1, 'type I') or 3 (PPO3, 'type III')")
+        ppo = Ppo(number)
+        settings = profile.transport_settings(PROTOCOL)
+        offered = list(settings.get("ppo", []))
+        if ppo.value not in offered:
+            raise UnsupportedOperationError(
+                f"{profile.display_name} does not offer {ppo.name} over Profibus (it offers: "
+                f"{', '.join(f'PPO{n}' for n in offered) or 'none'})"
+            )
+        station = url.get_int("station", 0, 0, 127) if "station" in url.query else None
+        stations = settings.get("stations")
+        if station is not None and stations and not stations[0] <= station <= stations[1]:
+            raise ConfigurationError(
+                f"{url.text}: station: {station} is outside {profile.display_name}'s range {stations[0]}..{stations[1]}"
+            )
+        gateway = url.variant == "gateway"
+        cycle = url.get_float("cycle", 0.01, 0.0, 10.0)
+        limits = Limits(url.get_int("max_cycles", 100, 2, 1_000_000), url.get_float("timeout", 2.0, 0.001, 600.0))
+        hold = url.get_int("hold", 3, 1, 1000)
+        pulse = url.get_float("pulse", 0.05 if gateway else 0.0, 0.0, 10.0)
+        if not gateway:
+            name = url.host or url.path.strip("/")
+            latency = url.get_int("latency", 0, 0, 10_000)
+            return cls(url.variant, ppo, cycle, limits, hold, pulse, station, name=name, latency=latency)
+        host, port = url.host_port(502)
+        return cls(
+            url.variant,
+            ppo,
+            cycle,
+            limits,
+            hold,
+            pulse,
+            station,
+            host=host,
+            port=port,
+            out=url.get_int("out", 0, 0, 0xFFFF),
+            inp=url.get_int("in", 0, 0, 0xFFFF),
+            unit=url.get_int("unit", 1, 0, 255),
+            in_fc=url.get_int("in_fc", 3, 3, 4),
+        )
+
+
+class ProfibusPkwTransport(Transport):
+    """One DP slave through one channel. Thread-safe (the cycle driver serialises the channel)."""
+
+    name = PROTOCOL
+
+    def __init__(self, url: DeviceUrl, profile: Profile, settings: LinkSettings | None = None) -> None:
+        super().__init__(url, profile)
+        self.settings = settings or LinkSettings.from_url(url, profile)
+        self.ppo = self.settings.ppo
+        self.link: CyclicLink | None = None
+        self.control = ControlWordState()
+        self._errors = profile.transport_settings(PROTOCOL).get("errors", {})
+        phases = profile.phase_currents()
+        self._phase_a: PointDef | None = phases[0] if phases else None
+
+    # -- lifecycle -----------------------------------------------------------------------------------------
+
+    def make_channel(self) -> Channel:
+        s = self.settings
+        if s.variant == "sim":
+            if s.name:
+                slave = get_slave(s.name)
+                if slave.ppo is not s.ppo:
+                    raise ConfigurationError(
+                        f"{self.url.text}: simulated slave {s.name!r} is configured for {slave.ppo.name}, "
+                        f"the URL asks for {s.ppo.name}"
+                    )
+                if slave.profile.name != self.profile.name:
+                    raise ConfigurationError(
+                        f"{self.url.text}: simulated slave {s.name!r} is a {slave.profile.display_name}, "
+                        f"not a {self.profile.display_name}"
+                    )
+            else:
+                slave = SimulatedDpSlave(SimulatedStarter(self.profile), s.ppo, latency=s.latency)
+            return SimChannel(slave)
+        return GatewayChannel(
+            s.host,
+            s.port,
+            s.ppo,
+            out=s.out,
+            inp=s.inp,
+            unit=s.unit,
+            input_function=s.in_fc,
+            timeout=min(s.limits.timeout, 5.0),
+        )
+
+    def open(self) -> None:
+        if self.link is not None:
+            return
+        s = self.settings
+        engine = PkwEngine(self._errors, s.limits)
+        link = CyclicLink(self.make_channel(), engine, cycle=s.cycle, hold=s.hold, pulse=s.pulse, name=self.url.text)
+        try:
+            word = link.open()
+        except BaseException:
+            link.channel.close()
+            raise
+        self.control = ControlWordState(bus_control=True, run=bool(word & 1))
+        self.link = link
+
+    def close(self) -> None:
+        link, self.link = self.link, None
+        if link is not None:
+            link.close()
+
+    def _link(self) -> CyclicLink:
+        if self.link is None:
+            self.open()
+        assert self.link is not None
+        return self.link
+
+    # -- what it can do --------------------------------------------------------------------------------
+
+    @property
+    def capabilities(self) -> frozenset[Capability]:
+        return PPO1_CAPABILITIES if self.ppo is Ppo.PPO1 else PPO3_CAPABILITIES
+
+    def describe(self) -> str:
+        where = f" station {self.settings.station}" if self.settings.station is not None else ""
+        return f"{self.url.text}{where}"
+
+    def _require_pkw(self, what: str) -> None:
+        if not self.ppo.has_pkw:
+            raise self.unsupported(what, "PPO3 carries no PKW area (use ppo=1 for parameters and measurements)")
+
+    def _index(self, point: PointDef) -> int:
+        index = point.addresses.get("profibus")
+        if index is None:
+            raise self.unsupported(f"reach {point.key}", f"{point.key} has no Profibus (INDL) address")
+        if not 0 <= index <= 0xFF:
+            raise ConfigurationError(
+                f"{self.profile.source}: {point.key}: Profibus address {index:#x} does not fit INDL"
+            )
+        return index
+
+    def request_for(self, point: PointDef, raw: int | None = None) -> PkwRequest:
+        """The PKW task that reads (``raw`` None) or writes a point."""
+        index = self._index(point)
+        if raw is not None:
+            if point.kind is not Kind.PARAMETER:
+                raise self.unsupported(f"write {point.key}", "measurements are read-only")
+            return pkw_request(TaskCode.WRITE_PARAMETER, index, raw)
+        task = TaskCode.READ_MEASUREMENT if point.kind is Kind.MEASUREMENT else TaskCode.READ_PARAMETER
+        return pkw_request(task, index)
+
+    # -- operations ----------------------------------------------------------------------------------------
+
+    def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
+        self._require_pkw("read parameters or measurements")
+        requests = [(p, self.request_for(p)) for p in points]
+        link = self._link()
+        readings = []
+        for point, request in requests:
+            job = link.pkw(request, f"read {point.key} ({point.address})")
+            assert job.response is not None
+            readings.append(Reading(point, job.response.pwe))
+        return readings
+
+    def write_parameter(self, point: PointDef, raw: int) -> None:
+        self._require_pkw("write parameters")
+        request = self.request_for(point, raw)
+        job = self._link().pkw(request, f"write {point.key} ({point.address}) = {raw}")
+        assert job.response is not None
+        if job.response.pwe != raw:
+            raise DecodeError(
+                f"the slave answered the write of {raw} to {point.key} with {job.response.pwe}",
+                bytes([job.response.ind >> 8, job.response.ind & 0xFF, job.response.pwe >> 8, job.response.pwe & 0xFF]),
+                "PWE",
+            )
+
+    def read_status(self) -> Status:
+        words = self._link().inputs(self.settings.limits.timeout)
+        zsw, act = (words[2], words[3]) if self.ppo is Ppo.PPO1 else (words[0], words[1])
+        currents: dict[str, Value] = {}
+        if self._phase_a is not None:
+            currents["a"] = Value.from_raw(self._phase_a, act, ACT_SCALE, PROTOCOL)
+        return decode_status_word(
+            zsw,
+            self.profile.faults,
+            bit12_is_mains_voltage=self.profile.control.bit12_is_mains_voltage,
+            currents=currents,
+            source=PROTOCOL,
+            extra_raw={"act": act},
+        )
+
+    def send_command(self, command: Command) -> None:
+        link = self._link()
+        words = self.control.apply(command)
+        link.send_control(words, self.settings.limits.timeout)
+
+    # -- previews (--dry-run) -----------------------------------------------------------------------------
+
+    def _telegram_hex(self, pkw: PkwRequest, stw: int) -> str:
+        words = output_words(self.ppo, pkw, stw)
+        return hex_text(b"".join(w.to_bytes(2, "big") for w in words))
+
+    def preview_write(self, point: PointDef, raw: int) -> list[str]:
+        """The output telegrams of a write: the clear cycle ("no task"), then the task repeated until answered."""
+        self._require_pkw("write parameters")
+        request = self.request_for(point, raw)
+        stw = self.control.word
+        return [self._telegram_hex(NO_TASK, stw), self._telegram_hex(request, stw)]
+
+    def preview_command(self, command: Command) -> list[str]:
+        """The output telegrams of a command, one per control word (each held for ``hold`` exchanges)."""
+        state = ControlWordState(self.control.bus_control, self.control.run)
+        return [self._telegram_hex(NO_TASK, word) for word in state.apply(command)]
