@@ -203,9 +203,11 @@ def test_peer_hangs_up_is_a_transport_error() -> None:
     thread = threading.Thread(target=hang_up, daemon=True)
     thread.start()
     try:
-        with open_device(f"modbus-rtu+tcp://127.0.0.1:{port}?unit=2&{FAST}", "jjr5000") as d:
-            with pytest.raises(TransportError, match="closed"):
-                d.read("motor_rated_current")
+        with (
+            open_device(f"modbus-rtu+tcp://127.0.0.1:{port}?unit=2&{FAST}", "jjr5000") as d,
+            pytest.raises(TransportError, match="closed"),
+        ):
+            d.read("motor_rated_current")
     finally:
         thread.join(timeout=2)
         server.close()

@@ -264,6 +264,23 @@ def annotate(
     if not data:
         return [Annotation("nothing to decode", [], "no bytes given")]
     annotator = Annotator(profile, crc=crc)
+    out = _annotate(annotator, data, direction, address)
+    if crc and any(a.error for a in out) and _reads_without_crc(data):
+        first = out[0]
+        hint = "these bytes read as a frame printed without its CRC: add --no-crc"
+        out[0] = Annotation(first.title, first.fields, f"{first.error}; {hint}" if first.error else hint)
+    return out
+
+
+def _reads_without_crc(data: bytes) -> bool:
+    """True if ``data`` decodes cleanly as frames without CRC (a request, a response, or both)."""
+    try:
+        return not any(a.error for a in _annotate(Annotator(None, crc=False), data, None, None))
+    except CodecError:
+        return False
+
+
+def _annotate(annotator: Annotator, data: bytes, direction: str | None, address: int | None) -> list[Annotation]:
     is_request = annotator.guess_is_request(data) if direction is None else direction == "request"
     out: list[Annotation] = []
     if is_request:

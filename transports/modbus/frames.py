@@ -250,7 +250,7 @@ def decode_request(frame: bytes, *, crc: bool = True) -> AnyRequest:
     if function in (FunctionCode.READ_HOLDING_REGISTERS, FunctionCode.WRITE_SINGLE_REGISTER):
         if len(body) != 6:
             raise DecodeError(
-                f"a FC{function:02X} request is 8 bytes with CRC, this one {len(body) + CRC_LENGTH}", data, "length"
+                f"a FC{function:02X} request has 6 bytes before the CRC, this one {len(body)}", data, "length"
             )
         address = int.from_bytes(body[2:4], "big")
         word = int.from_bytes(body[4:6], "big")
@@ -271,7 +271,7 @@ def decode_response(frame: bytes, *, crc: bool = True, request: Request | None =
     if function & EXCEPTION_BIT:
         if len(body) != 3:
             raise DecodeError(
-                f"an exception response is {EXCEPTION_FRAME_LENGTH} bytes with CRC, this one {len(body) + CRC_LENGTH}",
+                f"an exception response has 3 bytes before the CRC, this one {len(body)}",
                 data,
                 "length",
             )
@@ -284,7 +284,7 @@ def decode_response(frame: bytes, *, crc: bool = True, request: Request | None =
             raise DecodeError(f"byte count {count} is not an even number of register bytes", data, "byte_count")
         if len(body) != 3 + count:
             raise DecodeError(
-                f"byte count {count} announces a {5 + count}-byte frame, this one is {len(body) + CRC_LENGTH}",
+                f"byte count {count} announces {3 + count} bytes before the CRC, this one has {len(body)}",
                 data,
                 "length",
             )
@@ -293,7 +293,7 @@ def decode_response(frame: bytes, *, crc: bool = True, request: Request | None =
     elif function == FunctionCode.WRITE_SINGLE_REGISTER:
         if len(body) != 6:
             raise DecodeError(
-                f"a FC06 response is the 8-byte echo of the request, this one is {len(body) + CRC_LENGTH} bytes",
+                f"a FC06 response echoes the request: 6 bytes before the CRC, this one has {len(body)}",
                 data,
                 "length",
             )

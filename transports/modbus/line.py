@@ -74,6 +74,8 @@ class Link:
 
     @classmethod
     def open_serial(cls, path: str, settings: SerialSettings) -> Link:
+        import termios
+
         import serial
 
         try:
@@ -86,7 +88,7 @@ class Link:
                 timeout=0,
                 exclusive=True,
             )
-        except (serial.SerialException, ValueError, OSError) as exc:
+        except (serial.SerialException, ValueError, OSError, termios.error) as exc:
             raise TransportError(f"cannot open serial port {path} ({settings.describe()}): {exc}") from exc
         try:
             fd = port.fileno()

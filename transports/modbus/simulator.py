@@ -206,6 +206,10 @@ class ModbusRtuSimulator(RunningSimulator):
             return f"modbus-rtu+tcp://{self.client_path}?{text}"
         return f"modbus-rtu://{self.client_path}?{text}"
 
+    def client_urls(self) -> dict[int, str]:
+        """Unit id -> the URL a client in this process uses to reach that simulated starter."""
+        return {unit: self.url(unit) for unit in sorted(self.starters)}
+
     def describe(self) -> list[str]:
         if self.tcp is not None:
             return [f"modbus-rtu-tcp: {self.client_path}"]
