@@ -111,6 +111,10 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
 #: later commands (fleet polling, demo, crosscheck, identify) register here: fn(subparsers, wanted_command)
 _EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser], str], None]] = []
 
+from starterbus.cli import identify  # noqa: E402  (DeviceNet issue: `starterbus identify URL`)
+
+_EXTENSIONS.append(identify.add_parser)
+
 
 def main(argv: Sequence[str] | None = None) -> int:
     args_list = list(sys.argv[1:] if argv is None else argv)

@@ -1,20 +1,137 @@
-"""Entry point of the devicenet transport (placeholder until the transport lands)."""
+"""Entry point of the devicenet transport: ``starterbus.transports`` -> ``PLUGIN``.
+
+Heavy modules (python-can, the scanner, the simulator) are imported only when a hook needs them.
+"""
 
 from __future__ import annotations
 
-from starterbus.core.errors import UnsupportedOperationError
+import argparse
+from collections.abc import Sequence
+
+from starterbus.core.errors import ConfigurationError
 from starterbus.core.profile import Profile
-from starterbus.core.transport import Capability, Transport, TransportPlugin
+from starterbus.core.transport import Annotation, Capability, RunningSimulator, Transport, TransportPlugin
 from starterbus.core.url import DeviceUrl
 
 
 class DeviceNetPlugin(TransportPlugin):
     name = "devicenet"
-    summary = "devicenet (not implemented yet)"
-    capabilities = frozenset(Capability)
+    summary = "DeviceNet master (scanner) over python-can: polled I/O assemblies 1/101/2/102, explicit messaging"
+    capabilities = frozenset({Capability.READ_MEASUREMENTS, Capability.COMMANDS, Capability.STATUS})
+    url_forms = (
+        "devicenet://INTERFACE/CHANNEL?mac=5",
+        "devicenet://virtual/bus0?mac=5&dup_mac_wait=0.1",
+        "devicenet://socketcan/can0?mac=5&bitrate=500000&assemblies=extended",
+        "devicenet://remote/127.0.0.1:54701?mac=5",
+    )
 
     def open(self, url: DeviceUrl, profile: Profile) -> Transport:
-        raise UnsupportedOperationError(f"the {self.name} transport is not implemented yet")
+        from starterbus.transports.devicenet.transport import DeviceNetTransport
+
+        return DeviceNetTransport(url, profile)
+
+    # -- simulate ----------------------------------------------------------------------------------------------
+
+    def add_simulator_arguments(self, parser: argparse.ArgumentParser) -> None:
+        parser.add_argument(
+            "--devicenet",
+            metavar="INTERFACE:CHANNEL",
+            help="serve the starters as DeviceNet slaves on a python-can bus (e.g. virtual:bus0, socketcan:can0)",
+        )
+        parser.add_argument(
+            "--mac",
+            type=int,
+            action="append",
+            default=None,
+            help="DeviceNet MAC id (1-63) of each simulated starter, in --unit order; default: the --unit values",
+        )
+        parser.add_argument(
+            "--devicenet-assemblies",
+            choices=("extended", "basic", "pro-type"),
+            default="extended",
+            help="assembly set of the polled connection: extended 101/102 (default), basic 1/2, or pro-type "
+            "(follow parameter p71 like the device)",
+        )
+        parser.add_argument("--devicenet-bitrate", type=int, default=500000, choices=(125000, 250000, 500000))
+        parser.add_argument(
+            "--devicenet-dup-mac-wait",
+            type=float,
+            default=1.0,
+            metavar="SECONDS",
+            help="wait of the duplicate MAC ID check (the specification says 1 s)",
+        )
+        parser.add_argument(
+            "--devicenet-bridge",
+            metavar="[HOST:]PORT",
+            help="also serve the bus to other processes of this machine through python-can-remote on a loopback "
+            "address (connect with devicenet://remote/127.0.0.1:PORT?mac=N)",
+        )
+
+    def start_simulators(
+        self, args: argparse.Namespace, profile: Profile, starters: Sequence[object]
+    ) -> list[RunningSimulator]:
+        spec = getattr(args, "devicenet", None)
+        if not spec:
+            if getattr(args, "mac", None) or getattr(args, "devicenet_bridge", None):
+                raise ConfigurationError("--mac and --devicenet-bridge need --devicenet INTERFACE:CHANNEL")
+            return []
+        from starterbus.core.simulator import SimulatedStarter
+        from starterbus.transports.devicenet.assemblies import AssemblySet
+        from starterbus.transports.devicenet.bridge import LoopbackBridge, parse_bridge_address
+        from starterbus.transports.devicenet.simulator import DeviceNetSimulator
+
+        if not profile.supports(self.name):
+            raise ConfigurationError(
+                f"{profile.display_name} has no DeviceNet interface (it speaks: {', '.join(profile.transports)})"
+            )
+        interface, sep, channel = str(spec).partition(":")
+        if not sep or not interface or not channel:
+            raise ConfigurationError(f"--devicenet {spec!r}: expected INTERFACE:CHANNEL, e.g. virtual:bus0")
+        macs = list(args.mac or getattr(args, "unit", None) or [1])
+        if len(macs) != len(starters):
+            raise ConfigurationError(
+                f"{len(macs)} --mac value(s) for {len(starters)} simulated starter(s): give one --mac per --unit "
+                "(or omit --mac to use the --unit values as MAC ids)"
+            )
+        if len(set(macs)) != len(macs):
+            raise ConfigurationError(f"--mac given twice with the same MAC id: {macs}")
+        lo, hi = profile.transport_settings(self.name).get("mac_ids", [1, 63])
+        for mac in macs:
+            if not int(lo) <= mac <= int(hi):
+                raise ConfigurationError(f"DeviceNet MAC id {mac} is outside {lo}..{hi}")
+        choice = args.devicenet_assemblies
+        assemblies = None if choice == "pro-type" else AssemblySet(choice)
+        bridge_address = parse_bridge_address(args.devicenet_bridge) if args.devicenet_bridge else None
+        simulator = DeviceNetSimulator(
+            (interface, channel), bitrate=args.devicenet_bitrate, dup_mac_wait=args.devicenet_dup_mac_wait
+        )
+        running: list[RunningSimulator] = [simulator]
+        try:
+            for mac, starter in zip(macs, starters, strict=True):
+                if not isinstance(starter, SimulatedStarter):
+                    raise ConfigurationError(f"not a simulated starter: {starter!r}")
+                simulator.add_node(starter, mac, assemblies=assemblies)
+            simulator.start()
+            if bridge_address is not None:
+                running.append(LoopbackBridge(interface, channel, *bridge_address))
+        except BaseException:
+            for item in running:
+                item.close()
+            raise
+        return running
+
+    # -- decode ------------------------------------------------------------------------------------------------
+
+    def add_decode_arguments(self, parser: argparse.ArgumentParser) -> None:
+        parser.epilog = (
+            "Each HEX argument is one CAN frame in candump syntax ID#DATA (e.g. 42E#004B03010300 3C5#2D0000000100); "
+            "fragmented explicit messages are reassembled across the frames given."
+        )
+
+    def decode(self, args: argparse.Namespace, profile: Profile | None) -> list[Annotation]:
+        from starterbus.transports.devicenet.decoder import annotate_frames
+
+        return annotate_frames(list(args.data), profile)
 
 
 PLUGIN = DeviceNetPlugin()

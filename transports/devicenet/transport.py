@@ -1,0 +1,324 @@
+"""The ``devicenet`` transport: one JJR8000 slave, scanned by the process-wide scanner of its CAN bus.
+
+URL: ``devicenet://INTERFACE/CHANNEL?mac=5`` with any python-can interface (``virtual``, ``socketcan``,
+``pcan``, ``remote`` for the loopback bridge, ...) and these parameters:
+
+=============== ========= ================================================================================
+``mac``         required  slave MAC id (1-63)
+``master_mac``  0         the scanner's own MAC id (0-63)
+``bitrate``     500000    125000, 250000 or 500000 (software interfaces ignore it)
+``assemblies``  auto      ``basic`` (1/2), ``extended`` (101/102) or ``auto`` (from the polled connection sizes)
+``epr``         100       expected packet rate of the polled connection, ms (inactivity timeout = 4 x EPR)
+``poll``        20        scan period, ms (0: as fast as possible); at most ``epr``
+``dup_mac_wait`` 1.0      seconds of each wait of the scanner's duplicate MAC ID check (the spec says 1 s)
+``timeout``     1.0       seconds to wait for an explicit response, a command or fresh inputs
+``settle``      2         poll responses after a new status parameter address before its value is used
+=============== ========= ================================================================================
+
+Scanner-wide parameters (``master_mac``, ``bitrate``, ``poll``, ``dup_mac_wait``) must agree between the
+devices of one bus in one process. Parameters cannot be read or written (the manual: not supported).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from starterbus.core.errors import ConfigurationError, DecodeError, TimeoutError
+from starterbus.core.model import Kind, PointDef, Reading
+from starterbus.core.profile import Profile
+from starterbus.core.sharing import SharedPool
+from starterbus.core.status import CW_RESET, CW_START, Command, ControlWordState, Status
+from starterbus.core.transport import Capability, Transport
+from starterbus.core.url import DeviceUrl
+from starterbus.transports.devicenet.assemblies import (
+    CURRENT_RESOLUTION_A,
+    AssemblySet,
+    OutputAssembly,
+    decode_input,
+    output_for_word,
+)
+from starterbus.transports.devicenet.cip import ObjectClass, Service
+from starterbus.transports.devicenet.explicit import ExplicitRequest
+from starterbus.transports.devicenet.identity import ATTRIBUTE_NAMES, decode_identity
+from starterbus.transports.devicenet.ids import MAX_MAC, poll_command_id
+from starterbus.transports.devicenet.scanner import LinkConfig, LinkState, Scanner, ScannerConfig, SlaveLink
+
+NAME = "devicenet"
+URL_PARAMETERS = ("mac", "master_mac", "bitrate", "assemblies", "epr", "poll", "dup_mac_wait", "timeout", "settle")
+DEFAULT_BITRATES = (125000, 250000, 500000)
+
+#: one scanner per (interface, channel) in this process
+SCANNERS: SharedPool[Scanner] = SharedPool()
+
+
+def parse_url(url: DeviceUrl, profile: Profile) -> tuple[ScannerConfig, LinkConfig]:
+    """Validate a ``devicenet://`` URL against the profile; every problem is a ConfigurationError."""
+    url.check_known(URL_PARAMETERS)
+    interface = url.host
+    channel = url.path.lstrip("/")
+    if not interface or not channel:
+        raise ConfigurationError(
+            f"{url.text}: expected devicenet://INTERFACE/CHANNEL?mac=N (e.g. devicenet://virtual/bus0?mac=5, "
+            "devicenet://socketcan/can0?mac=5, devicenet://remote/127.0.0.1:54701?mac=5)"
+        )
+    settings = profile.transport_settings(NAME)
+    lo, hi = settings.get("mac_ids", [1, MAX_MAC])
+    mac = url.get_int("mac", lo=int(lo), hi=int(hi))
+    master_mac = url.get_int("master_mac", 0, lo=0, hi=MAX_MAC)
+    if master_mac == mac:
+        raise ConfigurationError(f"{url.text}: master_mac and mac are both {mac}")
+    bitrates = [int(b) for b in settings.get("bitrates", DEFAULT_BITRATES)]
+    bitrate = url.get_int("bitrate", 500000)
+    if bitrate not in bitrates:
+        raise ConfigurationError(f"{url.text}: bitrate {bitrate} is not one of {', '.join(map(str, bitrates))}")
+    assemblies = url.get_str("assemblies", "auto", choices=("auto", "basic", "extended"))
+    epr = url.get_int("epr", 100, lo=0, hi=0xFFFF)
+    poll = url.get_float("poll", 20.0, lo=0.0, hi=60000.0)
+    if epr and poll > epr:
+        raise ConfigurationError(
+            f"{url.text}: poll period {poll:g} ms exceeds the expected packet rate {epr} ms "
+            "(the slave would time the connection out)"
+        )
+    scanner = ScannerConfig(
+        interface=interface,
+        channel=channel,
+        master_mac=master_mac,
+        bitrate=bitrate,
+        poll_period=poll / 1000.0,
+        dup_mac_wait=url.get_float("dup_mac_wait", 1.0, lo=0.0, hi=10.0),
+        timeout=url.get_float("timeout", 1.0, lo=0.01, hi=60.0),
+    )
+    link = LinkConfig(mac=mac, assemblies=assemblies, epr_ms=epr, settle=url.get_int("settle", 2, lo=1, hi=50))
+    return scanner, link
+
+
+class DeviceNetTransport(Transport):
+    name = NAME
+
+    def __init__(self, url: DeviceUrl, profile: Profile) -> None:
+        super().__init__(url, profile)
+        self.scanner_config, self.link_config = parse_url(url, profile)
+        self.scanner: Scanner | None = None
+        self.link: SlaveLink | None = None
+        self._key = (self.scanner_config.interface, self.scanner_config.channel)
+
+    # -- lifecycle ---------------------------------------------------------------------------------------------
+
+    def open(self) -> None:
+        if self.link is not None:
+            return
+        config = self.scanner_config
+        scanner = SCANNERS.acquire(self._key, lambda: Scanner(config))
+        try:
+            conflicts = scanner.config.conflicts(config)
+            if conflicts:
+                raise ConfigurationError(
+                    f"{self.url.text}: the DeviceNet scanner on {scanner.where} already runs with other "
+                    + ", ".join(f"{n}={getattr(scanner.config, n)}" for n in conflicts)
+                )
+            scanner.wait_online(2 * config.dup_mac_wait + config.timeout + 1.0)
+            link = scanner.attach(self.link_config)
+        except BaseException:
+            SCANNERS.release(self._key)
+            raise
+        self.scanner, self.link = scanner, link
+        try:
+            self._wait_established(4 * config.timeout + 0.5)
+        except BaseException:
+            self.close()
+            raise
+
+    def _wait_established(self, timeout: float) -> None:
+        scanner, link = self._require()
+
+        def settled() -> bool:
+            return link.established or (link.state is LinkState.REFUSED and link.last_error is not None)
+
+        scanner.wait_for(settled, timeout)
+        if link.established:
+            return
+        if link.last_error is not None and not isinstance(link.last_error, TimeoutError):
+            raise link.last_error
+        raise TimeoutError(
+            f"{self.describe()}: the slave did not answer the connection sequence within {timeout:g} s"
+            + (f" (last error: {link.last_error})" if link.last_error else "")
+        )
+
+    def close(self) -> None:
+        scanner, link = self.scanner, self.link
+        self.scanner = self.link = None
+        if scanner is not None and link is not None:
+            try:
+                scanner.detach(link)
+            finally:
+                SCANNERS.release(self._key)
+
+    def _require(self) -> tuple[Scanner, SlaveLink]:
+        if self.scanner is None or self.link is None:
+            raise ConfigurationError(f"{self.describe()}: the transport is not open")
+        return self.scanner, self.link
+
+    # -- capabilities -------------------------------------------------------------------------------------------
+
+    @property
+    def capabilities(self) -> frozenset[Capability]:
+        return frozenset({Capability.READ_MEASUREMENTS, Capability.COMMANDS, Capability.STATUS})
+
+    def describe(self) -> str:
+        return f"{self.url.text} (MAC {self.link_config.mac})"
+
+    @property
+    def timeout(self) -> float:
+        return self.scanner_config.timeout
+
+    def stale_after(self, link: SlaveLink) -> float:
+        """Age after which the latest input no longer counts as the device's status."""
+        epr = link.epr_ms / 1000.0
+        return max(3 * self.scanner_config.poll_period, 2 * epr if epr else 0.5, 0.05)
+
+    # -- status ---------------------------------------------------------------------------------------------------
+
+    def _fresh_sample(self, link: SlaveLink, scanner: Scanner) -> Any:
+        limit = self.stale_after(link)
+
+        def fresh() -> bool:
+            sample = link.sample
+            return link.established and sample is not None and scanner.clock() - sample.at <= limit
+
+        if not fresh():
+            scanner.wait_for(fresh, self.timeout)
+        sample = link.sample
+        if not fresh() or sample is None:
+            age = "never" if sample is None else f"{scanner.clock() - sample.at:.3f} s ago"
+            raise TimeoutError(
+                f"{self.describe()}: no fresh input assembly (last one {age}, fresh means < {limit:.3f} s; "
+                f"connection {link.state.value}" + (f": {link.last_error}" if link.last_error else "") + ")"
+            )
+        return sample
+
+    def read_status(self) -> Status:
+        scanner, link = self._require()
+        sample = self._fresh_sample(link, scanner)
+        assemblies = link.assemblies or AssemblySet.EXTENDED
+        inputs = decode_input(sample.data, assemblies.input_instance)
+        return inputs.to_status(self.profile, selected_address=sample.select, timestamp=sample.wall, source=NAME)
+
+    # -- commands --------------------------------------------------------------------------------------------------
+
+    def _words(self, command: Command, run: bool) -> list[int]:
+        if command in (Command.TAKE_BUS_CONTROL, Command.RELEASE_BUS_CONTROL):
+            raise self.unsupported(
+                f"send the command {command.value!r}",
+                "the output assemblies have no bus-control bit (DeviceNet is the network control path: the slave "
+                "sets control word bit 3 itself)",
+            )
+        return ControlWordState(bus_control=True, run=run).apply(command)
+
+    def send_command(self, command: Command) -> None:
+        scanner, link = self._require()
+        words = self._words(command, link.run)
+        if not link.established:
+            raise TimeoutError(f"{self.describe()}: connection {link.state.value}; command {command.value!r} not sent")
+        for word in words:
+            seq = scanner.set_outputs(link, run=bool(word & CW_START), reset=bool(word & CW_RESET))
+            if not scanner.wait_acked(link, seq, self.timeout):
+                raise TimeoutError(
+                    f"{self.describe()}: command {command.value!r} was not confirmed by a poll response within "
+                    f"{self.timeout:g} s (connection {link.state.value})"
+                )
+
+    def preview_command(self, command: Command) -> list[str]:
+        link = self.link
+        run = link.run if link is not None else False
+        assemblies = (link.assemblies if link is not None else None) or (
+            AssemblySet.BASIC if self.link_config.assemblies == "basic" else AssemblySet.EXTENDED
+        )
+        select = link.select if link is not None else 0x01
+        frames = []
+        for word in self._words(command, run):
+            output: OutputAssembly = output_for_word(word, assemblies.output_instance, select)
+            frames.append(f"{poll_command_id(self.link_config.mac):03X}#{output.encode().hex().upper()}")
+        return frames
+
+    def preview_write(self, point: PointDef, raw: int) -> list[str]:
+        raise self.unsupported("write parameters", "the JJR8000 does not support parameter access over DeviceNet")
+
+    def write_parameter(self, point: PointDef, raw: int) -> None:
+        raise self.unsupported("write parameters", "the JJR8000 does not support parameter access over DeviceNet")
+
+    # -- measurements ------------------------------------------------------------------------------------------
+
+    def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
+        for point in points:
+            if point.kind is Kind.PARAMETER:
+                raise self.unsupported(
+                    f"read the parameter {point.key}", "the JJR8000 does not support parameter access over DeviceNet"
+                )
+        scanner, link = self._require()
+        return [self._read_measurement(scanner, link, point) for point in points]
+
+    def _read_measurement(self, scanner: Scanner, link: SlaveLink, point: PointDef) -> Reading:
+        phases = self.profile.phase_currents()
+        if link.assemblies is AssemblySet.BASIC:
+            if phases and point.key == phases[0].key:
+                sample = self._fresh_sample(link, scanner)
+                return Reading(point, decode_input(sample.data, 1).current_a, CURRENT_RESOLUTION_A)
+            raise self.unsupported(
+                f"read {point.key}",
+                "basic assemblies (PRO type P1/M1) carry only the status bits and the L1 current; "
+                "use assemblies=extended (P3/M2) for the status parameters",
+            )
+        address = point.address_for(NAME)
+        if address is None or not 0 <= address <= 0xFF:
+            raise self.unsupported(f"read {point.key}", "it has no DeviceNet status parameter address")
+        settle = self.link_config.settle
+        with link.select_lock:
+            scanner.set_outputs(link, select=address)
+
+            def reported() -> bool:
+                sample = link.sample
+                return sample is not None and sample.select == address and sample.select_count >= settle
+
+            if not scanner.wait_for(lambda: reported() or not link.established, self.timeout) or not reported():
+                raise TimeoutError(
+                    f"{self.describe()}: status parameter 0x{address:02X} ({point.key}) was not reported within "
+                    f"{self.timeout:g} s (connection {link.state.value})"
+                )
+            sample = link.sample
+            assert sample is not None
+            inputs = decode_input(sample.data, 101)
+            if inputs.selected_value is None:
+                raise DecodeError("input assembly 101 without bytes 4-5", sample.data, "selected_value")
+            return Reading(point, inputs.selected_value)
+
+    # -- identity ------------------------------------------------------------------------------------------------
+
+    def identify(self) -> dict[str, object]:
+        """Identity object attributes 1-7 (Get_Attribute_Single each; the product name is fragmented)."""
+        scanner, link = self._require()
+        raw: dict[int, bytes] = {}
+        for attribute in sorted(ATTRIBUTE_NAMES):
+            request = ExplicitRequest(
+                scanner.config.master_mac, Service.GET_ATTRIBUTE_SINGLE, ObjectClass.IDENTITY, 1, attribute
+            )
+            raw[attribute] = scanner.request(link, request, timeout=self.timeout * 2).data
+        identity = decode_identity(raw)
+        result: dict[str, object] = {"mac": link.mac, **identity.as_dict()}
+        if link.assemblies is not None:
+            result["input_assembly"] = link.assemblies.input_instance
+            result["output_assembly"] = link.assemblies.output_instance
+        result["expected_packet_rate_ms"] = link.epr_ms
+        return result
+
+    def connection_info(self) -> dict[str, object]:
+        """The link's state for diagnostics (no bus traffic)."""
+        _, link = self._require()
+        return {
+            "state": link.state.value,
+            "assemblies": link.assemblies.value if link.assemblies else None,
+            "expected_packet_rate_ms": link.epr_ms,
+            "responses": link.responses,
+            "misses": link.misses,
+            "last_error": str(link.last_error) if link.last_error else None,
+        }
