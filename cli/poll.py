@@ -45,10 +45,11 @@ def run_fleet(
     refresh: float = 0.5,
     out: TextIO | None = None,
     during: Callable[[FleetPoller], None] | None = None,
+    sinks: list[Callable[[Sample], None]] | None = None,
 ) -> int:
     """Poll a fleet and show it; shared by ``poll`` and ``demo``. Returns the exit code."""
     out = out or sys.stdout
-    sinks: list[Callable[[Sample], None]] = []
+    sinks = list(sinks or [])
     csv_log = CsvLog(csv_path) if csv_path else None
     if csv_log is not None:
         sinks.append(csv_log)

@@ -1,0 +1,285 @@
+"""The demo fleet: simulated soft starters behind every protocol front end, in this process, on loopback.
+
+| device   | model   | path                                                     |
+|----------|---------|----------------------------------------------------------|
+| conveyor | JJR5000 | Modbus RTU line 1 (a pseudo-terminal), unit 1            |
+| fan      | SSD1    | Modbus RTU line 1 (the same line), unit 2                |
+| crusher  | JJR8000 | Modbus RTU line 2 (a second pseudo-terminal), unit 3     |
+| mill     | JJR5000 | Profibus DP PPO1 behind a simulated gateway (Modbus TCP) |
+| mixer    | JJR8000 | Profibus DP PPO3 behind a simulated gateway (Modbus TCP) |
+| pump-a   | JJR8000 | DeviceNet MAC 10 on a python-can virtual bus             |
+| pump-b   | JJR8000 | DeviceNet MAC 11 on the same bus, one scanner            |
+
+The fleet is written as a fleet file and polled by the same code as ``starterbus poll``; a scripted
+scenario starts the motors, trips one with a fault, resets it and restarts it, so every state shows up.
+The simulators are the gateways' peers only through loopback and pseudo-terminals: no hardware, no root.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import TextIO
+from urllib.parse import parse_qsl, urlencode
+
+from starterbus.core.device import Device
+from starterbus.core.registry import get_profile
+from starterbus.core.simulator import SimulatedStarter
+from starterbus.core.status import Command
+from starterbus.core.transport import RunningSimulator
+from starterbus.fleet.config import FleetConfig, parse_fleet
+from starterbus.fleet.poller import FleetPoller, Sample
+
+#: fast ramps so a 20 s demo shows whole start/stop cycles (raw values of the profiles' role parameters)
+DEMO_TIMES = {"ramp_time": 3, "stop_time": 2}
+
+
+@dataclass
+class DemoFleet:
+    """The running simulators, their starters by device name, and the fleet file that reaches them."""
+
+    fleet_toml: str
+    config: FleetConfig
+    starters: dict[str, SimulatedStarter]
+    simulators: list[RunningSimulator] = field(default_factory=list)
+
+    def close(self) -> None:
+        for sim in reversed(self.simulators):
+            sim.close()
+
+
+def _starter(model: str) -> SimulatedStarter:
+    profile = get_profile(model)
+    values: dict[str, int] = {}
+    for role, raw in DEMO_TIMES.items():
+        point = profile.role(role)
+        if point is not None:
+            values[point.key] = max(point.raw_min, min(point.raw_max, round(raw / point.scale)))
+    return SimulatedStarter(profile, values=values, load=0.75)
+
+
+def _split(url: str, drop: str) -> tuple[str, dict[str, str]]:
+    base, _, query = url.partition("?")
+    params = dict(parse_qsl(query))
+    params.pop(drop, None)
+    return base, params
+
+
+def _bus_url(url: str, drop: str) -> str:
+    base, params = _split(url, drop)
+    return f"{base}?{urlencode(params)}" if params else base
+
+
+def start_demo_fleet(period: float = 0.5, can_channel: str | None = None) -> DemoFleet:
+    """Start every simulator and return the fleet that polls them (close it when done)."""
+    from starterbus.transports.devicenet.simulator import DeviceNetSimulator
+    from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+    from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
+
+    starters = {
+        name: _starter(model)
+        for name, model in (
+            ("conveyor", "jjr5000"),
+            ("fan", "ssd1"),
+            ("crusher", "jjr8000"),
+            ("mill", "jjr5000"),
+            ("mixer", "jjr8000"),
+            ("pump-a", "jjr8000"),
+            ("pump-b", "jjr8000"),
+        )
+    }
+    channel = can_channel or f"starterbus-demo-{os.getpid()}-{threading.get_ident()}"
+    sims: list[RunningSimulator] = []
+    try:
+        line1 = ModbusRtuSimulator({1: starters["conveyor"], 2: starters["fan"]}, pty=True).start()
+        sims.append(line1)
+        line2 = ModbusRtuSimulator({3: starters["crusher"]}, pty=True).start()
+        sims.append(line2)
+        gw1 = ProfibusGatewaySimulator(starters["mill"], ppo=1, stations=[4]).start()
+        sims.append(gw1)
+        gw3 = ProfibusGatewaySimulator(starters["mixer"], ppo=3, stations=[5]).start()
+        sims.append(gw3)
+        dnet = DeviceNetSimulator(("virtual", channel), dup_mac_wait=0.05)
+        dnet.add_node(starters["pump-a"], 10)
+        dnet.add_node(starters["pump-b"], 11)
+        sims.append(dnet.start())
+    except BaseException:
+        for sim in reversed(sims):
+            sim.close()
+        raise
+    line1_url = _bus_url(line1.client_urls()[1], "unit")
+    line2_url = _bus_url(line2.client_urls()[3], "unit")
+    dnet_url = f"devicenet://virtual/{channel}?master_mac=0&assemblies=extended&dup_mac_wait=0.05"
+    text = f"""\
+# the demo fleet, generated by starterbus demo
+[poll]
+period = {period}
+max_backoff = 4.0
+
+[[bus]]
+name = "rtu-line-1"
+url = "{line1_url}"
+
+  [[bus.device]]
+  name = "conveyor"
+  model = "jjr5000"
+  address = 1
+  measurements = ["phase_a_current", "phase_b_current", "phase_c_current", "max_start_current"]
+  parameters = ["current_limit"]
+
+  [[bus.device]]
+  name = "fan"
+  model = "ssd1"
+  address = 2
+
+[[bus]]
+name = "rtu-line-2"
+url = "{line2_url}"
+
+  [[bus.device]]
+  name = "crusher"
+  model = "jjr8000"
+  address = 3
+  measurements = ["phase_a_current", "start_count"]
+  parameters = ["p7"]
+
+[[bus]]
+name = "dp-gateway-1"
+url = "{gw1.client_urls()[4]}"
+
+  [[bus.device]]
+  name = "mill"
+  model = "jjr5000"
+  address = 4
+  measurements = ["phase_a_current", "phase_b_current"]
+  parameters = ["current_limit"]
+
+[[bus]]
+name = "dp-gateway-3"
+url = "{gw3.client_urls()[5]}"
+
+  [[bus.device]]
+  name = "mixer"
+  model = "jjr8000"
+  address = 5
+  measurements = []
+
+[[bus]]
+name = "devicenet"
+url = "{dnet_url}"
+
+  [[bus.device]]
+  name = "pump-a"
+  model = "jjr8000"
+  address = 10
+  measurements = ["phase_a_current"]
+
+  [[bus.device]]
+  name = "pump-b"
+  model = "jjr8000"
+  address = 11
+  measurements = ["phase_a_current"]
+"""
+    return DemoFleet(text, parse_fleet(text, "<demo fleet>"), starters, sims)
+
+
+@contextmanager
+def demo_fleet(period: float = 0.5) -> Iterator[DemoFleet]:
+    fleet = start_demo_fleet(period)
+    try:
+        yield fleet
+    finally:
+        fleet.close()
+
+
+Step = tuple[float, str, Callable[[FleetPoller, DemoFleet], object]]
+
+
+def _command(name: str, command: Command) -> Callable[[FleetPoller, DemoFleet], object]:
+    def run(poller: FleetPoller, fleet: DemoFleet) -> object:
+        def send(device: Device) -> None:
+            device.command(command)
+
+        return poller.submit(name, send)
+
+    return run
+
+
+def _fault(name: str, code: int) -> Callable[[FleetPoller, DemoFleet], object]:
+    def run(poller: FleetPoller, fleet: DemoFleet) -> object:
+        fleet.starters[name].inject_fault(code)
+        return None
+
+    return run
+
+
+def scenario(duration: float) -> list[Step]:
+    """The scripted events, scaled to the demo's duration (defaults fit 20 s)."""
+    k = max(duration, 8.0) / 20.0
+    devices = ["conveyor", "fan", "crusher", "mill", "mixer", "pump-a", "pump-b"]
+    steps: list[Step] = [(1.0 * k + 0.3 * i * k, f"start {d}", _command(d, Command.START)) for i, d in enumerate(devices)]
+    steps += [
+        (7.0 * k, "fault 6 (motor overload) on crusher", _fault("crusher", 6)),
+        (8.0 * k, "fault 2 (overheat) on pump-b", _fault("pump-b", 2)),
+        (11.0 * k, "fault reset crusher", _command("crusher", Command.FAULT_RESET)),
+        (11.5 * k, "fault reset pump-b", _command("pump-b", Command.FAULT_RESET)),
+        (13.0 * k, "restart crusher", _command("crusher", Command.START)),
+        (14.0 * k, "soft stop fan", _command("fan", Command.SOFT_STOP)),
+        (15.0 * k, "soft stop mill", _command("mill", Command.SOFT_STOP)),
+    ]
+    return sorted(steps, key=lambda s: s[0])
+
+
+def run_demo(duration: float = 20.0, json_out: bool = False, out: TextIO | None = None) -> int:
+    """Start the demo fleet, poll it with the live table while the scenario runs, then print a summary."""
+    from starterbus.cli.poll import run_fleet
+
+    stream = out if out is not None else sys.stdout
+    events: list[str] = []
+    seen: dict[str, list[str]] = {}
+
+    def track(sample: Sample) -> None:
+        state = "offline" if not sample.online else (sample.status.state.value if sample.status else "error")
+        states = seen.setdefault(sample.device, [])
+        if not states or states[-1] != state:
+            states.append(state)
+
+    with demo_fleet() as fleet:
+        start = time.monotonic()
+
+        def script(poller: FleetPoller) -> None:
+            def run() -> None:
+                for at, what, action in scenario(duration):
+                    if poller.stopping.wait(max(0.0, start + at - time.monotonic())):
+                        return
+                    action(poller, fleet)
+                    events.append(f"{time.monotonic() - start:5.1f}s  {what}")
+
+            threading.Thread(target=run, name="demo-scenario", daemon=True).start()
+
+        code = run_fleet(
+            fleet.config,
+            once=False,
+            json_out=json_out,
+            csv_path=None,
+            duration=duration,
+            out=stream,
+            during=script,
+            sinks=[track],
+        )
+    print_summary(stream, events, seen)
+    return code
+
+
+def print_summary(out: TextIO, events: list[str], seen: dict[str, list[str]]) -> None:
+    out.write("\nscenario:\n")
+    for line in events:
+        out.write(f"  {line}\n")
+    out.write("states seen per device:\n")
+    for device, states in seen.items():
+        out.write(f"  {device:9} {' -> '.join(states)}\n")
