@@ -6,7 +6,6 @@ import threading
 from collections.abc import Sequence
 
 import pytest
-
 from starterbus.core.errors import TimeoutError, TransportError
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
@@ -65,18 +64,18 @@ def make(
 
 def test_on_demand_read_takes_two_exchanges(jjr8000: Profile) -> None:
     link, channel, _ = make(jjr8000)
-    link.open()
+    assert link.open() == 0x0008  # a new slave: nothing in force, the stopped motor gets bus control only
     job = link.pkw(READ_P3, "read p3")
     assert job.response is not None and job.response.pwe == 12 and job.cycles == 2
-    assert channel.sent == [(0, 0, 0, 0), (0x0103, 0, 0, 0)]
+    assert channel.sent == [(0, 0, 8, 0), (0x0103, 0, 8, 0)]
     job = link.pkw(READ_P3)  # the same task again: clear, then task (the slave latches per change)
-    assert job.cycles == 2 and channel.sent[-2:] == [(0, 0, 0, 0), (0x0103, 0, 0, 0)]
+    assert job.cycles == 2 and channel.sent[-2:] == [(0, 0, 8, 0), (0x0103, 0, 8, 0)]
     link.close()
     assert channel.closed and channel.sent[-1][:2] == (0, 0)  # "no task" left in the output area
 
 
 def test_background_cycles_read_and_status(jjr5000: Profile) -> None:
-    link, channel, starter = make(jjr5000, cycle=0.002)
+    link, _channel, starter = make(jjr5000, cycle=0.002)
     link.open()
     try:
         assert link.running
@@ -94,9 +93,7 @@ def test_background_cycles_read_and_status(jjr5000: Profile) -> None:
 @pytest.mark.parametrize("cycle", [0.0, 0.002])
 def test_start_is_not_delayed_by_a_stuck_pkw_task(jjr8000: Profile, cycle: float) -> None:
     # The slave never shows a PKW response (latency beyond any limit): the job waits, PZD goes on.
-    link, channel, starter = make(
-        jjr8000, latency=10**6, cycle=cycle, limits=Limits(max_cycles=10**6, timeout=0.3)
-    )
+    link, channel, starter = make(jjr8000, latency=10**6, cycle=cycle, limits=Limits(max_cycles=10**6, timeout=0.3))
     link.open()
     outcome: list[BaseException] = []
     reader = threading.Thread(target=lambda: _catch(outcome, lambda: link.pkw(READ_P3)))
@@ -118,7 +115,7 @@ def test_start_is_not_delayed_by_a_stuck_pkw_task(jjr8000: Profile, cycle: float
 def _catch(outcome: list[BaseException], fn: object) -> None:
     try:
         fn()  # type: ignore[operator]
-    except BaseException as exc:  # noqa: BLE001 - the test inspects it
+    except BaseException as exc:
         outcome.append(exc)
 
 
@@ -158,8 +155,8 @@ def test_open_adopts_the_control_word_in_force(jjr8000: Profile) -> None:
 def test_open_derives_the_run_bit_from_the_status_when_outputs_are_unknown(jjr5000: Profile) -> None:
     starter = SimulatedStarter(jjr5000)
     starter.write_control_word(0x0009)
-    link, channel, _ = make(jjr5000, starter=starter, hide_outputs=True)
-    assert link.open() == 0x0001
+    link, _channel, _ = make(jjr5000, starter=starter, hide_outputs=True)
+    assert link.open() == 0x0009
     link.inputs()
     assert starter.phase is Phase.STARTING  # not stopped by the first exchange
 

@@ -7,7 +7,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pytest
-
 from starterbus.core.errors import ConfigurationError, DecodeError, Refusal
 from starterbus.core.profile import Profile, load_profile_text
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
@@ -149,9 +148,7 @@ def _custom(profile: Profile, name: str, extra: str = "", read_only: str = "") -
     text = Path(profile.source).read_text(encoding="utf-8")
     text = re.sub(r'(?m)^name = "jjr\d+"$', f'name = "{name}"', text, count=1)
     if read_only:
-        text = re.sub(
-            rf'(key = "{read_only}"\n(?:[^\[]*?\n)*?)access = "rw"', r'\1access = "r"', text, count=1
-        )
+        text = re.sub(rf'(key = "{read_only}"\n(?:[^\[]*?\n)*?)access = "rw"', r'\1access = "r"', text, count=1)
     if extra:
         text = text.replace("[transports.profibus-pkw]\n", "[transports.profibus-pkw]\n" + extra, 1)
     return load_profile_text(text, f"{name}.toml")
@@ -177,7 +174,7 @@ def test_a_profile_can_state_its_refusal_answers(profiles: dict[str, Profile]) -
     assert answers[Refusal.OUT_OF_RANGE] == PkwAnswer(ResponseCode.CANNOT_EXECUTE, 7)
     assert answers[UNSUPPORTED_TASK] == PkwAnswer(ResponseCode.CANNOT_EXECUTE, 9)
     assert answers[Refusal.READ_ONLY] == PkwAnswer(ResponseCode.NO_WRITE_PERMISSION)
-    bad = _custom(profiles["jjr8000"], "custom8000c", extra='refusals = { sometimes = 1 }\n')
+    bad = _custom(profiles["jjr8000"], "custom8000c", extra="refusals = { sometimes = 1 }\n")
     with pytest.raises(ConfigurationError, match="unknown refusal"):
         refusal_answers(bad)
     bad = _custom(profiles["jjr8000"], "custom8000d", extra='refusals = { read_only = "maybe" }\n')

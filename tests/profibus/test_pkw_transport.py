@@ -6,7 +6,6 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import pytest
-
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import (
     ConfigurationError,
@@ -81,7 +80,9 @@ def test_url_settings(jjr5000: Profile) -> None:
     assert s.cycle == 0.02 and s.pulse == 0.05 and s.hold == 3
     d = LinkSettings.from_url(DeviceUrl.parse("profibus-pkw+gateway://gw"), jjr5000)
     assert (d.port, d.ppo, d.out, d.inp, d.unit, d.in_fc) == (502, Ppo.PPO1, 0, 0, 1, 3)
-    sim = LinkSettings.from_url(DeviceUrl.parse("profibus-pkw+sim://Line-1?latency=2&timeout=0.5&max_cycles=9"), jjr5000)
+    sim = LinkSettings.from_url(
+        DeviceUrl.parse("profibus-pkw+sim://Line-1?latency=2&timeout=0.5&max_cycles=9"), jjr5000
+    )
     assert (sim.name, sim.latency, sim.limits.timeout, sim.limits.max_cycles, sim.pulse) == ("line-1", 2, 0.5, 9, 0.0)
 
 

@@ -89,7 +89,10 @@ def _pkw_out_fields(pkw: PkwRequest, profile: Profile | None) -> list[tuple[str,
         kinds = [Kind.PARAMETER]
     elif task == TaskCode.READ_MEASUREMENT:
         kinds = [Kind.MEASUREMENT]
-    fields = [("INDH", f"{pkw.ind >> 8:02X}", task_text), ("INDL", f"{index:02X}", _indl_text(profile, kinds, index))]
+    indl_text = _indl_text(profile, kinds, index) if isinstance(task, TaskCode) else "address of an unknown task"
+    if task == TaskCode.NO_TASK:
+        indl_text = "unused" + (f" (nonzero: {index:#04x})" if index else "")
+    fields = [("INDH", f"{pkw.ind >> 8:02X}", task_text), ("INDL", f"{index:02X}", indl_text)]
     if task == TaskCode.WRITE_PARAMETER:
         point = _candidates(profile, kinds, index)[0][1]
         meaning = f"value to write: {_value_text(point, pkw.pwe)}" if point else f"value to write: {pkw.pwe}"
@@ -145,7 +148,7 @@ def _pzd_in_fields(pzd: PzdIn, profile: Profile | None) -> list[tuple[str, str, 
     faults = profile.faults if profile is not None else FaultTable({})
     bit12 = profile.control.bit12_is_mains_voltage if profile is not None else False
     status = decode_status_word(pzd.zsw, faults, bit12_is_mains_voltage=bit12)
-    bits: list[str] = [status.state.value]
+    bits: list[str] = [f"state {status.state.value}"]
     if status.fault:
         bits.append(f"fault {status.fault_code}: {status.fault_text}")
     for flag, name in (

@@ -23,7 +23,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from starterbus.core.errors import StarterbusError, TimeoutError
-from starterbus.core.status import CW_RESET, SW_FAULT, SW_RUNNING, SW_STARTING
+from starterbus.core.status import CW_BUS_CONTROL, CW_RESET, CW_START, SW_FAULT, SW_RUNNING, SW_STARTING
 from starterbus.transports.profibus_pkw.channels import Channel, channel_error
 from starterbus.transports.profibus_pkw.handshake import PkwEngine, PkwJob
 from starterbus.transports.profibus_pkw.telegram import (
@@ -88,7 +88,11 @@ class CyclicLink:
     # -- lifecycle ------------------------------------------------------------------------------------------
 
     def open(self) -> int:
-        """Read what is in force (without writing), adopt its control word, start cycling. Returns that word."""
+        """Read what is in force (without writing), adopt its control word, start cycling. Returns that word.
+
+        If the channel cannot tell its output words, the word is derived from the status: bus control, plus the
+        start bit when the motor is starting or running (so opening a link never stops a running motor).
+        """
         try:
             snap = self.channel.snapshot()
         except Exception as exc:
@@ -101,7 +105,7 @@ class CyclicLink:
             else:
                 zsw = snap.inputs[2] if self.ppo is Ppo.PPO1 else snap.inputs[0]
                 running = bool(zsw & (SW_STARTING | SW_RUNNING)) and not zsw & SW_FAULT
-                self._control = 1 if running else 0
+                self._control = CW_BUS_CONTROL | (CW_START if running else 0)
             self._opened = True
         if self.cycle > 0:
             self._stop.clear()
