@@ -258,10 +258,14 @@ class SimulatedStarter:
             self._set_phase(Phase.FAULT, self.clock(), f"fault {code}: {self.profile.faults.text(code)}")
 
     def command_lost(self, why: str = "command connection lost") -> None:
-        """Safe state when a cyclic master disappears: the run command is dropped (soft stop)."""
+        """Safe state when a cyclic master disappears: the run command it held is dropped (soft stop).
+
+        A motor started another way (keypad, terminals, ``start()``) is not the lost master's to stop.
+        """
         with self.lock:
-            self.control_word &= ~CW_START
-            self.soft_stop(why)
+            if self.control_word & CW_START:
+                self.control_word &= ~CW_START
+                self.soft_stop(why)
 
     def write_control_word(self, word: int, *, cyclic: bool = False) -> None:
         if not 0 <= word <= 0xFFFF:

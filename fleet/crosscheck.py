@@ -15,7 +15,7 @@ from starterbus.core.errors import StarterbusError, UnsupportedOperationError
 from starterbus.core.model import Kind, PointDef, Value
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
-from starterbus.core.status import Status
+from starterbus.core.status import SW_BUS_CONTROL, Status
 from starterbus.core.transport import Capability
 
 STATUS_FIELDS = (
@@ -29,6 +29,9 @@ STATUS_FIELDS = (
     "warning",
     "at_reference",
 )
+#: shown but not compared: each master path sets the control word's bus-control bit itself, so every path
+#: may honestly see a different value (a DeviceNet scanner always holds it, a Modbus reader never writes it)
+PATH_DEPENDENT = frozenset({"bus_control"})
 
 
 @dataclass
@@ -79,12 +82,12 @@ class CrossCheckReport:
         }
 
 
-def values_agree(values: Sequence[Value]) -> bool:
-    """Equal within the coarser resolution of the two (for enums and bit words: exactly equal)."""
+def values_agree(values: Sequence[Value], ignore_bits: int = 0) -> bool:
+    """Equal within the coarser resolution of the two (for enums and bit words: exactly equal but ``ignore_bits``)."""
     for a in values:
         for b in values:
             if a.point.enum is not None or a.point.bits:
-                if a.raw != b.raw:
+                if (a.raw ^ b.raw) & ~ignore_bits:
                     return False
             elif abs(float(a.value) - float(b.value)) > max(a.resolution, b.resolution) + 1e-9:
                 return False
@@ -135,12 +138,13 @@ def crosscheck(
     for point in points:
         found = [p.values.get(point.key) for p in paths]
         present = [v for v in found if v is not None]
-        agree = values_agree(present) if len(present) >= 2 else None
+        ignore = SW_BUS_CONTROL if point.key == profile.roles.get("status_word") else 0
+        agree = values_agree(present, ignore) if len(present) >= 2 else None
         rows.append(Row(point.key, tuple(v.text() if v else None for v in found), agree))
     for name in STATUS_FIELDS:
         found_flags = [getattr(p.status, name) if p.status is not None else None for p in paths]
         present_flags = [f for f in found_flags if f is not None]
-        agree = len(set(present_flags)) == 1 if len(present_flags) >= 2 else None
+        agree = len(set(present_flags)) == 1 if len(present_flags) >= 2 and name not in PATH_DEPENDENT else None
         rows.append(Row(f"status.{name}", tuple(None if f is None else str(f) for f in found_flags), agree))
     for phase in ("a", "b", "c"):
         currents = [p.status.currents.get(phase) if p.status is not None else None for p in paths]
