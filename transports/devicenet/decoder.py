@@ -86,9 +86,13 @@ class FrameAnnotator:
             ("identifier", f"0x{frame.can_id:03X}", f"group {int(ident.group)}, message id {ident.message_id}")
         )
         if ident.mac is not None:
-            fields.append(
-                ("MAC id", str(ident.mac), "slave" if ident.group in (Group.GROUP_1, Group.GROUP_2) else "source")
-            )
+            if ident.group is Group.GROUP_2 and ident.message_id == Group2.DUPLICATE_MAC_CHECK:
+                role = "the MAC id being checked (the sender's own)"
+            elif ident.group in (Group.GROUP_1, Group.GROUP_2):
+                role = "slave"
+            else:
+                role = "source"
+            fields.append(("MAC id", str(ident.mac), role))
         try:
             if ident.group is Group.GROUP_2 and ident.mac is not None:
                 if ident.message_id in _EXPLICIT_IDS:

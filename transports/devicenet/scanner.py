@@ -31,6 +31,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import can
 from starterbus.core.errors import (
@@ -129,8 +130,9 @@ class LinkConfig:
     settle: int = 2  # poll responses with a new status parameter address before its value is trusted
 
 
-@dataclass(frozen=True, slots=True)
-class InputSample:
+class InputSample(NamedTuple):
+    """The latest input assembly of a slave (a tuple: built on every poll response, so kept cheap)."""
+
     data: bytes
     at: float  # monotonic receive time
     wall: float  # time.time() at receipt
@@ -228,6 +230,7 @@ class Scanner:
         self.lock = threading.RLock()
         self.changed = threading.Condition(self.lock)
         self.links: dict[int, SlaveLink] = {}
+        self._scan_list: list[SlaveLink] = []
         self._by_response: dict[int, SlaveLink] = {}
         self._by_explicit: dict[int, SlaveLink] = {}
         self._commands: collections.deque[Callable[[], None]] = collections.deque()
@@ -259,6 +262,7 @@ class Scanner:
                 raise ConfigurationError(f"slave MAC {config.mac} equals the master's MAC on {self.where}")
             link = SlaveLink(self, config)
             self.links[config.mac] = link
+            self._scan_list = sorted(self.links.values(), key=lambda item: item.mac)
             self._by_response[poll_response_id(config.mac)] = link
             self._by_explicit[explicit_response_id(config.mac)] = link
             if self.state is ScannerState.ONLINE:
@@ -279,6 +283,7 @@ class Scanner:
         with self.lock:
             link.state = LinkState.CLOSED
             self.links.pop(link.mac, None)
+            self._scan_list = sorted(self.links.values(), key=lambda item: item.mac)
             self._by_response.pop(poll_response_id(link.mac), None)
             self._by_explicit.pop(explicit_response_id(link.mac), None)
             for transaction in link.transactions:
@@ -452,17 +457,19 @@ class Scanner:
     # -- scan cycles ------------------------------------------------------------------------------------------
 
     def _start_cycle(self, now: float) -> None:
-        links = [link for link in self.links.values() if link.state is LinkState.ESTABLISHED]
         self._next_cycle = now + self.config.poll_period
-        if not links:
-            self._next_cycle = now + max(self.config.poll_period, MAX_WAIT)
-            return
+        queue = self._cycle_queue
+        queue.extend(self._scan_list)  # _send_next_poll skips the links not established
         self._cycle_active = True
-        self._cycle_queue = collections.deque(links)
         self._cycle_outstanding = 0
         self._cycle_deadline = now + POLL_RESPONSE_TIMEOUT
-        for _ in range(min(WINDOW, len(links))):
+        for _ in range(WINDOW):
+            if not queue:
+                break
             self._send_next_poll()
+        if not self._cycle_outstanding:
+            self._cycle_active = False
+            self._next_cycle = now + max(self.config.poll_period, MAX_WAIT)
 
     def _send_next_poll(self) -> None:
         queue = self._cycle_queue
@@ -511,7 +518,7 @@ class Scanner:
     def _end_cycle(self, now: float) -> None:
         self._cycle_active = False
         self.cycles += 1
-        for link in self.links.values():
+        for link in self._scan_list:
             if link.awaiting:
                 link.awaiting = False
                 link.misses += 1

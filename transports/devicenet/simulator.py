@@ -26,7 +26,7 @@ from collections.abc import Callable, Iterable
 
 import can
 from starterbus.core.errors import ConfigurationError, Refusal, SimulatorRefusal
-from starterbus.core.model import Kind
+from starterbus.core.model import Kind, PointDef
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.status import CW_BUS_CONTROL, SW_FAULT, SW_RUNNING, SW_STARTING, SW_STOPPING
 from starterbus.core.transport import RunningSimulator
@@ -40,14 +40,23 @@ from starterbus.transports.devicenet.canbus import open_bus, shutdown
 from starterbus.transports.devicenet.dupmac import DEFAULT_WAIT
 from starterbus.transports.devicenet.frames import CanFrame
 from starterbus.transports.devicenet.identity import Identity
-from starterbus.transports.devicenet.ids import MAX_MAC
+from starterbus.transports.devicenet.ids import MAX_MAC, poll_command_id, poll_response_id
 from starterbus.transports.devicenet.slave_node import NodeState, SlaveNode
 
 log = logging.getLogger(__name__)
 
+IO_REFRESH = 0.001  # seconds: how often a node refreshes its input assembly from the starter
+_FAULT = int(InputBit.FAULT)
+_WARNING = int(InputBit.WARNING)
+_RUNNING = int(InputBit.RUNNING)
+_STARTING = int(InputBit.STARTING)
+_STOPPING = int(InputBit.STOPPING)
+_NETWORK_CONTROL = int(InputBit.NETWORK_CONTROL)
+_AT_REFERENCE = int(InputBit.AT_REFERENCE)
 PRO_TYPE_KEY = "profibus_type"  # JJR8000 p71: 0 = P1/M1 (basic 1/2), 1 = P3/M2 (extended 101/102)
 BusSpec = can.BusABC | tuple[str, str]
 Handler = Callable[[bytes, float], list[CanFrame]]
+Route = tuple[SlaveNode, Handler, int | None]  # node, handler, poll response id (the fast path) or None
 
 
 class StarterApplication:
@@ -58,11 +67,20 @@ class StarterApplication:
     word); an address the model does not define reads as 0.
     """
 
-    def __init__(self, starter: SimulatedStarter, assemblies: AssemblySet | None = AssemblySet.EXTENDED) -> None:
+    def __init__(
+        self,
+        starter: SimulatedStarter,
+        assemblies: AssemblySet | None = AssemblySet.EXTENDED,
+        io_refresh: float = IO_REFRESH,
+    ) -> None:
         self.starter = starter
         self.fixed = assemblies
+        self.io_refresh = io_refresh
         self.selected_address = 0x01
         self.outputs: dict[int, bytes] = {instance: bytes(size) for instance, size in OUTPUT_SIZES.items()}
+        self._written: int | None = None
+        self._points: dict[int, PointDef | None] = {}
+        self._cache: dict[int, tuple[float, bytes]] = {}
 
     def assembly_set(self) -> AssemblySet:
         if self.fixed is not None:
@@ -71,55 +89,76 @@ class StarterApplication:
         return AssemblySet.EXTENDED if pro_type == 1 else AssemblySet.BASIC
 
     def produce(self, instance: int) -> bytes:
+        """The input assembly, refreshed from the starter at most every ``io_refresh`` seconds (like the
+        internal cycle of a real communication module) and at once after outputs were applied."""
+        now = time.monotonic()
+        cached = self._cache.get(instance)
+        if cached is not None and now - cached[0] < self.io_refresh:
+            return cached[1]
+        data = self._produce(instance)
+        self._cache[instance] = (now, data)
+        return data
+
+    def _produce(self, instance: int) -> bytes:
         starter = self.starter
         with starter.lock:
             word = starter.status_word()
             amps = starter.current()
             bits = 0
             if word & SW_FAULT:
-                bits |= InputBit.FAULT
+                bits |= _FAULT
             if starter.warning:
-                bits |= InputBit.WARNING
+                bits |= _WARNING
             if word & SW_RUNNING:
-                bits |= InputBit.RUNNING
+                bits |= _RUNNING
             if word & SW_STARTING:
-                bits |= InputBit.STARTING
+                bits |= _STARTING
             if word & SW_STOPPING:
-                bits |= InputBit.STOPPING
+                bits |= _STOPPING
             if starter.control_word & CW_BUS_CONTROL:
-                bits |= InputBit.NETWORK_CONTROL
+                bits |= _NETWORK_CONTROL
             current = max(0, min(0xFFFF, round(amps)))
             if instance == 1:
                 if word & SW_RUNNING and starter.at_reference:
-                    bits |= InputBit.AT_REFERENCE
+                    bits |= _AT_REFERENCE
                 return struct.pack("<BBH", bits, 0, current)
             code = (starter.fault_code or 0) if word & SW_FAULT else 0
             return struct.pack("<BBHH", bits, code, current, self._selected_value())
 
     def _selected_value(self) -> int:
-        try:
-            point = self.starter.point_at("devicenet", Kind.MEASUREMENT, self.selected_address)
-            return self.starter.read(point) & 0xFFFF
-        except SimulatorRefusal as exc:
-            if exc.reason is Refusal.NOT_AVAILABLE:
-                return 0
-            raise
+        address = self.selected_address
+        if address not in self._points:
+            try:
+                self._points[address] = self.starter.point_at("devicenet", Kind.MEASUREMENT, address)
+            except SimulatorRefusal as exc:
+                if exc.reason is not Refusal.NOT_AVAILABLE:
+                    raise
+                self._points[address] = None
+        point = self._points[address]
+        return 0 if point is None else self.starter.read(point) & 0xFFFF
 
     def consume(self, instance: int, data: bytes) -> None:
+        if data == self.outputs.get(instance) and self.starter.control_word == self._written:
+            return  # the same outputs again: no edge, nothing to do
         output = decode_output(data, instance)
         self.outputs[instance] = bytes(data)
         if output.address is not None:
             self.selected_address = output.address
-        self.starter.write_control_word(output.control_word(), cyclic=True)
+        word = output.control_word()
+        self.starter.write_control_word(word, cyclic=True)
+        self._written = word
+        self._cache.clear()
 
     def output_data(self, instance: int) -> bytes:
         return self.outputs.get(instance, bytes(OUTPUT_SIZES.get(instance, 0)))
 
     def idle(self) -> None:
         self.starter.command_lost("DeviceNet master idle (zero-length poll command)")
+        self._cache.clear()
 
     def connection_lost(self, reason: str) -> None:
         self.starter.command_lost(reason)
+        self._cache.clear()
 
 
 class DeviceNetSimulator(RunningSimulator):
@@ -155,7 +194,7 @@ class DeviceNetSimulator(RunningSimulator):
         self.lock = threading.RLock()
         self.nodes: list[SlaveNode] = []
         self.applications: dict[int, StarterApplication] = {}
-        self._routes: dict[int, list[tuple[SlaveNode, Handler]]] = {}
+        self._routes: dict[int, list[Route]] = {}
         self._next_tick = float("inf")
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -186,7 +225,8 @@ class DeviceNetSimulator(RunningSimulator):
             self.applications[id(node)] = app
             routes = {k: list(v) for k, v in self._routes.items()}
             for can_id, handler in node.routes().items():
-                routes.setdefault(can_id, []).append((node, handler))
+                fast = poll_response_id(mac) if can_id == poll_command_id(mac) else None
+                routes.setdefault(can_id, []).append((node, handler, fast))
             self._routes = routes
             if self._thread is not None:
                 self._emit(node, node.start(self.clock()))
@@ -262,7 +302,7 @@ class DeviceNetSimulator(RunningSimulator):
         """Queue frames for the bus, and hand them to sibling nodes (a bus never echoes to its sender)."""
         for frame in frames:
             self._outbox.append(frame)
-            for node, handler in self._routes.get(frame.can_id, ()):
+            for node, handler, _ in self._routes.get(frame.can_id, ()):
                 if node is not sender:
                     self._emit(node, handler(frame.data, self.clock()))
 
@@ -303,8 +343,13 @@ class DeviceNetSimulator(RunningSimulator):
             now = clock()
             data = bytes(message.data)
             with self.lock:
-                for node, handler in targets:
+                for node, handler, response_id in targets:
                     try:
+                        if response_id is not None:  # poll command: the hot path
+                            response = node.poll(data, now)
+                            if response is not None:
+                                self._outbox.append(CanFrame(response_id, response))
+                            continue
                         self._emit(node, handler(data, now))
                     except Exception as exc:  # a bug must not kill the bus thread
                         log.exception(

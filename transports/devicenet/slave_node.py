@@ -262,7 +262,7 @@ class SlaveNode:
 
     def tick(self, now: float) -> list[CanFrame]:
         out: list[CanFrame] = []
-        if self.state is NodeState.CHECKING and now >= self._check.deadline:
+        while self.state is NodeState.CHECKING and now >= self._check.deadline:
             if self._check.step == 1:
                 self._check = _Check(2, self._check.deadline + self.dup_mac_wait)
                 out.append(self._dup_frame(False))
@@ -314,16 +314,21 @@ class SlaveNode:
     # -- I/O --------------------------------------------------------------------------------------------------
 
     def _on_poll(self, data: bytes, now: float) -> list[CanFrame]:
+        response = self.poll(data, now)
+        return [] if response is None else [CanFrame(poll_response_id(self.mac), response)]
+
+    def poll(self, data: bytes, now: float) -> bytes | None:
+        """A poll command's data in, the poll response's data out (None: no response). The driver's fast path."""
         polled = self.polled
         if self.state is not NodeState.ONLINE or polled.state is not ConnectionState.ESTABLISHED:
             self.counters.ignored_frames += 1
-            return []
+            return None
         assemblies = self.app.assembly_set()
         if data:
             if len(data) != OUTPUT_SIZES[assemblies.output_instance]:
                 self.counters.bad_frames += 1
                 self._log(now, f"poll command of {len(data)} bytes ignored (consumed size {assemblies.output_size})")
-                return []
+                return None
             if self._idle:
                 self._idle = False
                 self._log(now, "master active again")
@@ -332,10 +337,10 @@ class SlaveNode:
             self._idle = True
             self._log(now, "master idle (zero-length poll command)")
             self.app.idle()
-        timeout = inactivity_timeout(polled.epr_ms)
-        polled.deadline = None if timeout is None else now + timeout
+        if polled.epr_ms:
+            polled.deadline = now + polled.epr_ms * 0.004  # 4 x EPR
         self.counters.polls += 1
-        return [CanFrame(poll_response_id(self.mac), self.app.produce(assemblies.input_instance))]
+        return self.app.produce(assemblies.input_instance)
 
     # -- explicit messaging ------------------------------------------------------------------------------------
 
