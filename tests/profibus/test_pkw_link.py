@@ -24,13 +24,13 @@ class RecordingChannel(Channel):
     def __init__(self, slave: SimulatedDpSlave, *, clock: ManualClock | None = None, hide_outputs: bool = False):
         self.inner = SimChannel(slave)
         self.ppo = slave.ppo
-        self.sent: list[tuple[int, ...]] = []
+        self.sent: list[tuple[int | None, ...]] = []
         self.failing = False
         self.clock = clock
         self.hide_outputs = hide_outputs
         self.closed = False
 
-    def exchange(self, out_words: Sequence[int]) -> tuple[int, ...]:
+    def exchange(self, out_words: Sequence[int | None]) -> tuple[int, ...]:
         if self.clock is not None:
             self.clock.advance(0.01)
         if self.failing:
@@ -46,7 +46,7 @@ class RecordingChannel(Channel):
         self.closed = True
 
     def stws(self) -> list[int]:
-        return [w[2] if self.ppo is Ppo.PPO1 else w[0] for w in self.sent]
+        return [int(w[2] if self.ppo is Ppo.PPO1 else w[0]) for w in self.sent if w[-1] is not None]
 
 
 def make(
@@ -64,12 +64,15 @@ def make(
 
 def test_on_demand_read_takes_two_exchanges(jjr8000: Profile) -> None:
     link, channel, _ = make(jjr8000)
-    assert link.open() == 0x0008  # a new slave: nothing in force, the stopped motor gets bus control only
+    assert link.open() is None  # a new slave: no outputs to adopt, the control word is left alone
     job = link.pkw(READ_P3, "read p3")
     assert job.response is not None and job.response.pwe == 12 and job.cycles == 2
-    assert channel.sent == [(0, 0, 8, 0), (0x0103, 0, 8, 0)]
+    assert channel.sent == [(0, 0, None, None), (0x0103, 0, None, None)]
     job = link.pkw(READ_P3)  # the same task again: clear, then task (the slave latches per change)
-    assert job.cycles == 2 and channel.sent[-2:] == [(0, 0, 8, 0), (0x0103, 0, 8, 0)]
+    assert job.cycles == 2 and channel.sent[-2:] == [(0, 0, None, None), (0x0103, 0, None, None)]
+    link.send_control([0x0008])
+    job = link.pkw(READ_P3)
+    assert channel.sent[-2:] == [(0, 0, 8, 0), (0x0103, 0, 8, 0)]  # after a command: the word goes out
     link.close()
     assert channel.closed and channel.sent[-1][:2] == (0, 0)  # "no task" left in the output area
 
@@ -152,13 +155,20 @@ def test_open_adopts_the_control_word_in_force(jjr8000: Profile) -> None:
     assert channel.stws() == [0x0009] and starter.phase is Phase.STARTING
 
 
-def test_open_derives_the_run_bit_from_the_status_when_outputs_are_unknown(jjr5000: Profile) -> None:
-    starter = SimulatedStarter(jjr5000)
-    starter.write_control_word(0x0009)
-    link, _channel, _ = make(jjr5000, starter=starter, hide_outputs=True)
-    assert link.open() == 0x0009
+def test_open_leaves_an_unknown_control_word_alone(jjr8000: Profile) -> None:
+    # A monitoring session must not change the control word another master holds, nor create an edge for it.
+    starter = SimulatedStarter(jjr8000)
+    starter.write_control_word(0x0009)  # another master (Modbus, keypad...) started the motor
+    link, channel, _ = make(jjr8000, starter=starter, hide_outputs=True)
+    assert link.open() is None and link.control is None and link.motor_running()
     link.inputs()
-    assert starter.phase is Phase.STARTING  # not stopped by the first exchange
+    link.pkw(READ_P3)
+    assert all(w[2] is None for w in channel.sent)
+    assert starter.control_word == 0x0009 and starter.phase is Phase.STARTING
+    starter.write_control_word(0x0008)  # the other master stops it: our link does not restart it
+    link.inputs()
+    assert starter.phase is Phase.STOPPING
+    link.close()
 
 
 def test_a_failing_channel_gives_typed_errors_and_recovers(jjr8000: Profile) -> None:

@@ -271,7 +271,7 @@ class MisEcho(Channel):
         self.inner = SimChannel(slave)
         self.ppo = slave.ppo
 
-    def exchange(self, out_words: Sequence[int]) -> tuple[int, ...]:
+    def exchange(self, out_words: Sequence[int | None]) -> tuple[int, ...]:
         words = self.inner.exchange(out_words)
         if out_words[0] >> 8 == 2 and words[0] >> 8 == 1:
             return (words[0], words[1] + 1, *words[2:])

@@ -63,15 +63,20 @@ class Channel(ABC):
     ppo: Ppo
 
     @abstractmethod
-    def exchange(self, out_words: Sequence[int]) -> tuple[int, ...]:
-        """Send the output words, return the input words (``ppo.words`` each). Raise :class:`TransportError`."""
+    def exchange(self, out_words: Sequence[int | None]) -> tuple[int, ...]:
+        """Send the output words, return the input words (``ppo.words`` each). Raise :class:`TransportError`.
+
+        A ``None`` word means "leave this output word as it is": the driver is passive on PZD until its first
+        command (see :meth:`snapshot`). A channel that must always send whole telegrams substitutes the last
+        value it sent, and must then report its outputs in :meth:`snapshot` (so the driver is never passive).
+        """
 
     @abstractmethod
     def snapshot(self) -> Snapshot:
         """Read the current input words (and the output words if the channel can) WITHOUT writing anything.
 
-        The driver calls it once on open so that its first exchange repeats the control word already in
-        force instead of stopping a running motor.
+        The driver calls it once on open: with the outputs known it repeats the control word in force; with
+        ``outputs`` None it leaves the control word alone (``None`` words) until a command is given.
         """
 
     def close(self) -> None:
@@ -135,7 +140,7 @@ class SimChannel(Channel):
         self.slave = slave
         self.ppo = slave.ppo
 
-    def exchange(self, out_words: Sequence[int]) -> tuple[int, ...]:
+    def exchange(self, out_words: Sequence[int | None]) -> tuple[int, ...]:
         return self.slave.exchange(out_words)
 
     def snapshot(self) -> Snapshot:
@@ -251,8 +256,20 @@ class GatewayChannel(Channel):
         n = self.ppo.words
         return self.out + n <= self.inp or self.inp + n <= self.out
 
-    def exchange(self, out_words: Sequence[int]) -> tuple[int, ...]:
-        self._conn.write(self.out, out_words, self.unit)
+    def exchange(self, out_words: Sequence[int | None]) -> tuple[int, ...]:
+        start = 0
+        words = list(out_words)
+        while start < len(words):  # one FC16 per run of words to write (None: leave the register alone)
+            if words[start] is None:
+                start += 1
+                continue
+            end = start
+            run: list[int] = []
+            while end < len(words) and (word := words[end]) is not None:
+                run.append(word)
+                end += 1
+            self._conn.write(self.out + start, run, self.unit)
+            start = end
         return self._conn.read(self.inp, self.ppo.words, self.unit, self.input_function)
 
     def snapshot(self) -> Snapshot:

@@ -22,8 +22,8 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from starterbus.core.errors import StarterbusError, TimeoutError
-from starterbus.core.status import CW_BUS_CONTROL, CW_RESET, CW_START, SW_FAULT, SW_RUNNING, SW_STARTING
+from starterbus.core.errors import EncodeError, StarterbusError, TimeoutError
+from starterbus.core.status import CW_RESET, SW_FAULT, SW_RUNNING, SW_STARTING
 from starterbus.transports.profibus_pkw.channels import Channel, channel_error
 from starterbus.transports.profibus_pkw.handshake import PkwEngine, PkwJob
 from starterbus.transports.profibus_pkw.telegram import (
@@ -35,7 +35,6 @@ from starterbus.transports.profibus_pkw.telegram import (
     Ppo1In,
     PzdIn,
     from_words,
-    output_words,
 )
 
 Clock = Callable[[], float]
@@ -73,7 +72,7 @@ class CyclicLink:
         self.clock = clock
         self.name = name
         self._cond = threading.Condition(threading.RLock())
-        self._control = 0
+        self._control: int | None = 0
         self._plan: deque[list[float]] = deque()  # [word, exchanges left, not before (time)]
         self._attempts = 0
         self._exchanges = 0
@@ -87,11 +86,13 @@ class CyclicLink:
 
     # -- lifecycle ------------------------------------------------------------------------------------------
 
-    def open(self) -> int:
+    def open(self) -> int | None:
         """Read what is in force (without writing), adopt its control word, start cycling. Returns that word.
 
-        If the channel cannot tell its output words, the word is derived from the status: bus control, plus the
-        start bit when the motor is starting or running (so opening a link never stops a running motor).
+        If the channel cannot tell its output words (a gateway whose output and input areas share registers),
+        the link stays PASSIVE on PZD: it leaves the control word in the output area as it is (the channel writes
+        only the PKW words) until the first command. So a monitoring session never changes what another
+        master, or a previous session, put there; ``None`` is returned.
         """
         try:
             snap = self.channel.snapshot()
@@ -103,15 +104,27 @@ class CyclicLink:
                 word = snap.outputs[2] if self.ppo is Ppo.PPO1 else snap.outputs[0]
                 self._control = word & ~CW_RESET & 0xFFFF
             else:
-                zsw = snap.inputs[2] if self.ppo is Ppo.PPO1 else snap.inputs[0]
-                running = bool(zsw & (SW_STARTING | SW_RUNNING)) and not zsw & SW_FAULT
-                self._control = CW_BUS_CONTROL | (CW_START if running else 0)
+                self._control = None
             self._opened = True
         if self.cycle > 0:
             self._stop.clear()
             self._thread = threading.Thread(target=self._run, name=f"{PROTOCOL} cycle {self.name}", daemon=True)
             self._thread.start()
         return self._control
+
+    @property
+    def last_inputs(self) -> tuple[int, ...] | None:
+        """The input words of the last exchange (or of the snapshot taken on open)."""
+        with self._cond:
+            return self._last_in
+
+    def motor_running(self) -> bool:
+        """From the last status word: starting or running, and no fault."""
+        words = self.last_inputs
+        if not words:
+            return False
+        zsw = words[2] if self.ppo is Ppo.PPO1 else words[0]
+        return bool(zsw & (SW_STARTING | SW_RUNNING)) and not zsw & SW_FAULT
 
     def close(self) -> None:
         """Stop cycling; leave "no task" in the output area (best effort) and release the channel."""
@@ -122,7 +135,7 @@ class CyclicLink:
         try:
             with self._cond:
                 if self._opened and self._last_ok and self.ppo is Ppo.PPO1:
-                    self.channel.exchange(output_words(self.ppo, NO_TASK, self._control))
+                    self.channel.exchange(_outputs(self.ppo, NO_TASK, self._control))
         except Exception:
             pass
         finally:
@@ -154,7 +167,7 @@ class CyclicLink:
             stw = int(self._plan[0][0]) if self._plan else self._control
             self._attempts += 1
             try:
-                words = self.channel.exchange(output_words(self.ppo, pkw, stw))
+                words = self.channel.exchange(_outputs(self.ppo, pkw, stw))
                 if self.ppo is Ppo.PPO1:  # count and range
                     from_words(Ppo1In, words)
                 else:
@@ -206,7 +219,8 @@ class CyclicLink:
     # -- PZD -------------------------------------------------------------------------------------------------
 
     @property
-    def control(self) -> int:
+    def control(self) -> int | None:
+        """The control word this link puts in the output area; None while passive (see :meth:`open`)."""
         return self._control
 
     def send_control(self, words: Sequence[int], timeout: float = 2.0) -> None:
@@ -268,3 +282,12 @@ class CyclicLink:
     def stats(self) -> LinkStats:
         with self._cond:
             return LinkStats(self._exchanges, self._failures, str(self._last_error) if self._last_error else None)
+
+
+def _outputs(ppo: Ppo, pkw: PkwRequest, stw: int | None) -> tuple[int | None, ...]:
+    """The output words of one exchange; None = leave that word in the output area as it is (passive PZD)."""
+    if (pkw.ind or pkw.pwe) and ppo is not Ppo.PPO1:
+        raise EncodeError("PPO3 has no PKW area: parameter tasks need PPO1", field="ppo")
+    if ppo is Ppo.PPO1:
+        return (pkw.ind, pkw.pwe, stw, None if stw is None else 0)
+    return (stw, None if stw is None else 0)

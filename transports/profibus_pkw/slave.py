@@ -151,21 +151,24 @@ class SimulatedDpSlave:
 
     # -- one exchange ------------------------------------------------------------------------------------
 
-    def exchange(self, out_words: Sequence[int]) -> tuple[int, ...]:
-        words = tuple(out_words)
-        if len(words) != self.ppo.words or any(not 0 <= w <= 0xFFFF for w in words):
+    def exchange(self, out_words: Sequence[int | None]) -> tuple[int, ...]:
+        """One data exchange. ``None`` words keep the previous output (an in-process master that leaves the
+        control word alone); a ``None`` control word is not applied to the starter."""
+        given = tuple(out_words)
+        if len(given) != self.ppo.words or any(w is not None and not 0 <= w <= 0xFFFF for w in given):
             raise DecodeError(
-                f"{self.ppo.name} slave {self.name!r} expects {self.ppo.words} 16-bit output words, got {list(words)}"
+                f"{self.ppo.name} slave {self.name!r} expects {self.ppo.words} 16-bit output words, got {list(given)}"
             )
         with self.starter.lock:
+            previous = self.outputs or (0,) * self.ppo.words
+            words = tuple(p if w is None else w for w, p in zip(given, previous, strict=True))
             self.exchanges += 1
             self.outputs = words
+            stw_index = 2 if self.ppo is Ppo.PPO1 else 0
             if self.ppo is Ppo.PPO1:
-                stw = words[2]
                 self._pkw(PkwRequest(words[0], words[1]))
-            else:
-                stw = words[0]
-            self.starter.write_control_word(stw, cyclic=True)
+            if given[stw_index] is not None:
+                self.starter.write_control_word(words[stw_index], cyclic=True)
             return self.inputs()
 
     def inputs(self) -> tuple[int, ...]:

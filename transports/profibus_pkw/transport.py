@@ -23,7 +23,7 @@ from starterbus.core.errors import ConfigurationError, DecodeError, UnsupportedO
 from starterbus.core.model import Kind, PointDef, Reading, Value
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
-from starterbus.core.status import Command, ControlWordState, Status, decode_status_word
+from starterbus.core.status import CW_START, Command, ControlWordState, Status, decode_status_word
 from starterbus.core.transport import Capability, Transport
 from starterbus.core.url import DeviceUrl
 from starterbus.transports.profibus_pkw.channels import Channel, GatewayChannel, SimChannel, get_slave
@@ -180,7 +180,11 @@ class ProfibusPkwTransport(Transport):
         except BaseException:
             link.channel.close()
             raise
-        self.control = ControlWordState(bus_control=True, run=bool(word & 1))
+        # The words of the next command: a bus master sets bus control (bit 3) with every command; the run level
+        # is the one in force (or, while the link is passive, the motor's state), so "reset" or "take bus control"
+        # never changes it by accident.
+        running = link.motor_running() if word is None else bool(word & CW_START)
+        self.control = ControlWordState(bus_control=True, run=running)
         self.link = link
 
     def close(self) -> None:
