@@ -8,6 +8,7 @@ answer with exactly the printed bytes.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
@@ -15,7 +16,7 @@ import pytest
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import ManualClock, SimulatedStarter
-from starterbus.transports.profibus_pkw.channels import attached_slaves, detach_slave
+from starterbus.transports.profibus_pkw.channels import GATEWAYS, attached_slaves, detach_slave
 from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
 from starterbus.transports.profibus_pkw.telegram import (
     Direction,
@@ -224,8 +225,12 @@ def gateway_factory() -> Iterator[type[ProfibusGatewaySimulator]]:
 
 
 @pytest.fixture(autouse=True)
-def _no_leftover_slaves() -> Iterator[None]:
+def _nothing_left_open() -> Iterator[None]:
+    """Every test detaches its slaves, closes its links (cycle threads) and releases its gateway connections."""
     before = set(attached_slaves())
     yield
     for name in set(attached_slaves()) - before:
         detach_slave(name)
+    assert not GATEWAYS._items, f"gateway connections left open: {list(GATEWAYS._items)}"
+    cycling = [t.name for t in threading.enumerate() if t.name.startswith("profibus-pkw cycle")]
+    assert not cycling, f"cycle threads left running: {cycling}"
