@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
+import can
 import pytest
 from can.interfaces import virtual
+from starterbus.transports.devicenet.canbus import from_message
+from starterbus.transports.devicenet.frames import CanFrame
 from starterbus.transports.devicenet.transport import SCANNERS
 
 
@@ -18,3 +22,56 @@ def channel(request: pytest.FixtureRequest) -> Iterator[str]:
     key = ("virtual", name)
     assert SCANNERS.users(key) == 0, f"a scanner on {name} was left open"
     assert name not in virtual.channels, f"a python-can bus on {name} was left open"
+
+
+class Sniffer:
+    """Records every frame on a virtual channel (a listening bus, as a bus analyser would)."""
+
+    def __init__(self, channel: str) -> None:
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.frames: list[CanFrame] = []
+        self._notifier = can.Notifier(self.bus, [self._on_message], timeout=0.01)
+
+    def _on_message(self, message: can.Message) -> None:
+        frame = from_message(message)
+        if frame is not None:
+            self.frames.append(frame)
+
+    def texts(self) -> list[str]:
+        """Frames as candump text, with the transaction id bit of explicit headers cleared (the scanner
+        toggles it per request) so that tests can compare with fixed frames."""
+        out = []
+        for frame in list(self.frames):
+            data = frame.data
+            if 0x400 <= frame.can_id < 0x600 and frame.can_id & 7 in (3, 4, 6) and data:
+                data = bytes((data[0] & ~0x40 & 0xFF,)) + data[1:]
+            out.append(CanFrame(frame.can_id, data).text())
+        return out
+
+    def ids(self) -> list[int]:
+        return [frame.can_id for frame in list(self.frames)]
+
+    def close(self) -> None:
+        self._notifier.stop()
+        self.bus.shutdown()
+
+
+@pytest.fixture
+def sniffer(channel: str) -> Iterator[Sniffer]:
+    sniff = Sniffer(channel)
+    yield sniff
+    sniff.close()
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float = 3.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.005)
+    return predicate()
+
+
+@pytest.fixture
+def until() -> Callable[..., bool]:
+    return wait_until

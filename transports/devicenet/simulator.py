@@ -249,8 +249,9 @@ class DeviceNetSimulator(RunningSimulator):
             return self
         with self.lock:
             now = self.clock()
-            for node in self.nodes:
-                self._emit(node, node.start(now))
+            started = [(node, node.start(now)) for node in self.nodes]  # all checking before any frame is seen
+            for node, frames in started:
+                self._emit(node, frames)
             self._recompute_deadline()
             self._flush()
         self._thread = threading.Thread(target=self._run, name=f"devicenet-sim {self.where}", daemon=True)
