@@ -23,6 +23,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable
+from functools import partial
 
 import can
 from starterbus.core.registry import get_profile
@@ -171,9 +172,9 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(header)
     for nodes in args.nodes:
-        bare = median_run(lambda nodes=nodes: measure_bare(nodes, args.seconds), args.repeats)
-        master = median_run(lambda nodes=nodes: measure_scanner(nodes, args.seconds, "bare"), args.repeats)
-        full = median_run(lambda nodes=nodes: measure_scanner(nodes, args.seconds, "simulator"), args.repeats)
+        bare = median_run(partial(measure_bare, nodes, args.seconds), args.repeats)
+        master = median_run(partial(measure_scanner, nodes, args.seconds, "bare"), args.repeats)
+        full = median_run(partial(measure_scanner, nodes, args.seconds, "simulator"), args.repeats)
         ratio, ratio_full = master["rate"] / bare["rate"], full["rate"] / bare["rate"]
         print(
             f"{nodes:>3}  {bare['rate']:>8.0f}/s {bare['cpu_us']:>5.1f}us  {master['rate']:>21.0f}/s "

@@ -56,7 +56,8 @@ def test_sender_and_receiver_with_acknowledgements() -> None:
 
 def test_sender_ignores_stale_and_refused_acks() -> None:
     sender = Fragmenter(PRODUCT_NAME_RESPONSE)
-    assert sender.on_ack(bytes.fromhex("80 C5 00")) is None and not sender.done  # wrong count: stale
+    assert sender.on_ack(bytes.fromhex("80 C5 00")) is None  # wrong count: a stale acknowledgement
+    assert sender.index == 0
     with pytest.raises(FragmentError) as info:
         sender.on_ack(bytes.fromhex("80 C0 01"))  # too much data
     assert info.value.general_status == 0x15

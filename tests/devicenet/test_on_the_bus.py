@@ -18,6 +18,8 @@ from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.core.status import Command, MotorState
 from starterbus.transports.devicenet.assemblies import AssemblySet
+from starterbus.transports.devicenet.cip import Service
+from starterbus.transports.devicenet.explicit import ExplicitRequest
 from starterbus.transports.devicenet.scanner import LinkConfig, LinkState, Scanner, ScannerConfig, ScannerState
 from starterbus.transports.devicenet.simulator import DeviceNetSimulator, DeviceNetSlaveSimulator
 from starterbus.transports.devicenet.slave_node import NodeState
@@ -28,8 +30,11 @@ Until = Callable[..., bool]
 
 
 def url(channel: str, mac: int, extra: str = "") -> str:
-    query = dict(part.split("=") for part in FAST.split("&"))
-    query.update(part.split("=") for part in extra.split("&") if part)
+    query: dict[str, str] = {}
+    for part in f"{FAST}&{extra}".split("&"):
+        if part:
+            key, _, value = part.partition("=")
+            query[key] = value
     return f"devicenet://virtual/{channel}?mac={mac}&" + "&".join(f"{k}={v}" for k, v in query.items())
 
 
@@ -205,20 +210,20 @@ def test_watchdog_and_master_restart_with_the_old_allocation(
 
 
 def test_another_master_is_refused(channel: str, jjr8000: Profile, until: Until) -> None:
-    with DeviceNetSlaveSimulator(SimulatedStarter(jjr8000), ("virtual", channel), 5, dup_mac_wait=0.05):
-        with open_device(url(channel, 5), "jjr8000") as device:
-            other = Scanner(ScannerConfig("virtual", channel, master_mac=1, dup_mac_wait=0.05, timeout=0.5))
-            try:
-                other.wait_online(2)
-                link = other.attach(LinkConfig(5, epr_ms=50))
-                assert until(lambda: link.state is LinkState.REFUSED)
-                error = link.last_error
-                assert isinstance(error, RemoteDeviceError)
-                assert (error.code, error.additional) == (0x0C, 0x01)
-                assert "another master" in str(error)
-                assert device.status().state is MotorState.STOPPED  # the first master keeps its slave
-            finally:
-                other.close()
+    simulator = DeviceNetSlaveSimulator(SimulatedStarter(jjr8000), ("virtual", channel), 5, dup_mac_wait=0.05)
+    with simulator, open_device(url(channel, 5), "jjr8000") as device:
+        other = Scanner(ScannerConfig("virtual", channel, master_mac=1, dup_mac_wait=0.05, timeout=0.5))
+        try:
+            other.wait_online(2)
+            link = other.attach(LinkConfig(5, epr_ms=50))
+            assert until(lambda: link.state is LinkState.REFUSED)
+            error = link.last_error
+            assert isinstance(error, RemoteDeviceError)
+            assert (error.code, error.additional) == (0x0C, 0x01)
+            assert "another master" in str(error)
+            assert device.status().state is MotorState.STOPPED  # the first master keeps its slave
+        finally:
+            other.close()
 
 
 def test_slave_goes_away_and_comes_back(channel: str, jjr8000: Profile, until: Until) -> None:
@@ -300,3 +305,19 @@ def test_scanner_state_after_close(channel: str, two_slaves: object) -> None:
     assert scanner is not None and scanner.state is ScannerState.CLOSED
     with pytest.raises(ConfigurationError, match="not open"):
         device.status()
+
+
+def test_fragmented_request_from_the_master(channel: str, sniffer: object, two_slaves: object) -> None:
+    """Master -> slave fragmentation over the bus: a 17-byte Set_Attribute_Single in three acknowledged fragments."""
+    with open_device(url(channel, 5), "jjr8000") as device:
+        scanner, link = transport(device).scanner, transport(device).link
+        assert scanner is not None and link is not None
+        request = ExplicitRequest(0, Service.SET_ATTRIBUTE_SINGLE, 1, 1, 7, b"\x0bJJR8000-XYZ")
+        with pytest.raises(RemoteDeviceError) as info:
+            scanner.request(link, request)
+        assert info.value.code == 0x0E  # reassembled by the slave, then refused: not settable
+    texts = sniffer.texts()  # type: ignore[attr-defined]
+    first = texts.index("42C#8000100101070B4A")  # service, class, instance, attribute 7, length, "J"
+    rest = texts[first:]
+    assert rest.index("42B#80C000") < rest.index("42C#80414A5238303030") < rest.index("42B#80C100")
+    assert rest.index("42C#80822D58595A") < rest.index("42B#80C200") < rest.index("42B#00940EFF")

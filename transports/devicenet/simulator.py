@@ -23,6 +23,7 @@ import struct
 import threading
 import time
 from collections.abc import Callable, Iterable
+from typing import TypeVar
 
 import can
 from starterbus.core.errors import ConfigurationError, Refusal, SimulatorRefusal
@@ -44,6 +45,7 @@ from starterbus.transports.devicenet.ids import MAX_MAC, poll_command_id, poll_r
 from starterbus.transports.devicenet.slave_node import NodeState, SlaveNode
 
 log = logging.getLogger(__name__)
+SimulatorT = TypeVar("SimulatorT", bound="DeviceNetSimulator")
 
 IO_REFRESH = 0.001  # seconds: how often a node refreshes its input assembly from the starter
 _FAULT = int(InputBit.FAULT)
@@ -244,7 +246,7 @@ class DeviceNetSimulator(RunningSimulator):
 
     # -- lifecycle --------------------------------------------------------------------------------------------
 
-    def start(self) -> DeviceNetSimulator:
+    def start(self: SimulatorT) -> SimulatorT:
         if self._thread is not None:
             return self
         with self.lock:
@@ -276,7 +278,7 @@ class DeviceNetSimulator(RunningSimulator):
         if self._owns_bus:
             shutdown(self.bus)
 
-    def __enter__(self) -> DeviceNetSimulator:
+    def __enter__(self: SimulatorT) -> SimulatorT:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:

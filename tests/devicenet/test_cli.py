@@ -1,0 +1,126 @@
+"""The common CLI commands through devicenet:// URLs, `identify`, `decode devicenet`, `simulate --devicenet`,
+and the loopback bridge from another process."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+from starterbus.cli.main import main
+from starterbus.core.device import open_device
+from starterbus.core.profile import Profile
+from starterbus.core.simulator import Phase, SimulatedStarter
+from starterbus.transports.devicenet.simulator import DeviceNetSlaveSimulator
+
+FAST = "dup_mac_wait=0.05&epr=50&poll=10"
+
+
+@pytest.fixture
+def simulated(channel: str, jjr8000: Profile) -> Iterator[SimulatedStarter]:
+    starter = SimulatedStarter(jjr8000)
+    with DeviceNetSlaveSimulator(starter, ("virtual", channel), 5, dup_mac_wait=0.05):
+        yield starter
+
+
+def test_status_read_identify(channel: str, simulated: SimulatedStarter, capsys: pytest.CaptureFixture[str]) -> None:
+    url = f"devicenet://virtual/{channel}?mac=5&{FAST}&timeout=0.5"
+    assert main(["status", url, "--model", "jjr8000", "--json"]) == 0
+    status = json.loads(capsys.readouterr().out)["status"]
+    assert status["state"] == "stopped" and status["ready"] is None and status["bus_control"] is True
+    assert status["currents"]["a"]["resolution"] == 1.0
+    assert main(["read", url, "m3", "status_word", "--model", "jjr8000"]) == 0
+    out = capsys.readouterr().out
+    assert "phase B current" in out and "0x6000" in out
+    assert main(["identify", url, "--model", "jjr8000"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"product_name\s+JJR8000", out) and re.search(r"vendor_id\s+819", out)
+    assert main(["read", url, "p3", "--model", "jjr8000"]) == 1
+    assert "cannot read parameters" in capsys.readouterr().err
+
+
+def test_commands(
+    channel: str, simulated: SimulatedStarter, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    url = f"devicenet://virtual/{channel}?mac=5&{FAST}&timeout=0.5"
+    log = str(tmp_path / "audit.jsonl")
+    assert main(["start", url, "--model", "jjr8000", "--dry-run"]) == 0
+    assert "42D#0101" in capsys.readouterr().out
+    assert simulated.phase is Phase.STOPPED  # a dry run sends nothing
+    assert main(["start", url, "--model", "jjr8000", "--yes", "--audit-log", log]) == 0
+    assert simulated.start_count == 1
+    simulated.inject_fault(2)
+    assert main(["reset", url, "--model", "jjr8000", "--yes", "--audit-log", log, "--show-status"]) == 0
+    assert simulated.fault_code is None
+    capsys.readouterr()
+
+
+def test_decode_command(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["decode", "devicenet", "--model", "jjr8000", "42E#004B03010300", "42B#00940C01"]) == 0
+    out = capsys.readouterr().out
+    assert "explicit + polled" in out and "object state conflict" in out
+    assert main(["decode", "devicenet", "42B#8081"]) == 1
+    assert "without a first fragment" in capsys.readouterr().out
+
+
+def test_simulate_command_in_process(channel: str, capsys: pytest.CaptureFixture[str]) -> None:
+    args = ["simulate", "--model", "jjr8000", "--unit", "1", "--unit", "2", "--mac", "5", "--mac", "6",
+            "--devicenet", f"virtual:{channel}", "--devicenet-dup-mac-wait", "0.05", "--duration", "1.2"]  # fmt: skip
+    result: list[int] = []
+    runner = threading.Thread(target=lambda: result.append(main(args)))
+    runner.start()
+    try:
+        with open_device(f"devicenet://virtual/{channel}?mac=6&{FAST}&timeout=1", "jjr8000") as device:
+            assert device.status().source == "devicenet"
+    finally:
+        runner.join()
+    assert result == [0]
+    out = capsys.readouterr().out
+    assert "MAC 5" in out and "MAC 6" in out and "extended assemblies 101/102" in out
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--devicenet", "virtual:x", "--mac", "5", "--mac", "6"], "one --mac per --unit"),
+        (["--devicenet", "virtual:x", "--mac", "64"], "outside 1..63"),
+        (["--devicenet", "virtualx", "--mac", "5"], "INTERFACE:CHANNEL"),
+        (["--devicenet", "virtual:x", "--mac", "5", "--devicenet-bridge", "10.1.2.3:5000"], "not a loopback"),
+        (["--mac", "5"], "need --devicenet"),
+    ],
+)
+def test_simulate_refuses(extra: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["simulate", "--model", "jjr8000", "--duration", "0.1", *extra]) == 1
+    assert message in capsys.readouterr().err
+
+
+def test_bridge_from_another_process(capsys: pytest.CaptureFixture[str]) -> None:
+    """The simulator runs in a child process; this process reaches it through the loopback bridge."""
+    command = [sys.executable, "-m", "starterbus.cli.main", "simulate", "--model", "jjr8000", "--mac", "5",
+               "--devicenet", "virtual:bridged", "--devicenet-bridge", "127.0.0.1:0",
+               "--devicenet-dup-mac-wait", "0.05", "--duration", "30"]  # fmt: skip
+    child = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout is not None
+        address = None
+        for _ in range(5):
+            line = child.stdout.readline()
+            match = re.search(r"devicenet://remote/(127\.0\.0\.1:\d+)", line)
+            if match:
+                address = match.group(1)
+                break
+        assert address is not None, "the simulator did not print the bridge address"
+        url = f"devicenet://remote/{address}?mac=5&{FAST}&timeout=1"
+        assert main(["status", url, "--model", "jjr8000", "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["status"]["state"] == "stopped"
+        assert main(["identify", url, "--model", "jjr8000", "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["identity"]["product_name"] == "JJR8000"
+    finally:
+        child.terminate()
+        child.wait(10)
+    assert child.returncode == 0, child.stderr.read() if child.stderr else ""
