@@ -122,8 +122,10 @@ class Link:
                 raise self._fail("write", exc) from exc
             view = view[sent:]
 
-    def read(self, size: int, deadline: float) -> bytes:
-        """Up to ``size`` bytes; fewer only when ``deadline`` (monotonic) has passed."""
+    def read(self, size: int, deadline: float, limit: int = 0) -> bytes:
+        """At least ``size`` bytes (fewer only when ``deadline``, monotonic, has passed), and no more than
+        ``limit`` (default ``size``): what has already arrived beyond ``size`` is taken in the same call."""
+        limit = max(size, limit)
         out = b""
         while len(out) < size:
             remaining = deadline - time.monotonic()
@@ -132,7 +134,7 @@ class Link:
             ready, _, _ = select.select([self.fd], [], [], remaining)
             if not ready:
                 break
-            chunk = self._recv(size - len(out))
+            chunk = self._recv(limit - len(out))
             if chunk is None:
                 continue
             out += chunk
@@ -149,17 +151,10 @@ class Link:
             raise TransportError(f"{self.name}: the other end closed the connection")
         return chunk
 
-    def read_pending(self) -> bytes:
-        """Whatever has arrived already, without waiting."""
-        out = b""
-        while True:
-            ready, _, _ = select.select([self.fd], [], [], 0)
-            if not ready:
-                return out
-            chunk = self._recv(_READ_CHUNK)
-            if chunk is None:
-                return out
-            out += chunk
+    def wait_readable(self, timeout: float) -> bool:
+        """True as soon as bytes are there to read; False after ``timeout`` seconds of nothing."""
+        ready, _, _ = select.select([self.fd], [], [], max(0.0, timeout))
+        return bool(ready)
 
     def drain(self, quiet: float, limit: float) -> tuple[bytes, float | None]:
         """Read and drop bytes until none came for ``quiet`` seconds, or until ``limit`` (monotonic).
@@ -215,21 +210,18 @@ class RtuLine:
         with self.lock:
             self.link.close()
 
-    def _wait_quiet(self) -> None:
-        delay = self._quiet_at - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
-        stale = self.link.read_pending()
-        if stale:  # a late answer to an earlier request: wait until the line is quiet again
-            _, last = self.link.drain(self.settings.silence, time.monotonic() + 1.0)
-            quiet_from = last if last is not None else time.monotonic()
-            self._wait_until(quiet_from + self.settings.silence)
-
-    @staticmethod
-    def _wait_until(moment: float) -> None:
-        delay = moment - time.monotonic()
-        if delay > 0:
-            time.sleep(delay)
+    def _wait_quiet(self, limit: float) -> None:
+        """Wait until the line has been silent for the interval; bytes arriving meanwhile (a late answer to an
+        earlier request, noise) are dropped and restart the interval. Gives up after ``limit`` seconds."""
+        give_up = time.monotonic() + limit
+        while self.link.wait_readable(self._quiet_at - time.monotonic()):
+            dropped, last = self.link.drain(self.settings.silence, give_up)
+            self._quiet_at = (last if last is not None else time.monotonic()) + self.settings.silence
+            if time.monotonic() >= give_up:
+                raise TransportError(
+                    f"{self.name}: the line did not fall silent within {limit:g} s "
+                    f"(last bytes {dropped[-16:].hex(' ').upper()})"
+                )
 
     def transact(self, request: Request, policy: TransactionPolicy) -> Response | None:
         """Send ``request`` and return the checked answer (an ExceptionResponse is an answer, not an error).
@@ -245,7 +237,7 @@ class RtuLine:
                 raise TransportError(f"{self.name} is closed")
             self.transactions += 1
             for attempt in range(1, attempts + 1):
-                self._wait_quiet()
+                self._wait_quiet(max(1.0, policy.timeout))
                 self.link.write(frame)
                 wire_end = time.monotonic() + len(frame) * self.char_time
                 if request.unit == BROADCAST:
@@ -270,7 +262,8 @@ class RtuLine:
         while True:
             needed = receiver.bytes_needed()
             if needed:
-                data = self.link.read(needed, deadline)
+                # at least the header (or the rest), at most the whole answer: one read when it is all there
+                data = self.link.read(needed, deadline, receiver.expected_length - len(receiver.received))
                 if data:
                     last_rx = time.monotonic()
                     receiver.feed(data)
