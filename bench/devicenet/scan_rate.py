@@ -171,11 +171,13 @@ def main(argv: list[str] | None = None) -> int:
         f"  {'scanner+simulator':>18} {'CPU':>7} {'ratio':>6}"
     )
     print(header)
+    software: dict[int, float] = {}
     for nodes in args.nodes:
         bare = median_run(partial(measure_bare, nodes, args.seconds), args.repeats)
         master = median_run(partial(measure_scanner, nodes, args.seconds, "bare"), args.repeats)
         full = median_run(partial(measure_scanner, nodes, args.seconds, "simulator"), args.repeats)
         ratio, ratio_full = master["rate"] / bare["rate"], full["rate"] / bare["rate"]
+        software[nodes] = nodes / full["rate"]
         print(
             f"{nodes:>3}  {bare['rate']:>8.0f}/s {bare['cpu_us']:>5.1f}us  {master['rate']:>21.0f}/s "
             f"{master['cpu_us']:>5.1f}us {master['io_us']:>5.1f}us {ratio:>5.2f}x  {full['rate']:>16.0f}/s "
@@ -186,6 +188,14 @@ def main(argv: list[str] | None = None) -> int:
     print()
     for line in wire_table():
         print(line)
+    if 63 in software:
+        wire = 63 * (frame_bits(2, True) + frame_bits(6, True)) / 500_000
+        print()
+        print(
+            f"63 slaves: the scanner needs {software[63] * 1000:.1f} ms of software time per scan (with the simulator "
+            f"in the same process), the wire {wire * 1000:.1f} ms at 500 kbit/s (extended, worst-case stuffing): "
+            + ("the wire limits a real bus." if wire > software[63] else "software limits.")
+        )
     return 0
 
 
