@@ -189,25 +189,29 @@ def test_late_answer_from_an_earlier_request_is_not_taken(peer: PtyPeer) -> None
         assert d.read_value("motor_rated_current").value == 390
 
 
-def test_peer_hangs_up_is_a_transport_error() -> None:
+def test_peer_hangs_up_is_a_transport_error_then_reconnects() -> None:
+    """A device server that drops the connection: a TransportError, and the next transaction reconnects."""
     server = socket.socket()
     server.bind(("127.0.0.1", 0))
-    server.listen(1)
+    server.listen(2)
     port = server.getsockname()[1]
 
-    def hang_up() -> None:
+    def hang_up_then_answer() -> None:
         conn, _ = server.accept()
         conn.recv(8)
         conn.close()
+        conn, _ = server.accept()
+        with conn:
+            conn.recv(8)
+            conn.sendall(GOOD)
 
-    thread = threading.Thread(target=hang_up, daemon=True)
+    thread = threading.Thread(target=hang_up_then_answer, daemon=True)
     thread.start()
     try:
-        with (
-            open_device(f"modbus-rtu+tcp://127.0.0.1:{port}?unit=2&{FAST}", "jjr5000") as d,
-            pytest.raises(TransportError, match="closed"),
-        ):
-            d.read("motor_rated_current")
+        with open_device(f"modbus-rtu+tcp://127.0.0.1:{port}?unit=2&{FAST}", "jjr5000") as d:
+            with pytest.raises(TransportError, match="closed"):
+                d.read("motor_rated_current")
+            assert d.read_value("motor_rated_current").value == 390
     finally:
         thread.join(timeout=2)
         server.close()

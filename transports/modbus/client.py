@@ -64,13 +64,14 @@ class ModbusRtuTransport(Transport):
 
     # -- lifecycle ------------------------------------------------------------------------------------------
 
-    def _make_line(self) -> RtuLine:
+    def _connect(self) -> Link:
         cfg = self.config
         if cfg.variant == "tcp":
-            link = Link.connect_tcp(cfg.host, cfg.port, cfg.policy.timeout)
-        else:
-            link = Link.open_serial(cfg.path, cfg.serial)
-        return RtuLine(link, cfg.serial)
+            return Link.connect_tcp(cfg.host, cfg.port, max(cfg.policy.timeout, 1.0))
+        return Link.open_serial(cfg.path, cfg.serial)
+
+    def _make_line(self) -> RtuLine:
+        return RtuLine(self._connect, self.config.serial)
 
     def open(self) -> None:
         if self._line is not None:

@@ -185,8 +185,12 @@ class Link:
 class RtuLine:
     """One line, shared by every device on it in this process. Thread-safe; one transaction at a time."""
 
-    def __init__(self, link: Link, settings: SerialSettings) -> None:
-        self.link = link
+    def __init__(self, connect: Callable[[], Link], settings: SerialSettings) -> None:
+        self._connect = connect
+        self.link = connect()
+        self._name = self.link.name
+        self._broken = False  # a transport error: reopen the port / reconnect before the next transaction
+        self._closed = False
         self.settings = settings
         self.lock = threading.Lock()
         self.char_time = char_time(settings.baudrate)
@@ -196,7 +200,7 @@ class RtuLine:
 
     @property
     def name(self) -> str:
-        return self.link.name
+        return self._name
 
     def check_settings(self, settings: SerialSettings) -> None:
         if settings != self.settings:
@@ -208,7 +212,19 @@ class RtuLine:
 
     def close(self) -> None:
         with self.lock:
+            self._closed = True
             self.link.close()
+
+    def _usable_link(self) -> Link:
+        """The link, reopened (serial) or reconnected (TCP) if a transport error broke it."""
+        if self._closed:
+            raise TransportError(f"{self.name} is closed")
+        if self._broken:
+            self.link.close()
+            self.link = self._connect()
+            self._broken = False
+            self._quiet_at = 0.0
+        return self.link
 
     def _wait_quiet(self, limit: float) -> None:
         """Wait until the line has been silent for the interval; bytes arriving meanwhile (a late answer to an
@@ -233,26 +249,35 @@ class RtuLine:
         may_retry = isinstance(request, ReadRequest) or policy.retry_writes
         attempts = 1 + (policy.retries if may_retry else 0)
         with self.lock:
-            if self.link.closed:
-                raise TransportError(f"{self.name} is closed")
+            self._usable_link()
             self.transactions += 1
-            for attempt in range(1, attempts + 1):
-                self._wait_quiet(max(1.0, policy.timeout))
-                self.link.write(frame)
-                wire_end = time.monotonic() + len(frame) * self.char_time
-                if request.unit == BROADCAST:
-                    self._quiet_at = wire_end + max(policy.turnaround, self.settings.silence)
-                    return None
-                try:
-                    return self._receive(request, frame, wire_end, policy)
-                except (TimeoutError, DecodeError) as exc:
-                    self._resync(policy)
-                    if attempt == attempts:
-                        note = f" (attempt {attempt} of {attempts}"
-                        note += ")" if may_retry else "; a write is not repeated unless retry_writes=1)"
-                        exc.args = (str(exc) + note,)
-                        raise
-                    self.retries += 1
+            try:
+                return self._attempts(request, frame, attempts, may_retry, policy)
+            except TransportError as exc:
+                if not isinstance(exc, TimeoutError):
+                    self._broken = True  # the next transaction reopens / reconnects
+                raise
+
+    def _attempts(
+        self, request: Request, frame: bytes, attempts: int, may_retry: bool, policy: TransactionPolicy
+    ) -> Response | None:
+        for attempt in range(1, attempts + 1):
+            self._wait_quiet(max(1.0, policy.timeout))
+            self.link.write(frame)
+            wire_end = time.monotonic() + len(frame) * self.char_time
+            if request.unit == BROADCAST:
+                self._quiet_at = wire_end + max(policy.turnaround, self.settings.silence)
+                return None
+            try:
+                return self._receive(request, frame, wire_end, policy)
+            except (TimeoutError, DecodeError) as exc:
+                self._resync(policy)
+                if attempt == attempts:
+                    note = f" (attempt {attempt} of {attempts}"
+                    note += ")" if may_retry else "; a write is not repeated unless retry_writes=1)"
+                    exc.args = (str(exc) + note,)
+                    raise
+                self.retries += 1
         raise AssertionError("unreachable")  # pragma: no cover
 
     def _receive(self, request: Request, frame: bytes, wire_end: float, policy: TransactionPolicy) -> Response:
