@@ -321,3 +321,12 @@ def test_fragmented_request_from_the_master(channel: str, sniffer: object, two_s
     rest = texts[first:]
     assert rest.index("42B#80C000") < rest.index("42C#80414A5238303030") < rest.index("42B#80C100")
     assert rest.index("42C#80822D58595A") < rest.index("42B#80C200") < rest.index("42B#00940EFF")
+
+
+def test_node_added_to_a_running_simulator(channel: str, sniffer: object, jjr8000: Profile, until: Until) -> None:
+    with DeviceNetSimulator(("virtual", channel), dup_mac_wait=0.2) as sim:
+        node = sim.add_node(SimulatedStarter(jjr8000), 17)
+        texts: Callable[[], list[str]] = sniffer.texts  # type: ignore[attr-defined]
+        assert until(lambda: len(texts()) >= 1, 0.1)  # its first check request goes out at once, not after 0.2 s
+        assert texts()[0].startswith("48F#00330311")
+        assert sim.wait_online(2) and node.state is NodeState.ONLINE

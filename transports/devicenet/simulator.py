@@ -219,7 +219,7 @@ class DeviceNetSimulator(RunningSimulator):
         if identity is None:
             identity = Identity.from_profile(starter.profile, serial_number=0x20110100 + mac)
         app = StarterApplication(starter, assemblies)
-        node = SlaveNode(mac, app, identity, self.dup_mac_wait, self.tick_ms, self.bitrate)
+        node = SlaveNode(mac, app, identity, dup_mac_wait=self.dup_mac_wait, tick_ms=self.tick_ms, bitrate=self.bitrate)
         if explicit_epr_ms is not None:
             node.explicit_epr_ms = explicit_epr_ms
         with self.lock:
@@ -233,6 +233,7 @@ class DeviceNetSimulator(RunningSimulator):
             if self._thread is not None:
                 self._emit(node, node.start(self.clock()))
                 self._next_tick = min(self._next_tick, node.next_deadline() or float("inf"))
+                self._flush()
         return node
 
     def node(self, mac: int) -> SlaveNode:
