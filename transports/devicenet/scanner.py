@@ -49,6 +49,7 @@ from starterbus.transports.devicenet.cip import (
     Service,
 )
 from starterbus.transports.devicenet.connection import (
+    DEFAULT_EXPLICIT_EPR_MS,
     EXPLICIT_AND_POLLED,
     ConnectionAttribute,
     ConnectionInstance,
@@ -83,7 +84,7 @@ log = logging.getLogger(__name__)
 
 WINDOW = 8  # poll commands in flight at once
 POLL_RESPONSE_TIMEOUT = 0.05  # seconds a scan cycle waits for the last poll responses
-KEEPALIVE = 1.0  # seconds between explicit keep-alive reads (explicit inactivity timeout: 10 s)
+KEEPALIVE = 1.0  # longest time between explicit keep-alive reads (the default inactivity timeout is 10 s)
 HOUSEKEEPING = 0.002  # seconds between timer checks while frames keep arriving
 MAX_WAIT = 0.005  # longest receive wait: user requests are picked up at least this often
 MASTER_VENDOR_ID = 0  # the scanner is no registered product; vendor 0 in its duplicate MAC ID messages
@@ -194,6 +195,13 @@ class SlaveLink:
         self.transactions: collections.deque[Transaction] = collections.deque()
         self.xid = 0
         self.last_explicit_at = 0.0
+        self.explicit_epr_ms = DEFAULT_EXPLICIT_EPR_MS
+
+    @property
+    def keepalive(self) -> float:
+        """Seconds between keep-alive reads: a third of the explicit connection's inactivity timeout, at most 1 s."""
+        timeout = inactivity_timeout(self.explicit_epr_ms)
+        return KEEPALIVE if timeout is None else min(KEEPALIVE, timeout / 3)
 
     def note(self, now: float, text: str) -> None:
         self.events.append((now, text))
@@ -575,7 +583,7 @@ class Scanner:
             lost_after = inactivity_timeout(link.epr_ms) or max(1.0, 10 * self.config.poll_period)
             if now - link.last_response_at > lost_after:
                 self._lose(link, now, f"no poll response for {now - link.last_response_at:.3f} s")
-            elif head is None and now - link.last_explicit_at >= KEEPALIVE:
+            elif head is None and now - link.last_explicit_at >= link.keepalive:
                 link.last_explicit_at = now
                 self._enqueue(link, Transaction(self._get(ObjectClass.IDENTITY, 1, 5), False, self._keepalive_done))
         elif (
@@ -767,6 +775,21 @@ class Scanner:
         link.state = LinkState.CONFIGURING
         sizes: dict[int, int] = {}
 
+        def got_explicit_epr(t: Transaction) -> None:
+            data = t.response.data if t.response is not None else b""
+            link.explicit_epr_ms = struct.unpack("<H", data)[0] if len(data) == 2 else DEFAULT_EXPLICIT_EPR_MS
+
+        self._enqueue(
+            link,
+            Transaction(
+                self._get(
+                    ObjectClass.CONNECTION, ConnectionInstance.EXPLICIT, ConnectionAttribute.EXPECTED_PACKET_RATE
+                ),
+                False,
+                got_explicit_epr,
+            ),
+        )
+
         def got_size(attribute: int) -> Callable[[Transaction], None]:
             def done(t: Transaction) -> None:
                 if t.error is not None or t.response is None:
@@ -840,6 +863,11 @@ class Scanner:
     def _failed(self, link: SlaveLink, error: BaseException, release: bool = False) -> None:
         now = self.clock()
         with self.lock:
+            dropped = [t for t in link.transactions if not t.started]
+            for transaction in dropped:  # the rest of the sequence (and any user request) cannot go on
+                link.transactions.remove(transaction)
+                transaction.error = error
+                transaction.done.set()
             link.failures += 1
             link.last_error = error
             if isinstance(error, TimeoutError):
