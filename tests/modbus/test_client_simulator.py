@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import select
 import threading
+import time
 import tty
 from typing import TYPE_CHECKING
 
@@ -13,14 +14,15 @@ from starterbus.core.device import Device, open_device
 from starterbus.core.errors import ConfigurationError, RemoteDeviceError, ValidationError
 from starterbus.core.model import Kind
 from starterbus.core.registry import get_profile
-from starterbus.core.simulator import Phase
+from starterbus.core.simulator import Phase, SimulatedStarter
 from starterbus.core.status import MotorState
 from starterbus.transports.modbus.client import LINES, ModbusRtuTransport
 from starterbus.transports.modbus.crc import append_crc
 from starterbus.transports.modbus.frames import ReadRequest, ReadResponse
+from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 
 if TYPE_CHECKING:
-    from conftest import SimFactory
+    from conftest import PtyPeer, SimFactory
 
 MODELS = ["jjr5000", "ssd1", "jjr8000"]
 
@@ -270,3 +272,50 @@ def test_profile_unit_range_and_url_errors() -> None:
             open_device(url, profile)
     with pytest.raises(ConfigurationError, match="1..245"):
         open_device("modbus-rtu:///dev/null?unit=246", "ssd1")
+
+
+def test_simulator_on_a_given_port_waits_the_silence(peer: PtyPeer) -> None:
+    """``port=PATH`` mode (a real serial port in the field; here the far end of a pty the test holds)."""
+    profile = get_profile("ssd1")
+    sim = ModbusRtuSimulator({5: SimulatedStarter(profile)}, port=peer.path, silence=0.03).start()
+    try:
+        assert sim.describe() == [f"modbus-rtu: {peer.path}"]
+        request = ReadRequest(5, 0x0100, 2).encode()
+        sent = time.monotonic()
+        peer.write(request)
+        answer = peer.read_frame(9, timeout=2.0)
+        waited = time.monotonic() - sent
+        starter = sim.starters[5]
+        expected = (starter.params["motor_rated_current"], starter.params["ramp_time"])
+        assert answer == ReadResponse(5, expected).encode()
+        assert waited >= 0.03  # the slave kept the silent interval before answering
+    finally:
+        sim.close()
+
+
+def test_simulator_tcp_serves_several_units_and_clients(make_sim: SimFactory) -> None:
+    sim = make_sim("jjr8000", units=(1, 2, 3), tcp=("127.0.0.1", 0))
+    urls = sim.client_urls()
+    assert sorted(urls) == [1, 2, 3] and all(u.startswith("modbus-rtu+tcp://127.0.0.1:") for u in urls.values())
+    assert sim.describe() == [f"modbus-rtu-tcp: {sim.client_path}"]
+    devices = [open_device(urls[unit], "jjr8000") for unit in (1, 3)]
+    for device in devices:
+        device.open()
+    try:
+        devices[0].write("ramp_time", 30)
+        devices[1].write("ramp_time", 40)
+        assert [d.read_value("ramp_time").value for d in devices] == [30, 40]
+    finally:
+        for device in devices:
+            device.close()
+    assert [sim.starters[u].params["ramp_time"] for u in (1, 3)] == [30, 40]
+
+
+def test_simulator_needs_exactly_one_place_and_valid_units() -> None:
+    starter = SimulatedStarter(get_profile("jjr5000"))
+    with pytest.raises(ConfigurationError, match="exactly one"):
+        ModbusRtuSimulator({2: starter})
+    with pytest.raises(ConfigurationError, match="exactly one"):
+        ModbusRtuSimulator({2: starter}, pty=True, tcp=("127.0.0.1", 0))
+    with pytest.raises(ValueError, match="broadcast"):
+        ModbusRtuSimulator({0: starter}, pty=True)
