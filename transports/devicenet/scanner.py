@@ -1,20 +1,22 @@
 """The DeviceNet master (scanner): one per CAN bus and process, scanning every slave a Device asks for.
 
 One background thread owns the python-can bus. It goes on line with the duplicate MAC ID check, then for each
-slave (a :class:`SlaveLink`) runs the connection sequence through the group 2 only unconnected port::
+slave (a :class:`SlaveLink`) runs the connection sequence (Allocate/Release through the group 2 only
+unconnected port, the rest on the explicit connection)::
 
     Allocate explicit + polled (choice 0x03)
       -> "already allocated" (0x0B, our own old allocation, e.g. after a restart): Release 0x03, Allocate again
       -> "allocated to another master" (0x0C/0x01): refused, retried every retry interval
+    Get the explicit connection's EPR (class 5 instance 1 attribute 9) -> keep-alive period
     Get produced/consumed size of the polled connection (class 5 instance 2 attributes 7, 8) -> assembly set
     Set expected packet rate (class 5 instance 2 attribute 9) -> polled connection established
 
 and polls the established slaves cyclically (up to ``WINDOW`` poll commands in flight), keeping the latest
 input assembly of each with its time. A slave silent for 4 x EPR is marked lost (its run command is dropped:
 a start must be sent again) and the sequence starts over until it answers again. The explicit connection is
-kept alive (its inactivity timeout is 4 x 2500 ms) by reading the identity status every second. Explicit
-requests of user threads (identify) are queued per slave and sent one at a time, fragmented or reassembled
-as needed.
+kept alive by reading the identity status at a third of its inactivity timeout (at most every second).
+Explicit requests of user threads (identify) are queued per slave and sent one at a time, fragmented or
+reassembled as needed.
 
 User threads never touch the bus: they change a slave's outputs under the lock and wait (with a timeout) until
 a poll carrying them was answered.
