@@ -138,10 +138,10 @@ def run(baud: int, spin: float) -> None:
                     gap = arrived - last_delivered[other]
                     (stats.master_gaps if direction == "c2s" else stats.slave_gaps).append(gap)
                 wire_dir = direction
-            for byte in data:
+            for value in data:
                 start = max(arrived, wire_free)
                 wire_free = start + char
-                pending.append((wire_free, target, bytes((byte,)), direction))
+                pending.append((wire_free, target, bytes((value,)), direction))
         if pending and spin and len(pending) == 1:
             while time.monotonic() < pending[0][0]:  # the last byte of a frame: be exact
                 pass

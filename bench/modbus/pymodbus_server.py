@@ -17,7 +17,7 @@ def main() -> None:
     parser.add_argument("port")
     parser.add_argument("--baud", type=int, default=19200)
     args = parser.parse_args()
-    block = ModbusSequentialDataBlock(1, [100 + i for i in range(0x200)])  # 1: pymodbus 3.16 counts from 1
+    block = ModbusSequentialDataBlock(1, [100 + i for i in range(0x200)])  # type: ignore[no-untyped-call]
     context = ModbusServerContext(devices={2: ModbusDeviceContext(hr=block)}, single=False)
     StartSerialServer(context, framer=FramerType.RTU, port=args.port, baudrate=args.baud)
 

@@ -117,7 +117,9 @@ def run_best(client: str, path: str, op: str, baud: int, seconds: float, emulato
     below = sum(int(r.gaps.get("below_silence", 0)) for r in runs)  # type: ignore[call-overload]
     count = sum(int(r.gaps.get("count", 0)) for r in runs)  # type: ignore[call-overload]
     mins = [float(r.gaps["min_ms"]) for r in runs if "min_ms" in r.gaps]  # type: ignore[arg-type]
-    gaps = {"count": count, "below_silence": below, **({"min_ms": min(mins)} if mins else {})}
+    gaps: dict[str, object] = {"count": count, "below_silence": below}
+    if mins:
+        gaps["min_ms"] = min(mins)
     return Result(best.client, best.tx, sum(r.errors for r in runs), best.wall, best.cpu, gaps)
 
 

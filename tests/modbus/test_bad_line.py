@@ -70,7 +70,7 @@ def test_a_good_answer_is_a_value(peer: PtyPeer) -> None:
     ids=["crc", "garbage-first", "wrong-unit", "wrong-function", "byte-count", "truncated"],
 )
 def test_bad_answers_are_typed_errors(peer: PtyPeer, reply: object, error: type[DecodeError], field: str) -> None:
-    peer.serve([reply])  # type: ignore[list-item]
+    peer.serve([reply])  # type: ignore[list-item,unused-ignore]
     with pytest.raises(error) as info:
         read_rated(peer)
     assert info.value.field == field and info.value.data  # names the bytes
@@ -157,7 +157,10 @@ def test_a_write_is_repeated_when_allowed(peer: PtyPeer) -> None:
 
 def test_invalid_write_sends_nothing(peer: PtyPeer) -> None:
     with device(peer) as d:
-        for key, value in [("current_limit", 1000), ("current_limit", 380.5), ("start_mode", "sideways")]:
+        bad: list[tuple[str, float | int | str]] = [
+            ("current_limit", 1000), ("current_limit", 380.5), ("start_mode", "sideways"),
+        ]  # fmt: skip
+        for key, value in bad:
             with pytest.raises(ValidationError):
                 d.write(key, value)
         with pytest.raises(ValidationError):

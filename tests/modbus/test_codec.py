@@ -107,10 +107,11 @@ def test_exception_round_trip(unit: int, function: int, code: int) -> None:
 def test_pymodbus_builds_the_same_requests(request: ReadRequest | WriteRequest) -> None:
     framer = FramerRTU(DecodePDU(False))
     if isinstance(request, ReadRequest):
-        pdu = ReadHoldingRegistersRequest(address=request.address, count=request.count, dev_id=request.unit)
+        read = ReadHoldingRegistersRequest(address=request.address, count=request.count, dev_id=request.unit)
+        assert framer.buildFrame(read) == request.encode()
     else:
-        pdu = WriteSingleRegisterRequest(address=request.address, registers=[request.value], dev_id=request.unit)
-    assert framer.buildFrame(pdu) == request.encode()
+        write = WriteSingleRegisterRequest(address=request.address, registers=[request.value], dev_id=request.unit)
+        assert framer.buildFrame(write) == request.encode()
 
 
 @given(read_requests, st.data())
