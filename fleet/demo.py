@@ -222,7 +222,9 @@ def scenario(duration: float) -> list[Step]:
     """The scripted events, scaled to the demo's duration (defaults fit 20 s)."""
     k = max(duration, 8.0) / 20.0
     devices = ["conveyor", "fan", "crusher", "mill", "mixer", "pump-a", "pump-b"]
-    steps: list[Step] = [(1.0 * k + 0.3 * i * k, f"start {d}", _command(d, Command.START)) for i, d in enumerate(devices)]
+    steps: list[Step] = [
+        (1.0 * k + 0.3 * i * k, f"start {d}", _command(d, Command.START)) for i, d in enumerate(devices)
+    ]
     steps += [
         (7.0 * k, "fault 6 (motor overload) on crusher", _fault("crusher", 6)),
         (8.0 * k, "fault 2 (overheat) on pump-b", _fault("pump-b", 2)),

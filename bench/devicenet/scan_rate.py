@@ -26,6 +26,7 @@ from collections.abc import Callable
 from functools import partial
 
 import can
+
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.transports.devicenet.assemblies import AssemblySet

@@ -124,6 +124,7 @@ def minimalmodbus_ops(port: str, baud: int, fc: str) -> Ops:
 def exact_ops(port: str, baud: int, fc: str, silence: bool) -> Ops:
     """A hand-written loop: write the request, read exactly the predicted length; optionally keep the silence."""
     import serial
+
     from starterbus.transports.modbus.frames import ReadRequest, WriteRequest, expected_response_length
 
     ser = serial.Serial(port, baudrate=baud, timeout=0)

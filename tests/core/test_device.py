@@ -10,6 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import pytest
+
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import (
     PluginError,

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+
 from starterbus.core.errors import ValidationError
 from starterbus.core.model import Value
 from starterbus.core.profile import Profile

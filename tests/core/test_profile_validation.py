@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+
 from starterbus.core.errors import ProfileError, UnknownPointError
 from starterbus.core.profile import load_profile_text
 

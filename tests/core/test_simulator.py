@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+
 from starterbus.core.errors import Refusal, SimulatorRefusal
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter

@@ -9,6 +9,7 @@ from collections.abc import Callable, Iterator
 import can
 import pytest
 from can.interfaces import virtual
+
 from starterbus.transports.devicenet.canbus import from_message
 from starterbus.transports.devicenet.frames import CanFrame
 from starterbus.transports.devicenet.transport import SCANNERS

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from starterbus.core.errors import EncodeError
 from starterbus.core.profile import Profile
 from starterbus.core.status import CW_BUS_CONTROL, Command, ControlWordState, MotorState

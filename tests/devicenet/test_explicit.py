@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from starterbus.core.errors import DecodeError, EncodeError, RemoteDeviceError
 from starterbus.transports.devicenet import cip
 from starterbus.transports.devicenet.cip import (

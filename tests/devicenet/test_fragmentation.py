@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from starterbus.transports.devicenet.cip import FragmentError, FrameTooShortError, UnexpectedFrameError
 from starterbus.transports.devicenet.fragmentation import (
     AckStatus,

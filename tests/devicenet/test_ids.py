@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from starterbus.core.errors import DecodeError, EncodeError
 from starterbus.transports.devicenet import ids
 from starterbus.transports.devicenet.ids import DeviceNetId, Group, build_id, parse_id

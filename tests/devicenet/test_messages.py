@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from starterbus.core.errors import DecodeError, EncodeError
 from starterbus.core.profile import Profile
 from starterbus.transports.devicenet.cip import FrameTooLongError, FrameTooShortError, UnexpectedFrameError

@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterator
 
 import pytest
+
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import (
     ConfigurationError,

@@ -4,6 +4,7 @@ frames interleaved; every error response; watchdogs on fake time; duplicate MAC 
 from __future__ import annotations
 
 import pytest
+
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.transports.devicenet.connection import ConnectionState

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import pytest
+
 from starterbus.core.errors import ConfigurationError
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_transport

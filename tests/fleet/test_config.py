@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+
 from starterbus.core.errors import ConfigurationError
 from starterbus.fleet.config import load_fleet, parse_fleet
 

@@ -45,7 +45,9 @@ def three_paths() -> Iterator[tuple[list[str], SimulatedStarter, SimulatedStarte
         rtu.close()
 
 
-def test_three_protocols_agree_on_one_starter(three_paths: tuple[list[str], SimulatedStarter, SimulatedStarter]) -> None:
+def test_three_protocols_agree_on_one_starter(
+    three_paths: tuple[list[str], SimulatedStarter, SimulatedStarter],
+) -> None:
     urls, starter, _ = three_paths
     starter.start()
     starter.clock.advance(10.0)  # type: ignore[attr-defined]  # steady running, current 0.8 x rated

@@ -44,7 +44,9 @@ def test_write_is_audited_and_read_back(
     urls, starters = line
     log = tmp_path / "audit.jsonl"
     old = starters[2].params["current_limit"]
-    code = main(["write", urls[2], "--model", "jjr5000", "current_limit=380", "--yes", "--audit-log", str(log), "--json"])
+    code = main(
+        ["write", urls[2], "--model", "jjr5000", "current_limit=380", "--yes", "--audit-log", str(log), "--json"]
+    )
     assert code == 0
     out = json.loads(capsys.readouterr().out)
     assert out["written"][0]["read_back"] == "380 %"
@@ -60,7 +62,7 @@ def test_write_is_audited_and_read_back(
 def test_read_back_mismatch_is_an_error(
     line: tuple[dict[int, str], dict[int, SimulatedStarter]], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    urls, starters = line
+    urls, _ = line
     log = tmp_path / "audit.jsonl"
     code = main(["write", urls[3], "--model", "jjr5000", "current_limit=400", "--yes", "--audit-log", str(log)])
     assert code == 1
@@ -91,7 +93,9 @@ def test_dry_run_shows_frames_and_sends_nothing(
     urls, starters = line
     log = tmp_path / "audit.jsonl"
     before = dict(starters[2].params)
-    assert main(["write", urls[2], "--model", "jjr5000", "current_limit=380", "--dry-run", "--audit-log", str(log)]) == 0
+    assert (
+        main(["write", urls[2], "--model", "jjr5000", "current_limit=380", "--dry-run", "--audit-log", str(log)]) == 0
+    )
     out = capsys.readouterr().out
     assert "02 06 01 03 01 7C 78 74" in out.upper()  # the manual's own frame, CRC included
     assert main(["start", urls[2], "--model", "jjr5000", "--dry-run", "--json"]) == 0
@@ -104,7 +108,7 @@ def test_dry_run_shows_frames_and_sends_nothing(
 def test_out_of_range_write_is_refused_before_confirmation(
     line: tuple[dict[int, str], dict[int, SimulatedStarter]], capsys: pytest.CaptureFixture[str]
 ) -> None:
-    urls, starters = line
+    urls, _ = line
     assert main(["write", urls[2], "--model", "jjr5000", "current_limit=149", "--yes"]) == 1
     assert "149 % is out of range 150..500 %" in capsys.readouterr().err
 

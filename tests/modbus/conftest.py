@@ -16,6 +16,7 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import pytest
+
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter

@@ -14,6 +14,7 @@ import time
 from typing import TYPE_CHECKING
 
 import pytest
+
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import (
     ChecksumError,

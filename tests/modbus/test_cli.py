@@ -10,6 +10,7 @@ import sys
 from typing import TYPE_CHECKING
 
 import pytest
+
 from starterbus.cli.main import main
 from starterbus.core.simulator import Phase, SimulatedStarter
 

@@ -10,6 +10,7 @@ import tty
 from typing import TYPE_CHECKING
 
 import pytest
+
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import ConfigurationError, RemoteDeviceError, ValidationError
 from starterbus.core.model import Kind

@@ -12,6 +12,7 @@ from pymodbus.pdu.register_message import (
     ReadHoldingRegistersResponse,
     WriteSingleRegisterRequest,
 )
+
 from starterbus.core.errors import ChecksumError, CodecError, DecodeError, EncodeError
 from starterbus.transports.modbus.crc import TABLE, append_crc, crc16, strip_crc
 from starterbus.transports.modbus.frames import (

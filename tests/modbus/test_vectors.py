@@ -9,6 +9,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import pytest
+
 from starterbus.core.errors import ChecksumError, DecodeError
 from starterbus.core.model import Kind
 from starterbus.core.registry import get_profile

@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import pytest
+
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import ManualClock, SimulatedStarter

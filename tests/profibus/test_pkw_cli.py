@@ -12,6 +12,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+
 from starterbus.cli.main import main
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import Phase, SimulatedStarter

@@ -7,6 +7,7 @@ import struct
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+
 from starterbus.core.errors import CodecError, DecodeError, EncodeError
 from starterbus.transports.profibus_pkw.telegram import (
     NO_TASK,

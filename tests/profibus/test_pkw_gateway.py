@@ -11,6 +11,7 @@ import pytest
 from pymodbus.client import ModbusTcpClient
 from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
+
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import ConfigurationError, RemoteDeviceError, TransportError
 from starterbus.core.profile import Profile

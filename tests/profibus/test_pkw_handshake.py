@@ -6,6 +6,7 @@ import builtins
 from collections.abc import Sequence
 
 import pytest
+
 from starterbus.core.errors import DecodeError, RemoteDeviceError, TimeoutError, TransportError
 from starterbus.core.profile import Profile
 from starterbus.transports.profibus_pkw.handshake import JobState, Limits, PkwEngine, PkwError, PkwJob

@@ -6,6 +6,7 @@ import threading
 from collections.abc import Sequence
 
 import pytest
+
 from starterbus.core.errors import TimeoutError, TransportError
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter

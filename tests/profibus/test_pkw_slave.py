@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import pytest
+
 from starterbus.core.errors import ConfigurationError, DecodeError, Refusal
 from starterbus.core.profile import Profile, load_profile_text
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter

@@ -6,6 +6,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 import pytest
+
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import (
     ConfigurationError,

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 import pytest
+
 from starterbus.core.errors import DecodeError
 from starterbus.core.model import Kind, Value
 from starterbus.core.profile import Profile

@@ -8,6 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 import can
+
 from starterbus.core.errors import ConfigurationError, TransportError
 from starterbus.transports.devicenet.frames import CanFrame
 

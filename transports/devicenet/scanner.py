@@ -36,6 +36,7 @@ from dataclasses import dataclass, field
 from typing import NamedTuple
 
 import can
+
 from starterbus.core.errors import (
     ConfigurationError,
     StarterbusError,

@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterable
 from typing import TypeVar
 
 import can
+
 from starterbus.core.errors import ConfigurationError, Refusal, SimulatorRefusal
 from starterbus.core.model import Kind, PointDef
 from starterbus.core.simulator import SimulatedStarter
