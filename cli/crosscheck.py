@@ -18,6 +18,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--json", action="store_true", help="machine-readable output")
 
 
+def _cell(text: str | None, width: int = 32) -> str:
+    if text is None:
+        return "-"
+    return text if len(text) <= width else text[: width - 1] + "…"
+
+
 def cmd_crosscheck(args: argparse.Namespace) -> int:
     if len(args.urls) < 2:
         raise ConfigurationError("crosscheck needs at least two URLs reaching the same device")
@@ -34,7 +40,7 @@ def cmd_crosscheck(args: argparse.Namespace) -> int:
         [
             [
                 r.what,
-                *[x if x is not None else "-" for x in r.readings],
+                *[_cell(x) for x in r.readings],
                 "-" if r.agree is None else ("yes" if r.agree else "NO"),
             ]
             for r in rows

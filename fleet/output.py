@@ -32,11 +32,11 @@ def table_rows(runtimes: list[DeviceRuntime], now: float) -> list[list[str]]:
             rows.append([c.name, c.model, c.bus, "waiting", "", "", "", age, str(r.errors)])
             continue
         if not sample.online:
-            rows.append([c.name, c.model, c.bus, "OFFLINE", (sample.error or "")[:40], "-", "-", age, str(r.errors)])
+            rows.append([c.name, c.model, c.bus, "OFFLINE", (sample.error or "")[:60], "-", "-", age, str(r.errors)])
             continue
         status = sample.status
         if status is None:
-            state, fault, bus = ("error" if sample.error else "?"), (sample.error or "")[:40], "-"
+            state, fault, bus = ("error" if sample.error else "?"), (sample.error or "")[:60], "-"
         else:
             state = status.state.value
             fault = f"{status.fault_code}: {status.fault_text}" if status.fault else ""
