@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Callable, Sequence
 
@@ -57,7 +58,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     p = sub.add_parser("read", help="read parameters/measurements (all measurements if no KEY)")
     _device_args(p)
     p.add_argument("keys", nargs="*", metavar="KEY", help="key or manual address (motor_rated_current, 0x0100, p7, m3)")
-    p.set_defaults(handler=device_cmds.cmd_read)
+    p.set_defaults(handler=device_cmds.cmd_read, rest_into="keys")
 
     p = sub.add_parser("write", help="write parameters (engineering units or enum labels; validated first)")
     _device_args(p)
@@ -120,7 +121,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     args_list = list(sys.argv[1:] if argv is None else argv)
     try:
         parser = build_parser(args_list)
-        args = parser.parse_args(args_list)
+        args, extra = parser.parse_known_args(args_list)
+        rest = getattr(args, "rest_into", None)
+        if extra and rest is not None and not any(x.startswith("-") for x in extra):
+            # argparse gives a trailing "*" positional nothing when an option sits between it and the
+            # first positional (`read URL --model M KEY...`): the keys come back here
+            getattr(args, rest).extend(extra)
+        elif extra:
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
         handler: Handler = args.handler
         return handler(args)
     except StarterbusError as exc:
@@ -131,6 +139,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     except KeyboardInterrupt:
         return 130
+    except BrokenPipeError:  # output piped into `head` and the like
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
 
 
 if __name__ == "__main__":
