@@ -23,6 +23,7 @@ import sys
 import timeit
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TypedDict
 
 from starterbus.transports.profibus_pkw.telegram import (
     Ppo1Out,
@@ -40,6 +41,15 @@ class FrozenWords:
     pwe: int
     stw: int
     spare: int
+
+
+class Row(TypedDict):
+    """One line of the report."""
+
+    what: str
+    ns: float
+    per_second: int
+    ratio_to_struct: float
 
 
 def measure(fn: Callable[[], object], seconds: float, repeats: int = 7) -> float:
@@ -89,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
     ]
     results = [(name, measure(fn, args.seconds)) for name, fn in rows]
     floor = results[0][1]
-    report = [
+    report: list[Row] = [
         {"what": name, "ns": round(t * 1e9, 1), "per_second": round(1 / t), "ratio_to_struct": round(t / floor, 2)}
         for name, t in results
     ]

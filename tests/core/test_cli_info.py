@@ -56,8 +56,10 @@ def test_params_jjr8000_p7_scaling(capsys: pytest.CaptureFixture[str]) -> None:
     assert (p7["raw_min"], p7["raw_max"]) == (150, 500)
     assert p7["min"] == pytest.approx(1.5)
     assert p7["max"] == pytest.approx(5.0)
-    assert p7["addresses"]["modbus"] == "0x0107"
-    assert p7["addresses"]["profibus"] == "0x0007"
+    addresses = p7["addresses"]
+    assert isinstance(addresses, dict)
+    assert addresses["modbus"] == "0x0107"
+    assert addresses["profibus"] == "0x0007"
 
 
 def test_params_ssd1_parameter_modify(capsys: pytest.CaptureFixture[str]) -> None:

@@ -35,7 +35,7 @@ from starterbus.transports.modbus.frames import (
 )
 
 if TYPE_CHECKING:
-    from conftest import PtyPeer
+    from starterbus.tests.modbus.conftest import PtyPeer
 
 READ = ReadRequest(2, 0x0100, 1)  # motor rated current, JJR5000
 GOOD = ReadResponse(2, (390,)).encode()

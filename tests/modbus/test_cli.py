@@ -15,7 +15,7 @@ from starterbus.cli.main import main
 from starterbus.core.simulator import Phase, SimulatedStarter
 
 if TYPE_CHECKING:
-    from conftest import SimFactory, Vector
+    from starterbus.tests.modbus.conftest import SimFactory, Vector
 
 
 def phase(starter: SimulatedStarter) -> Phase:

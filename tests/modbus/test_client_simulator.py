@@ -23,7 +23,7 @@ from starterbus.transports.modbus.frames import ReadRequest, ReadResponse
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 
 if TYPE_CHECKING:
-    from conftest import PtyPeer, SimFactory
+    from starterbus.tests.modbus.conftest import PtyPeer, SimFactory
 
 MODELS = ["jjr5000", "ssd1", "jjr8000"]
 

@@ -26,7 +26,7 @@ from starterbus.transports.modbus.receiver import NEED_DATA, RequestReceiver, Re
 from starterbus.transports.modbus.slave import SlaveLogic
 
 if TYPE_CHECKING:
-    from conftest import Vector
+    from starterbus.tests.modbus.conftest import Vector
 
 GARBAGE = bytes.fromhex("FF 00 A5")
 

@@ -41,26 +41,28 @@ def plain_server() -> Iterator[int]:
     values = [0] * 100
     values[20:24] = [0x0103, 612, 0x0900, 960]
     ready = threading.Event()
-    state: dict[str, object] = {}
+    ports: list[int] = []
+    stops: list[tuple[asyncio.AbstractEventLoop, asyncio.Event]] = []
 
     async def serve() -> None:
         device = SimDevice(id=0, simdata=[SimData(0, values=values, datatype=DataType.REGISTERS)])
         server = ModbusTcpServer(device, address=("127.0.0.1", 0))
         await server.serve_forever(background=True)
-        state["port"] = server.transport.sockets[0].getsockname()[1]
+        listener = server.transport  # declared an asyncio.BaseTransport; a listening server is an asyncio.Server
+        assert isinstance(listener, asyncio.Server), listener
+        ports.append(listener.sockets[0].getsockname()[1])
         stop = asyncio.Event()
-        state["stop"] = stop
-        state["loop"] = asyncio.get_running_loop()
+        stops.append((asyncio.get_running_loop(), stop))
         ready.set()
         await stop.wait()
-        await server.shutdown()
+        await server.shutdown()  # type: ignore[no-untyped-call]  # pymodbus 3.x leaves shutdown() unannotated
 
     thread = threading.Thread(target=lambda: asyncio.run(serve()), daemon=True)
     thread.start()
     assert ready.wait(5)
-    yield int(state["port"])  # type: ignore[call-overload]
-    loop = state["loop"]
-    loop.call_soon_threadsafe(state["stop"].set)  # type: ignore[attr-defined]
+    yield ports[0]
+    loop, stop = stops[0]
+    loop.call_soon_threadsafe(stop.set)
     thread.join(5)
 
 
@@ -72,7 +74,7 @@ def test_channel_writes_outputs_and_reads_inputs_of_a_plain_server(plain_server:
         try:
             assert other.read_holding_registers(10, count=4, device_id=1).registers == [0x0207, 350, 0x0009, 0]
         finally:
-            other.close()
+            other.close()  # type: ignore[no-untyped-call]  # pymodbus 3.x leaves ModbusTcpClient.close() unannotated
         snap = channel.snapshot()
         assert snap.inputs == (0x0103, 612, 0x0900, 960) and snap.outputs == (0x0207, 350, 0x0009, 0)
         assert channel.outputs_readable

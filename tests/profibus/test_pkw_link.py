@@ -19,6 +19,17 @@ from starterbus.transports.profibus_pkw.telegram import Ppo, TaskCode, pkw_reque
 READ_P3 = pkw_request(TaskCode.READ_PARAMETER, 3)
 
 
+def phase(starter: SimulatedStarter) -> Phase:
+    """The motor state now (a call, so that type checkers do not narrow it between commands)."""
+    return starter.phase
+
+
+def sent_word(word: int | None) -> int:
+    """A word the link did send (not None: None leaves the previous output in force)."""
+    assert word is not None, "no word sent"
+    return word
+
+
 class RecordingChannel(Channel):
     """A third-party style channel: delegates to a simulated slave and records what was sent."""
 
@@ -47,7 +58,7 @@ class RecordingChannel(Channel):
         self.closed = True
 
     def stws(self) -> list[int]:
-        return [int(w[2] if self.ppo is Ppo.PPO1 else w[0]) for w in self.sent if w[-1] is not None]
+        return [sent_word(w[2] if self.ppo is Ppo.PPO1 else w[0]) for w in self.sent if w[-1] is not None]
 
 
 def make(
@@ -106,7 +117,7 @@ def test_start_is_not_delayed_by_a_stuck_pkw_task(jjr8000: Profile, cycle: float
         while not any(w[0] == 0x0103 for w in channel.sent[-5:]):  # the task is in the output area
             threading.Event().wait(0.001)
         link.send_control([0x0009])
-        assert starter.phase is Phase.STARTING  # started while the PKW task is pending
+        assert phase(starter) is Phase.STARTING  # started while the PKW task is pending
         assert reader.is_alive()
         starts = [w for w in channel.sent if w[2] == 0x0009]
         assert starts and all(w[0] in (0, 0x0103) for w in starts)
@@ -129,7 +140,7 @@ def test_reset_pulse_is_held_for_hold_exchanges_then_released(jjr5000: Profile) 
     starter.inject_fault(5)
     link.send_control([0x000C, 0x0008])
     assert channel.stws() == [0x000C] * 3 + [0x0008] * 3
-    assert starter.phase is Phase.STOPPED and link.control == 0x0008
+    assert phase(starter) is Phase.STOPPED and link.control == 0x0008
     link.inputs()
     assert channel.stws()[-1] == 0x0008  # the last word stays in force
 
@@ -148,12 +159,12 @@ def test_open_adopts_the_control_word_in_force(jjr8000: Profile) -> None:
     starter = SimulatedStarter(jjr8000)
     first = SimulatedDpSlave(starter, Ppo.PPO1)
     first.exchange((0, 0, 0x0009, 0))  # another master started the motor
-    assert starter.phase is Phase.STARTING
+    assert phase(starter) is Phase.STARTING
     channel = RecordingChannel(first)
     link = CyclicLink(channel, PkwEngine(), cycle=0.0)
     assert link.open() == 0x0009
     link.inputs()
-    assert channel.stws() == [0x0009] and starter.phase is Phase.STARTING
+    assert channel.stws() == [0x0009] and phase(starter) is Phase.STARTING
 
 
 def test_open_leaves_an_unknown_control_word_alone(jjr8000: Profile) -> None:
@@ -165,10 +176,10 @@ def test_open_leaves_an_unknown_control_word_alone(jjr8000: Profile) -> None:
     link.inputs()
     link.pkw(READ_P3)
     assert all(w[2] is None for w in channel.sent)
-    assert starter.control_word == 0x0009 and starter.phase is Phase.STARTING
+    assert starter.control_word == 0x0009 and phase(starter) is Phase.STARTING
     starter.write_control_word(0x0008)  # the other master stops it: our link does not restart it
     link.inputs()
-    assert starter.phase is Phase.STOPPING
+    assert phase(starter) is Phase.STOPPING
     link.close()
 
 
@@ -194,7 +205,7 @@ def test_ppo3_link_has_no_pkw(jjr5000: Profile) -> None:
     with pytest.raises(ValueError, match="PPO3"):
         link.pkw(READ_P3)
     link.send_control([0x0009])
-    assert channel.sent[-1] == (0x0009, 0) and starter.phase is Phase.STARTING
+    assert channel.sent[-1] == (0x0009, 0) and phase(starter) is Phase.STARTING
     link.close()
 
 

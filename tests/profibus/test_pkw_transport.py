@@ -34,6 +34,11 @@ def clock() -> ManualClock:
     return ManualClock(1000.0)
 
 
+def phase(starter: SimulatedStarter) -> Phase:
+    """The motor state now (a call, so that type checkers do not narrow it between commands)."""
+    return starter.phase
+
+
 def attached(name: str, profile: Profile, clock: ManualClock, ppo: int = 1, **kw: object) -> SimulatedStarter:
     starter = SimulatedStarter(profile, clock, **kw)  # type: ignore[arg-type]
     attach_slave(name, starter, ppo)
@@ -202,7 +207,7 @@ def test_jjr8000_refuses_while_running_with_error_3(dev8: tuple[Device, Simulate
     dev, starter = dev8
     dev.start()
     clock.advance(60)
-    assert starter.phase is Phase.RUNNING
+    assert phase(starter) is Phase.RUNNING
     with pytest.raises(PkwError) as info:
         dev.write("current_limit", 4.0)
     error = info.value
@@ -237,12 +242,12 @@ def test_status_and_commands(dev8: tuple[Device, SimulatedStarter], clock: Manua
     assert status.currents["a"].value == pytest.approx(round(starter.current(), 1))
     clock.advance(60)
     dev.stop()
-    assert starter.phase is Phase.STOPPING
+    assert phase(starter) is Phase.STOPPING
     starter.inject_fault(6)
     status = dev.status()
     assert status.fault and status.fault_code == 6 and status.fault_text == "motor overload"
     dev.reset()
-    assert starter.phase is Phase.STOPPED and not dev.status().fault
+    assert phase(starter) is Phase.STOPPED and not dev.status().fault
     dev.command(Command.RELEASE_BUS_CONTROL)
     assert not starter.control_word & 0x0008
 
@@ -274,7 +279,8 @@ class MisEcho(Channel):
 
     def exchange(self, out_words: Sequence[int | None]) -> tuple[int, ...]:
         words = self.inner.exchange(out_words)
-        if out_words[0] >> 8 == 2 and words[0] >> 8 == 1:
+        task = out_words[0]  # IND of the PKW task; None keeps the previous output
+        if task is not None and task >> 8 == 2 and words[0] >> 8 == 1:
             return (words[0], words[1] + 1, *words[2:])
         return words
 

@@ -33,7 +33,7 @@ from starterbus.transports.profibus_pkw.telegram import (
 )
 
 if TYPE_CHECKING:
-    from conftest import Pair, RunningStarter, Vector
+    from starterbus.tests.profibus.conftest import Pair, RunningStarter, Vector
 
 
 def test_table_covers_every_printed_example(vectors: tuple[Vector, ...]) -> None:
@@ -159,7 +159,9 @@ def test_simulated_slave_answers_the_printed_bytes(
     )
     slave = SimulatedDpSlave(starter, Ppo.PPO1)
     stw = 0x0009 if pair.running else 0x0008
-    ind, pwe = decode_part(pair.request, Ppo.PPO1, Direction.OUT, Part.PKW)
+    request = decode_part(pair.request, Ppo.PPO1, Direction.OUT, Part.PKW)
+    assert isinstance(request, PkwRequest)
+    ind, pwe = request
     words = slave.exchange((ind, pwe, stw, 0))
     answer = encode(PkwResponse(words[0], words[1]))
     assert answer == pair.response, pair.note
