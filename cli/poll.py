@@ -23,7 +23,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--refresh", type=float, default=0.5, help="table refresh period on a terminal, s")
 
 
-def render(poller: FleetPoller, out: TextIO, in_place: bool) -> None:
+def render(poller: FleetPoller, out: TextIO, in_place: bool, banner: str = "") -> None:
     if in_place:
         out.write("\x1b[H\x1b[J")
     now = poller.clock()
@@ -32,6 +32,8 @@ def render(poller: FleetPoller, out: TextIO, in_place: bool) -> None:
         f"transactions {poller.transactions()}\n"
     )
     table(TABLE_HEADERS, table_rows(poller.runtimes(), now), out)
+    if banner:
+        out.write(banner + "\n")
     out.flush()
 
 
@@ -46,6 +48,7 @@ def run_fleet(
     out: TextIO | None = None,
     during: Callable[[FleetPoller], None] | None = None,
     sinks: list[Callable[[Sample], None]] | None = None,
+    banner: Callable[[], str] | None = None,
 ) -> int:
     """Poll a fleet and show it; shared by ``poll`` and ``demo``. Returns the exit code."""
     out = out or sys.stdout
@@ -73,10 +76,10 @@ def run_fleet(
                 break
             poller.stopping.wait(refresh if in_place else 0.2)
             if in_place:
-                render(poller, out, True)
+                render(poller, out, True, banner() if banner else "")
             elif not json_out and not once and time.monotonic() - last_print >= config.period:
                 last_print = time.monotonic()  # on a pipe: one table per fleet period, not a redraw
-                render(poller, out, False)
+                render(poller, out, False, banner() if banner else "")
                 out.write("\n")
     except KeyboardInterrupt:
         pass

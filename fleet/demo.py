@@ -273,6 +273,7 @@ def run_demo(duration: float = 20.0, json_out: bool = False, out: TextIO | None 
             out=stream,
             during=script,
             sinks=[track],
+            banner=lambda: f"last event: {events[-1].strip()}" if events else "",
         )
     print_summary(stream, events, seen)
     return code
