@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -117,8 +118,14 @@ from starterbus.cli import identify  # noqa: E402  (DeviceNet issue: `starterbus
 _EXTENSIONS.append(identify.add_parser)
 
 
+def _quiet_libraries() -> None:
+    """pymodbus logs connection failures itself; starterbus reports them as one typed error, once."""
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args_list = list(sys.argv[1:] if argv is None else argv)
+    _quiet_libraries()
     try:
         parser = build_parser(args_list)
         args, extra = parser.parse_known_args(args_list)
