@@ -22,9 +22,3 @@ def emit_json(data: Any, out: TextIO | None = None) -> None:
     out = out or sys.stdout
     json.dump(data, out, ensure_ascii=False, indent=2, default=str)
     out.write("\n")
-
-
-def fmt_number(value: float | int) -> str:
-    if isinstance(value, float):
-        return f"{value:g}"
-    return str(value)

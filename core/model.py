@@ -84,13 +84,6 @@ class PointDef:
     def writable(self) -> bool:
         return self.kind is Kind.PARAMETER and self.access.writable
 
-    @property
-    def decimals(self) -> int:
-        """Digits after the decimal point that the scale carries (0.1 -> 1, 0.01 -> 2, 1 -> 0)."""
-        if self.scale >= 1 or self.scale <= 0:
-            return 0
-        return max(0, round(-math.log10(self.scale)))
-
     def address_for(self, protocol: str) -> int | None:
         return self.addresses.get(protocol)
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import re
 import sys
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -133,9 +133,6 @@ class Profile:
             if point.kind is kind and point.addresses.get(protocol) == address:
                 return point
         return None
-
-    def points_for(self, protocol: str) -> Iterator[PointDef]:
-        return (p for p in self.points.values() if protocol in p.addresses)
 
 
 def _normalise_address(text: str, style: str) -> tuple[Kind | None, str] | None:
@@ -394,7 +391,3 @@ def _label(value: object, source: str, where: str) -> Label:
     if isinstance(value, Mapping) and isinstance(value.get("en"), str):
         return Label(value["en"], str(value.get("zh", "")))
     raise ProfileError(source, where, "must be a text or a table {en = ..., zh = ...}")
-
-
-def iter_points(profile: Profile, keys: Iterable[str]) -> list[PointDef]:
-    return [profile.point(k) for k in keys]

@@ -65,9 +65,6 @@ class FaultTable:
     def label(self, code: int) -> Label:
         return self.labels.get(code) or Label(f"unknown fault {code}", f"未知故障 {code}")
 
-    def known(self, code: int) -> bool:
-        return code in self.labels
-
 
 @dataclass(frozen=True, slots=True)
 class Status:

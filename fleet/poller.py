@@ -12,7 +12,7 @@ from __future__ import annotations
 import heapq
 import threading
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from concurrent.futures import Future
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
@@ -292,21 +292,3 @@ class FleetPoller:
 
     def transactions(self) -> int:
         return sum(w.transactions for w in self.workers)
-
-
-def poll_once(config: FleetConfig, on_sample: Callable[[Sample], None] | None = None) -> list[Sample]:
-    """Poll every device exactly once (all buses concurrently) and return the samples in fleet order."""
-    samples: dict[str, Sample] = {}
-
-    def keep(sample: Sample) -> None:
-        samples[sample.device] = sample
-        if on_sample is not None:
-            on_sample(sample)
-
-    poller = FleetPoller(config, keep, rounds=1).start()
-    poller.join()
-    return [samples[d.name] for d in config.devices if d.name in samples]
-
-
-def device_names(config: FleetConfig) -> Iterable[str]:
-    return (d.name for d in config.devices)
