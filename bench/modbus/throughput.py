@@ -1,13 +1,15 @@
 """Modbus RTU masters side by side: starterbus, pymodbus (sync, async), minimalmodbus, hand-written loops.
 
     python bench/modbus/throughput.py [--seconds 2] [--repeat 2] [--bauds 9600,19200] [--only line|bare]
+                                      [--changing]
 
 1. Through a line emulator (``line_emulator.py``: a pty proxy pacing bytes at 11 bits per character, one
    half-duplex wire) against the starterbus simulator (``starterbus simulate --modbus-rtu PATH``), which waits
    the 3.5-character silence before answering: FC03 (4 registers) and FC06 transactions per second, each as a
    fraction of the physical limit = wire time of request + response + two 3.5-character silences.
 2. Through a bare pty hop (the same proxy without pacing) against a plain pymodbus server: transactions per
-   second and CPU per transaction, nominal line 19200 baud.
+   second and CPU per transaction, nominal line 19200 baud. The registers keep their values (parameters);
+   ``--changing``: every FC03 answer differs from the one before (a running motor's currents).
 
 For every client the emulator measures the master's turnaround (answer delivered -> next request) and counts
 those shorter than 3.5 characters: "keeps silence" is "yes" only if there were none. Not run by the tests.
@@ -82,12 +84,13 @@ class Emulator:
         self.proc.wait(timeout=5)
 
 
-def start_server(kind: str, path: str, baud: int) -> subprocess.Popen[str]:
+def start_server(kind: str, path: str, baud: int, changing: bool = False) -> subprocess.Popen[str]:
     if kind == "starterbus":
         cmd = [sys.executable, "-m", "starterbus.cli.main", "simulate", "--model", "jjr5000", "--unit", "2",
                "--modbus-rtu", path, "--baudrate", str(baud)]  # fmt: skip
     else:
         cmd = [sys.executable, str(HERE / "pymodbus_server.py"), path, "--baud", str(baud)]
+        cmd += ["--changing"] if changing else []
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     if kind == "starterbus":
         assert proc.stdout is not None
@@ -180,15 +183,15 @@ def line_case(baud: int, clients: list[str], seconds: float, repeat: int) -> Non
         emulator.close()
 
 
-def bare_case(clients: list[str], seconds: float, server_kind: str, repeat: int) -> None:
+def bare_case(clients: list[str], seconds: float, server_kind: str, repeat: int, changing: bool) -> None:
     baud = 19200
     emulator = Emulator(0)
-    server = start_server(server_kind, emulator.server, baud)
+    server = start_server(server_kind, emulator.server, baud, changing)
     try:
         wait_ready(emulator.client, baud)
         for op in ("fc03", "fc06"):
             print(f"\nbare pty (no pacing), {op.upper()}, nominal {baud} baud (silence 2.01 ms), "
-                  f"slave = {server_kind} server")  # fmt: skip
+                  f"slave = {server_kind} server{', registers changing' if changing else ''}")  # fmt: skip
             results = [run_best(c, emulator.client, op, baud, seconds, emulator, repeat) for c in clients]
             ours = next((r for r in results if r.client == "starterbus"), None)
             rows = []
@@ -213,6 +216,7 @@ def main() -> None:
     parser.add_argument("--clients", default=",".join(CLIENTS))
     parser.add_argument("--only", choices=["line", "bare"], default=None)
     parser.add_argument("--bare-server", choices=["pymodbus", "starterbus"], default="pymodbus")
+    parser.add_argument("--changing", action="store_true", help="bare pty: every FC03 answer differs (pymodbus)")
     args = parser.parse_args()
     clients = args.clients.split(",")
     print(
@@ -222,7 +226,7 @@ def main() -> None:
         for baud in (int(b) for b in args.bauds.split(",")):
             line_case(baud, clients, args.seconds, args.repeat)
     if args.only in (None, "bare"):
-        bare_case(clients, args.seconds, args.bare_server, args.repeat)
+        bare_case(clients, args.seconds, args.bare_server, args.repeat, args.changing)
 
 
 if __name__ == "__main__":

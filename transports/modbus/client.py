@@ -20,6 +20,7 @@ from starterbus.core.url import DeviceUrl
 from starterbus.transports.modbus.annotate import exception_meaning
 from starterbus.transports.modbus.config import ModbusRtuConfig
 from starterbus.transports.modbus.frames import (
+    BROADCAST,
     ExceptionResponse,
     ReadRequest,
     ReadResponse,
@@ -27,13 +28,17 @@ from starterbus.transports.modbus.frames import (
     Response,
     WriteRequest,
 )
-from starterbus.transports.modbus.line import Link, RtuLine
+from starterbus.transports.modbus.line import Exchange, Link, RtuLine
 from starterbus.transports.modbus.slave import PROTOCOL, TRANSPORT, max_read_registers
+from starterbus.transports.modbus.timing import char_time
 
 #: one line object per serial port / TCP endpoint in this process
 LINES: SharedPool[RtuLine] = SharedPool()
 
 PHASE_NAMES = ("a", "b", "c")
+
+#: prepared requests (and read plans) a transport keeps per kind; a poller repeats a handful of them
+CACHE_SIZE = 256
 
 
 def plan_reads(addresses: Sequence[int], limit: int) -> list[tuple[int, int]]:
@@ -49,6 +54,15 @@ def plan_reads(addresses: Sequence[int], limit: int) -> list[tuple[int, int]]:
     return plan
 
 
+def value_positions(addresses: Sequence[int], plan: Sequence[tuple[int, int]]) -> tuple[int, ...]:
+    """Where each address's value is in the values of the ``plan``'s requests, one after another."""
+    position: dict[int, int] = {}
+    for start, count in plan:
+        for address in range(start, start + count):
+            position[address] = len(position)
+    return tuple(position[address] for address in addresses)
+
+
 class ModbusRtuTransport(Transport):
     name = TRANSPORT
 
@@ -61,6 +75,11 @@ class ModbusRtuTransport(Transport):
         self._line: RtuLine | None = None
         control = profile.role("control_word")
         self._control_address = control.address_for(PROTOCOL) if control is not None else None
+        self._char_time = char_time(self.config.serial.baudrate)
+        self._reads: dict[tuple[int, int], Exchange] = {}  # (address, count) -> the FC03 exchange
+        self._writes: dict[tuple[int, int], Exchange] = {}  # (address, value) -> the FC06 exchange
+        #: addresses -> the requests that read them and where each value is in their answers
+        self._plans: dict[tuple[int, ...], tuple[list[tuple[int, int]], tuple[int, ...]]] = {}
 
     # -- lifecycle ------------------------------------------------------------------------------------------
 
@@ -120,27 +139,44 @@ class ModbusRtuTransport(Transport):
 
     def execute(self, request: Request) -> Response | None:
         """One transaction; an exception answer becomes :class:`RemoteDeviceError`."""
-        response = self.line.transact(request, self.config.policy)
+        return self._run(Exchange(request, self.config.policy, self._char_time))
+
+    def _run(self, exchange: Exchange) -> Response | None:
+        line = self._line if self._line is not None else self.line  # the property raises "not open"
+        response = line.run(exchange)
         if isinstance(response, ExceptionResponse):
-            raise self._remote_error(request, response)
+            raise self._remote_error(exchange.request, response)
         return response
 
+    def _prepare(self, cache: dict[tuple[int, int], Exchange], key: tuple[int, int], request: Request) -> Exchange:
+        exchange = Exchange(request, self.config.policy, self._char_time)  # an invalid request raises here
+        if len(cache) >= CACHE_SIZE:
+            cache.clear()
+        cache[key] = exchange
+        return exchange
+
     def _no_broadcast_reads(self) -> None:
-        if self.config.broadcast:
+        if self.unit == BROADCAST:
             raise ConfigurationError(
                 f"{self.url.text}: unit 0 is the broadcast address: no device answers a read (give one device's unit)"
             )
 
     def read_registers(self, address: int, count: int) -> tuple[int, ...]:
         """Raw FC03 (no splitting): ``count`` registers from ``address``."""
-        self._no_broadcast_reads()
-        response = self.execute(ReadRequest(self.unit, address, count))
+        exchange = self._reads.get((address, count))
+        if exchange is None:  # a broadcast transport never gets this far, so never has a read cached
+            self._no_broadcast_reads()
+            exchange = self._prepare(self._reads, (address, count), ReadRequest(self.unit, address, count))
+        response = self._run(exchange)
         assert isinstance(response, ReadResponse)
         return response.values
 
     def write_register(self, address: int, value: int) -> None:
         """Raw FC06 (checked echo; nothing to check for a broadcast)."""
-        self.execute(WriteRequest(self.unit, address, value))
+        exchange = self._writes.get((address, value))
+        if exchange is None:
+            exchange = self._prepare(self._writes, (address, value), WriteRequest(self.unit, address, value))
+        self._run(exchange)
 
     # -- Transport operations ----------------------------------------------------------------------------------
 
@@ -152,12 +188,19 @@ class ModbusRtuTransport(Transport):
 
     def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
         self._no_broadcast_reads()
-        addresses = [self._address(p) for p in points]
-        raw: dict[int, int] = {}
-        for start, count in plan_reads(addresses, self.max_read):
-            for offset, value in enumerate(self.read_registers(start, count)):
-                raw[start + offset] = value
-        return [Reading(point, raw[address]) for point, address in zip(points, addresses, strict=True)]
+        addresses = tuple(self._address(p) for p in points)
+        plan, positions = self._plans.get(addresses) or self._plan(addresses)
+        values: tuple[int, ...] = ()
+        for start, count in plan:
+            values += self.read_registers(start, count)
+        return [Reading(point, values[i]) for point, i in zip(points, positions, strict=True)]
+
+    def _plan(self, addresses: tuple[int, ...]) -> tuple[list[tuple[int, int]], tuple[int, ...]]:
+        plan = plan_reads(addresses, self.max_read)
+        if len(self._plans) >= CACHE_SIZE:
+            self._plans.clear()
+        self._plans[addresses] = plan, value_positions(addresses, plan)
+        return self._plans[addresses]
 
     def write_parameter(self, point: PointDef, raw: int) -> None:
         self.write_register(self._address(point), raw)

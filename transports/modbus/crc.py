@@ -25,11 +25,13 @@ def _make_table() -> tuple[int, ...]:
 TABLE: tuple[int, ...] = _make_table()
 
 
-def crc16(data: bytes | bytearray | memoryview) -> int:
-    """The CRC-16/Modbus of ``data`` as an integer (low byte goes on the wire first)."""
-    crc = INITIAL
+def crc16(data: bytes | bytearray | memoryview, crc: int = INITIAL) -> int:
+    """The CRC-16/Modbus of ``data`` as an integer (low byte goes on the wire first).
+
+    ``crc`` continues a CRC: ``crc16(b, crc16(a)) == crc16(a + b)``.
+    """
     table = TABLE
-    for byte in bytes(data):
+    for byte in data if isinstance(data, (bytes, bytearray)) else bytes(data):
         crc = (crc >> 8) ^ table[(crc ^ byte) & 0xFF]
     return crc
 

@@ -144,6 +144,15 @@ class ReadResponse:
         for i, value in enumerate(self.values):
             _check_field(f"values[{i}]", value, 0, 0xFFFF)
 
+    @classmethod
+    def from_words(cls, unit: int, words: tuple[int, ...]) -> ReadResponse:
+        """The answer decoded from a frame: ``unit`` is a byte and ``words`` are 1..127 unpacked 16-bit words,
+        so the constructor's checks cannot fail (skipping them is most of the cost of building the value)."""
+        response = object.__new__(cls)
+        object.__setattr__(response, "unit", unit)
+        object.__setattr__(response, "values", words)
+        return response
+
     def encode(self) -> bytes:
         payload = b"".join(v.to_bytes(2, "big") for v in self.values)
         return append_crc(bytes((self.unit, self.function, len(payload))) + payload)
@@ -289,7 +298,7 @@ def decode_response(frame: bytes, *, crc: bool = True, request: Request | None =
                 "length",
             )
         values = tuple(int.from_bytes(body[i : i + 2], "big") for i in range(3, 3 + count, 2))
-        response = ReadResponse(unit, values)
+        response = ReadResponse.from_words(unit, values)
     elif function == FunctionCode.WRITE_SINGLE_REGISTER:
         if len(body) != 6:
             raise DecodeError(

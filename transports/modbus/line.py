@@ -8,26 +8,33 @@ first, which is a whole frame for an exception), and retries within the policy i
 
 from __future__ import annotations
 
+import functools
 import os
 import select
 import socket
+import struct
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 from starterbus.core.errors import ConfigurationError, DecodeError, TimeoutError, TransportError
+from starterbus.transports.modbus.crc import crc16
 from starterbus.transports.modbus.frames import (
     BROADCAST,
+    EXCEPTION_FRAME_LENGTH,
     ReadRequest,
+    ReadResponse,
     Request,
     Response,
+    WriteResponse,
     expected_response_length,
 )
 from starterbus.transports.modbus.receiver import NEED_DATA, ResponseReceiver
 from starterbus.transports.modbus.timing import char_time
 
 _READ_CHUNK = 512
+_NOTHING: tuple[int, ...] = ()  # the empty write and error sets of select.select
 
 
 @dataclass(frozen=True, slots=True)
@@ -62,7 +69,7 @@ class Link:
         fd: int,
         name: str,
         read: Callable[[int], bytes],
-        write: Callable[[memoryview], int],
+        write: Callable[[bytes | memoryview], int],
         close: Callable[[], None],
     ) -> None:
         self.fd = fd
@@ -70,6 +77,7 @@ class Link:
         self._read = read
         self._write = write
         self._close = close
+        self._fds = [fd]  # select's read set, built once
         self.closed = False
 
     @classmethod
@@ -95,7 +103,7 @@ class Link:
         except Exception as exc:
             port.close()
             raise TransportError(f"{path}: the serial port gives no file descriptor (POSIX only): {exc}") from exc
-        return cls(fd, path, lambda n: os.read(fd, n), lambda data: os.write(fd, data), port.close)
+        return cls(fd, path, functools.partial(os.read, fd), functools.partial(os.write, fd), port.close)
 
     @classmethod
     def connect_tcp(cls, host: str, port: int, timeout: float) -> Link:
@@ -111,7 +119,16 @@ class Link:
         return TransportError(f"{self.name}: {what} failed: {exc}")
 
     def write(self, data: bytes) -> None:
-        view = memoryview(data)
+        try:
+            sent = self._write(data)
+        except BlockingIOError:
+            sent = 0
+        except OSError as exc:
+            raise self._fail("write", exc) from exc
+        if sent < len(data):
+            self._write_rest(memoryview(data)[sent:])
+
+    def _write_rest(self, view: memoryview) -> None:
         while view:
             try:
                 sent = self._write(view)
@@ -122,21 +139,28 @@ class Link:
                 raise self._fail("write", exc) from exc
             view = view[sent:]
 
-    def read(self, size: int, deadline: float, limit: int = 0) -> bytes:
+    def read(self, size: int, deadline: float, limit: int = 0, wait: float | None = None) -> bytes:
         """At least ``size`` bytes (fewer only when ``deadline``, monotonic, has passed), and no more than
-        ``limit`` (default ``size``): what has already arrived beyond ``size`` is taken in the same call."""
+        ``limit`` (default ``size``): what has already arrived beyond ``size`` is taken in the same call.
+
+        ``wait``: ``deadline`` minus now, when the caller has just read the clock (saves reading it again).
+        """
         limit = max(size, limit)
         out = b""
         while len(out) < size:
-            remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            if wait is None:
+                wait = deadline - time.monotonic()
+            if wait <= 0 or not select.select(self._fds, _NOTHING, _NOTHING, wait)[0]:
                 break
-            ready, _, _ = select.select([self.fd], [], [], remaining)
-            if not ready:
-                break
-            chunk = self._recv(limit - len(out))
-            if chunk is None:
+            wait = None
+            try:  # as _recv, inline: this is every transaction's read
+                chunk = self._read(limit - len(out))
+            except BlockingIOError:
                 continue
+            except OSError as exc:
+                raise self._fail("read", exc) from exc
+            if not chunk:
+                raise self._hung_up()
             out += chunk
         return out
 
@@ -148,13 +172,15 @@ class Link:
         except OSError as exc:
             raise self._fail("read", exc) from exc
         if not chunk:
-            raise TransportError(f"{self.name}: the other end closed the connection")
+            raise self._hung_up()
         return chunk
+
+    def _hung_up(self) -> TransportError:
+        return TransportError(f"{self.name}: the other end closed the connection")
 
     def wait_readable(self, timeout: float) -> bool:
         """True as soon as bytes are there to read; False after ``timeout`` seconds of nothing."""
-        ready, _, _ = select.select([self.fd], [], [], max(0.0, timeout))
-        return bool(ready)
+        return bool(select.select(self._fds, _NOTHING, _NOTHING, max(0.0, timeout))[0])
 
     def drain(self, quiet: float, limit: float) -> tuple[bytes, float | None]:
         """Read and drop bytes until none came for ``quiet`` seconds, or until ``limit`` (monotonic).
@@ -168,8 +194,7 @@ class Link:
             wait = min(quiet, limit - now)
             if wait <= 0:
                 return dropped, last
-            ready, _, _ = select.select([self.fd], [], [], wait)
-            if not ready:
+            if not select.select(self._fds, _NOTHING, _NOTHING, wait)[0]:
                 return dropped, last
             chunk = self._recv(_READ_CHUNK)
             if chunk:
@@ -180,6 +205,70 @@ class Link:
         if not self.closed:
             self.closed = True
             self._close()
+
+
+class Exchange:
+    """One request made ready once and sent by every transaction that asks for it (callers may cache it).
+
+    Holds the frame, the length of a normal answer, the attempts and time the policy allows, and decodes an
+    answer that arrived whole and right with as little work as possible (:meth:`quick_decode`). Anything else
+    (an exception, a piece, garbage, a bad CRC) goes to a :class:`ResponseReceiver`, which gives the typed error.
+    """
+
+    __slots__ = (
+        "answer_length", "attempts", "broadcast", "budget", "frame", "header_length", "last", "may_retry",
+        "policy", "prefix", "prefix_crc", "quiet_limit", "request", "wire", "words",
+    )  # fmt: skip
+
+    def __init__(self, request: Request, policy: TransactionPolicy, char_time: float) -> None:
+        self.request = request
+        self.policy = policy
+        self.frame = request.encode()
+        self.broadcast = request.unit == BROADCAST
+        self.answer_length = expected_response_length(request)
+        self.header_length = min(EXCEPTION_FRAME_LENGTH, self.answer_length)  # an exception is complete by then
+        self.may_retry = isinstance(request, ReadRequest) or policy.retry_writes
+        self.attempts = 1 + (policy.retries if self.may_retry else 0)
+        self.quiet_limit = max(1.0, policy.timeout)
+        self.wire = len(self.frame) * char_time
+        # once the request is written: its wire time, the device's timeout, then the answer's wire time
+        self.budget = self.wire + policy.timeout + self.answer_length * char_time
+        self.words: struct.Struct | None = None  # how to unpack the registers of an FC03 answer
+        #: the last good answer and its decoding: an answer with the same bytes is the same answer
+        self.last: tuple[bytes, Response | None] = (b"", None)
+        if isinstance(request, ReadRequest):
+            self.prefix = bytes((request.unit, request.function, 2 * request.count))
+            self.prefix_crc = crc16(self.prefix)  # the CRC check of an answer starts after its known header
+            self.words = struct.Struct(f">{request.count}H")
+        else:
+            self.prefix = self.frame  # a good FC06 answer is the request, byte for byte
+            self.prefix_crc = 0  # unused: the echo is compared whole
+            self.last = (self.frame, WriteResponse(request.unit, request.address, request.value))
+
+    def good_so_far(self, data: bytes) -> bool:
+        """True if ``data`` (at least the header) is how a normal answer to the request begins."""
+        return self.prefix.startswith(data[: len(self.prefix)])
+
+    def quick_decode(self, data: bytes) -> Response | None:
+        """The answer if ``data`` is exactly a well-formed normal answer to the request, else None.
+
+        Equivalent to the full decoder on such frames (unit, function, byte count, length, CRC, echo all
+        compared at once); None sends the bytes to the :class:`ResponseReceiver`, which names what is wrong.
+        The same bytes as the last good answer (a register that did not change, every FC06 echo) are that
+        answer again, without a second CRC.
+        """
+        last_frame, last_response = self.last
+        if data == last_frame:
+            return last_response
+        if self.words is None or len(data) != self.answer_length or not data.startswith(self.prefix):
+            return None
+        # the CRC over a frame and its own CRC (low byte first) is 0 exactly when the CRC is right;
+        # the part for the 3-byte prefix is computed once
+        if crc16(data[3:], self.prefix_crc) != 0:
+            return None
+        response = ReadResponse.from_words(self.request.unit, self.words.unpack_from(data, 3))
+        self.last = (data, response)  # one assignment: another thread sees the old pair or the new one
+        return response
 
 
 class RtuLine:
@@ -194,6 +283,7 @@ class RtuLine:
         self.settings = settings
         self.lock = threading.Lock()
         self.char_time = char_time(settings.baudrate)
+        self._silence = settings.silence
         self._quiet_at = 0.0  # monotonic time from which the next frame may start
         self.transactions = 0
         self.retries = 0
@@ -229,15 +319,25 @@ class RtuLine:
     def _wait_quiet(self, limit: float) -> None:
         """Wait until the line has been silent for the interval; bytes arriving meanwhile (a late answer to an
         earlier request, noise) are dropped and restart the interval. Gives up after ``limit`` seconds."""
-        give_up = time.monotonic() + limit
-        while self.link.wait_readable(self._quiet_at - time.monotonic()):
-            dropped, last = self.link.drain(self.settings.silence, give_up)
-            self._quiet_at = (last if last is not None else time.monotonic()) + self.settings.silence
+        now = time.monotonic()
+        if self.link.wait_readable(self._quiet_at - now):
+            self._drop_until_quiet(now + limit, limit)
+
+    def _drop_until_quiet(self, give_up: float, limit: float) -> None:
+        while True:
+            dropped, last = self.link.drain(self._silence, give_up)
+            self._quiet_at = (last if last is not None else time.monotonic()) + self._silence
             if time.monotonic() >= give_up:
                 raise TransportError(
                     f"{self.name}: the line did not fall silent within {limit:g} s "
                     f"(last bytes {dropped[-16:].hex(' ').upper()})"
                 )
+            if not self.link.wait_readable(self._quiet_at - time.monotonic()):
+                return
+
+    def prepare(self, request: Request, policy: TransactionPolicy) -> Exchange:
+        """``request`` made ready for :meth:`run` (encoded and checked: an invalid request raises here)."""
+        return Exchange(request, policy, self.char_time)
 
     def transact(self, request: Request, policy: TransactionPolicy) -> Response | None:
         """Send ``request`` and return the checked answer (an ExceptionResponse is an answer, not an error).
@@ -245,68 +345,91 @@ class RtuLine:
         Broadcasts return None. Raises TimeoutError / DecodeError after the allowed attempts: reads are
         retried ``policy.retries`` times; a write only if ``policy.retry_writes`` (it may have been executed).
         """
-        frame = request.encode()
-        may_retry = isinstance(request, ReadRequest) or policy.retry_writes
-        attempts = 1 + (policy.retries if may_retry else 0)
+        return self.run(self.prepare(request, policy))
+
+    def run(self, exchange: Exchange) -> Response | None:
+        """:meth:`transact` for a prepared request (the same exchange may be run any number of times)."""
         with self.lock:
-            self._usable_link()
+            if self._broken or self._closed:
+                self._usable_link()
             self.transactions += 1
             try:
-                return self._attempts(request, frame, attempts, may_retry, policy)
+                return self._attempts(exchange)
             except TransportError as exc:
                 if not isinstance(exc, TimeoutError):
                     self._broken = True  # the next transaction reopens / reconnects
                 raise
 
-    def _attempts(
-        self, request: Request, frame: bytes, attempts: int, may_retry: bool, policy: TransactionPolicy
-    ) -> Response | None:
+    def _attempts(self, exchange: Exchange) -> Response | None:
+        attempts = exchange.attempts
         for attempt in range(1, attempts + 1):
-            self._wait_quiet(max(1.0, policy.timeout))
-            self.link.write(frame)
-            wire_end = time.monotonic() + len(frame) * self.char_time
-            if request.unit == BROADCAST:
-                self._quiet_at = wire_end + max(policy.turnaround, self.settings.silence)
+            self._wait_quiet(exchange.quiet_limit)
+            self.link.write(exchange.frame)
+            sent_at = time.monotonic()
+            if exchange.broadcast:
+                self._quiet_at = sent_at + exchange.wire + max(exchange.policy.turnaround, self._silence)
                 return None
             try:
-                return self._receive(request, frame, wire_end, policy)
+                return self._receive(exchange, sent_at)
             except (TimeoutError, DecodeError) as exc:
-                self._resync(policy)
+                self._resync(exchange.policy)
                 if attempt == attempts:
                     note = f" (attempt {attempt} of {attempts}"
-                    note += ")" if may_retry else "; a write is not repeated unless retry_writes=1)"
+                    note += ")" if exchange.may_retry else "; a write is not repeated unless retry_writes=1)"
                     exc.args = (str(exc) + note,)
                     raise
                 self.retries += 1
         raise AssertionError("unreachable")  # pragma: no cover
 
-    def _receive(self, request: Request, frame: bytes, wire_end: float, policy: TransactionPolicy) -> Response:
-        receiver = ResponseReceiver(request)
-        deadline = wire_end + policy.timeout + expected_response_length(request) * self.char_time
-        last_rx = wire_end
+    def _receive(self, exchange: Exchange, sent_at: float) -> Response:
+        """The answer: at least the header and at most the whole answer in the first read (on a pty, usually
+        all of it); the rest of a normal answer in one more read. Anything unusual goes to the receiver."""
+        deadline = sent_at + exchange.budget
+        needed, length = exchange.header_length, exchange.answer_length
+        data = self.link.read(needed, deadline, length, wait=exchange.budget)
+        received_at = time.monotonic()
+        if needed <= len(data) < length and exchange.good_so_far(data):
+            rest = self.link.read(length - len(data), deadline)
+            if rest:
+                data += rest
+                received_at = time.monotonic()
+        if len(data) == length:
+            response = exchange.quick_decode(data)
+            if response is not None:
+                self._quiet_at = received_at + self._silence
+                return response
+        return self._receive_rest(exchange, data, needed, received_at, deadline)
+
+    def _receive_rest(self, exchange: Exchange, data: bytes, needed: int, last_rx: float, deadline: float) -> Response:
+        """Anything but a good normal answer: the receiver checks the bytes so far and each piece to come.
+
+        ``data`` is what the reads so far gave (at least ``needed`` bytes unless the time ran out).
+        """
+        receiver = ResponseReceiver(exchange.request)
         while True:
-            needed = receiver.bytes_needed()
-            if needed:
-                # at least the header (or the rest), at most the whole answer: one read when it is all there
-                data = self.link.read(needed, deadline, receiver.expected_length - len(receiver.received))
+            if needed:  # ``data`` is what a read of at least ``needed`` bytes gave
                 if data:
-                    last_rx = time.monotonic()
                     receiver.feed(data)
                 event = receiver.next_event()
                 if event is NEED_DATA and len(data) < needed:
                     if receiver.received:
                         raise receiver.truncated_error()
                     raise TimeoutError(
-                        f"{self.name}: no answer from unit {request.unit} within {policy.timeout:g} s "
-                        f"to {frame.hex(' ').upper()}"
+                        f"{self.name}: no answer from unit {exchange.request.unit} within "
+                        f"{exchange.policy.timeout:g} s to {exchange.frame.hex(' ').upper()}"
                     )
             else:
                 event = receiver.next_event()
             if event is not NEED_DATA:
-                self._quiet_at = last_rx + self.settings.silence
+                self._quiet_at = last_rx + self._silence
                 return event
+            needed = receiver.bytes_needed()
+            if needed:
+                data = self.link.read(needed, deadline, receiver.expected_length - len(receiver.received))
+                if data:
+                    last_rx = time.monotonic()
 
     def _resync(self, policy: TransactionPolicy) -> None:
         """After a bad or missing answer: drop what is still coming until the line is quiet."""
-        _, last = self.link.drain(max(self.settings.silence, 3 * self.char_time), time.monotonic() + policy.timeout)
-        self._quiet_at = (last if last is not None else time.monotonic()) + self.settings.silence
+        _, last = self.link.drain(max(self._silence, 3 * self.char_time), time.monotonic() + policy.timeout)
+        self._quiet_at = (last if last is not None else time.monotonic()) + self._silence
