@@ -85,8 +85,8 @@ class ReadRequest:
 
 
 @dataclass(frozen=True, slots=True)
-class WriteRequest:
-    """FC06: write ``value`` to the register ``address``."""
+class _SingleRegister:
+    """The FC06 layout, shared by the request and its echo (they differ only in type)."""
 
     unit: int
     address: int
@@ -102,6 +102,11 @@ class WriteRequest:
         return append_crc(
             bytes((self.unit, self.function)) + self.address.to_bytes(2, "big") + self.value.to_bytes(2, "big")
         )
+
+
+@dataclass(frozen=True, slots=True)
+class WriteRequest(_SingleRegister):
+    """FC06: write ``value`` to the register ``address``."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -159,23 +164,8 @@ class ReadResponse:
 
 
 @dataclass(frozen=True, slots=True)
-class WriteResponse:
+class WriteResponse(_SingleRegister):
     """FC06 answer: the echo of the request."""
-
-    unit: int
-    address: int
-    value: int
-    function: ClassVar[int] = FunctionCode.WRITE_SINGLE_REGISTER
-
-    def __post_init__(self) -> None:
-        _check_field("unit", self.unit, 0, 0xFF)
-        _check_field("address", self.address, 0, 0xFFFF)
-        _check_field("value", self.value, 0, 0xFFFF)
-
-    def encode(self) -> bytes:
-        return append_crc(
-            bytes((self.unit, self.function)) + self.address.to_bytes(2, "big") + self.value.to_bytes(2, "big")
-        )
 
 
 @dataclass(frozen=True, slots=True)
