@@ -152,8 +152,7 @@ def parse_fleet(text: str, source: str = "<fleet>") -> FleetConfig:
     poll = data.get("poll", {})
     if not isinstance(poll, dict):
         raise fail("poll", "must be a table")
-    for key in set(poll) - _POLL_FIELDS:
-        raise fail(f"poll.{key}", f"unknown setting (known: {', '.join(sorted(_POLL_FIELDS))})")
+    _check_fields(poll, _POLL_FIELDS, "poll", fail)
     period = _positive(poll.get("period", 1.0), "poll.period", fail)
     max_backoff = _positive(poll.get("max_backoff", 30.0), "poll.max_backoff", fail)
 
@@ -166,11 +165,8 @@ def parse_fleet(text: str, source: str = "<fleet>") -> FleetConfig:
     bus_targets: dict[str, str] = {}
     for bi, bus in enumerate(buses_data):
         where = f"bus[{bi}]"
-        for key in set(bus) - _BUS_FIELDS:
-            raise fail(f"{where}.{key}", f"unknown setting (known: {', '.join(sorted(_BUS_FIELDS))})")
-        name = bus.get("name")
-        if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
-            raise fail(f"{where}.name", f"{name!r} is not a name (letters, digits, _ . -)")
+        _check_fields(bus, _BUS_FIELDS, where, fail)
+        name = _name(bus, where, fail)
         if name in bus_names:
             raise fail(f"{where}.name", f"bus {name!r} is defined twice")
         bus_names.add(name)
@@ -193,11 +189,8 @@ def parse_fleet(text: str, source: str = "<fleet>") -> FleetConfig:
         bus_devices = []
         for di, dev in enumerate(dev_list):
             dwhere = f"{where}.device[{di}]"
-            for key in set(dev) - _DEVICE_FIELDS:
-                raise fail(f"{dwhere}.{key}", f"unknown setting (known: {', '.join(sorted(_DEVICE_FIELDS))})")
-            dname = dev.get("name")
-            if not isinstance(dname, str) or not _NAME_RE.fullmatch(dname):
-                raise fail(f"{dwhere}.name", f"{dname!r} is not a name (letters, digits, _ . -)")
+            _check_fields(dev, _DEVICE_FIELDS, dwhere, fail)
+            dname = _name(dev, dwhere, fail)
             if dname in devices:
                 raise fail(f"{dwhere}.name", f"device {dname!r} is defined twice")
             model = dev.get("model")
@@ -268,6 +261,18 @@ def _device_url(bus: DeviceUrl, address: int | None, options: Mapping[str, Any])
         query[param] = str(address)
     base = bus.text.split("?", 1)[0]
     return f"{base}?{urlencode(query)}" if query else base
+
+
+def _check_fields(table: Mapping[str, Any], known: set[str], where: str, fail: Any) -> None:
+    for key in sorted(set(table) - known):
+        raise fail(f"{where}.{key}", f"unknown setting (known: {', '.join(sorted(known))})")
+
+
+def _name(table: Mapping[str, Any], where: str, fail: Any) -> str:
+    name = table.get("name")
+    if not isinstance(name, str) or not _NAME_RE.fullmatch(name):
+        raise fail(f"{where}.name", f"{name!r} is not a name (letters, digits, _ . -)")
+    return name
 
 
 def _positive(value: object, where: str, fail: Any) -> float:
