@@ -1,30 +1,32 @@
 """``read``, ``write``, ``status``, ``start|stop|reset``: one device through any transport.
 
-Writes and commands are guarded: they ask for confirmation on a terminal and need ``--yes`` otherwise,
-``--dry-run`` prints the frames instead of sending them, every attempt is appended to the audit log, and a
-written parameter is read back (a mismatch is an error).
+A thin shell over the core's guarded path (:mod:`starterbus.core.guarded`): the CLI supplies the
+confirmation (a prompt on a terminal, ``--yes`` otherwise), the audit log and who asks; validation, the
+certainty and state rules, the audit record of the outcome and the read-back (value or state reached) are
+the core's. ``--dry-run`` prints the frames instead of sending them.
 """
 
 from __future__ import annotations
 
 import argparse
+import getpass
 import sys
+from typing import TextIO
 
 from starterbus.cli.output import emit_json, table
 from starterbus.core.audit import AuditLog
 from starterbus.core.device import Device, open_device
-from starterbus.core.errors import StarterbusError, ValidationError
+from starterbus.core.errors import UnsupportedOperationError, ValidationError
+from starterbus.core.guarded import (
+    Confirm,
+    ConfirmationRefused,
+    GuardedOperationError,
+    Outcome,
+    Proposal,
+    UncertainValueError,
+)
 from starterbus.core.model import Value
 from starterbus.core.status import Command, Status
-from starterbus.core.transport import Capability
-
-
-class ConfirmationRefused(StarterbusError):
-    """A command that moves a motor or changes a parameter was not confirmed."""
-
-
-class ReadBackMismatch(StarterbusError):
-    """A written parameter reads back with another value."""
 
 
 def _device(args: argparse.Namespace) -> Device:
@@ -62,73 +64,75 @@ def parse_assignments(items: list[str]) -> dict[str, str]:
     return out
 
 
-def confirm(args: argparse.Namespace, question: str) -> None:
-    """Ask on a terminal; without a terminal, require --yes. Raises ConfirmationRefused."""
-    if getattr(args, "yes", False):
-        return
-    if not sys.stdin.isatty():
-        raise ConfirmationRefused(f"{question.rstrip('?')}: refused without --yes (no terminal to confirm on)")
-    answer = input(f"{question} [y/N] ").strip().lower()
-    if answer not in ("y", "yes"):
-        raise ConfirmationRefused("not confirmed; nothing sent")
+def prompt_hook(args: argparse.Namespace) -> Confirm:
+    """The CLI's confirmation: ``--yes``, else a question on a terminal showing the raw codes and frames."""
+
+    def ask(proposal: Proposal) -> bool:
+        if getattr(args, "yes", False):
+            return True
+        if not sys.stdin.isatty():
+            raise ConfirmationRefused(
+                f"{proposal.question().rstrip('?')}: refused without --yes (no terminal to confirm on)"
+            )
+        for planned in proposal.writes:
+            if planned.uncertainty:
+                print(f"  note: {planned.uncertainty}", file=sys.stderr)
+        for frame in proposal.frames:
+            print(f"  frame: {frame}", file=sys.stderr)
+        answer = input(f"{proposal.question()} [y/N] ").strip().lower()
+        return answer in ("y", "yes")
+
+    return ask
+
+
+def _guarded_device(args: argparse.Namespace) -> Device:
+    return open_device(
+        args.url, args.model, audit=AuditLog(args.audit_log), actor=f"cli:{_user()}", confirm=prompt_hook(args)
+    )
+
+
+def _user() -> str:
+    try:
+        return getpass.getuser()
+    except (KeyError, OSError):
+        return "?"
 
 
 def cmd_write(args: argparse.Namespace) -> int:
-    device = _device(args)
+    device = _guarded_device(args)
     assignments = parse_assignments(args.assignments)
     checked = [device.validate_write(key, value) for key, value in assignments.items()]  # before anything opens
+    uncertain = [u for p, raw in checked if (u := p.uncertainty(raw))]
+    if uncertain and not args.accept_uncertain:
+        raise UncertainValueError("; ".join(uncertain) + " (acknowledge with --accept-uncertain)")
     if args.dry_run:
         rows: list[dict[str, object]] = []
         for point, raw in checked:
             frames = device.transport.preview_write(point, raw)
-            rows.append({"key": point.key, "value": Value.from_raw(point, raw).text(), "frames": frames})
+            rows.append({"key": point.key, "value": Value.from_raw(point, raw).text(), "raw": raw, "frames": frames})
         _show_dry_run(args, rows)
         return 0
-    audit = AuditLog(args.audit_log)
-    text = ", ".join(f"{p.key} = {Value.from_raw(p, raw).text()}" for p, raw in checked)
-    confirm(args, f"write {text} to {device.describe()}?")
-    results: list[dict[str, object]] = []
-    failed = False
     with device:
-        can_read = Capability.READ_PARAMETERS in device.capabilities
-        for point, raw in checked:
-            new = Value.from_raw(point, raw)
-            old = device.read_value(point) if can_read else None
-            record: dict[str, object] = {
-                "device": args.url,
-                "model": device.profile.name,
-                "action": "write",
-                "key": point.key,
-                "address": point.address,
-                "old": old.text() if old else None,
-                "new": new.text(),
-            }
-            try:
-                device.write(point, new.value)
-                if can_read:
-                    back = device.read_value(point)
-                    if back.raw != raw:
-                        raise ReadBackMismatch(
-                            f"{point.key}: wrote {new.text()} but read back {back.text()} from {device.describe()}"
-                        )
-                    record["read_back"] = back.text()
-                record["result"] = "ok"
-            except StarterbusError as exc:
-                record["result"] = f"error: {exc}"
-                failed = True
-                audit.append(**record)
-                results.append(record)
-                raise
-            audit.append(**record)
-            results.append(record)
+        try:
+            outcomes = device.write_many(assignments, accept_uncertain=args.accept_uncertain)
+        except GuardedOperationError:
+            _show_outcomes(args, device, device.guard.last_outcomes, to=sys.stderr)
+            raise
+    _show_outcomes(args, device, outcomes)
+    return 0
+
+
+def _show_outcomes(args: argparse.Namespace, device: Device, outcomes: list[Outcome], to: TextIO | None = None) -> None:
     if args.json:
-        emit_json({"device": args.url, "model": device.profile.name, "written": results})
-    else:
-        table(
-            ["key", "old", "new", "result"],
-            [[r["key"], r["old"] or "-", r["new"], r["result"]] for r in results],
-        )
-    return 1 if failed else 0
+        if to is None:
+            emit_json({"device": args.url, "model": device.profile.name, "written": [o.as_json() for o in outcomes]})
+        return
+    rows = [
+        [o.key, o.old.text() if o.old else "-", o.new.text() if o.new else "-",
+         o.read_back.text() if o.read_back else "-", o.result]
+        for o in outcomes
+    ]  # fmt: skip
+    table(["key", "old", "new", "read back", "result"], rows, out=to)
 
 
 def _show_dry_run(args: argparse.Namespace, rows: list[dict[str, object]]) -> None:
@@ -181,38 +185,57 @@ def cmd_status(args: argparse.Namespace) -> int:
 
 
 def cmd_command(args: argparse.Namespace) -> int:
-    device = _device(args)
+    device = _guarded_device(args)
     command = Command(args.command)
+    holding = args.hold or args.hold_for is not None
     if args.dry_run:
         _show_dry_run(args, [{"command": command.value, "frames": device.transport.preview_command(command)}])
         return 0
-    confirm(args, f"{command.value} {device.describe()}?")
-    audit = AuditLog(args.audit_log)
-    record: dict[str, object] = {
-        "device": args.url,
-        "model": device.profile.name,
-        "action": "command",
-        "command": command.value,
-    }
+    if command is Command.START and device.transport.run_needs_connection and not holding:
+        raise UnsupportedOperationError(
+            f"{device.transport.name}: the run command lives only while this program holds the connection (when "
+            "`start` exits, the device's watchdog soft-stops the motor); use --hold (run until Ctrl-C, then a "
+            "reported soft stop) or --hold-for SECONDS, or command it from a long-running `poll`/`serve`"
+        )
     with device:
         try:
-            device.command(command)
-        except StarterbusError as exc:
-            audit.append(**record, result=f"error: {exc}")
+            outcome = device.command(command, timeout=args.wait)
+        except GuardedOperationError as exc:
+            if exc.outcomes and args.json:
+                emit_json({"device": args.url, "command": command.value, **exc.outcomes[0].as_json()})
             raise
-        audit.append(**record, result="ok")
-        status = device.status() if args.show_status else None
-    if args.json:
-        emit_json(
-            {
-                "device": args.url,
-                "command": command.value,
-                "result": "ok",
-                "status": status.as_json() if status else None,
-            }
-        )
-    else:
-        print(f"{command.value}: sent to {device.describe()}")
-        if status is not None:
-            table(["", "status"], status_rows(status))
+        _show_command(args, device, outcome)
+        if holding and command is Command.START:
+            return _hold(args, device)
     return 0
+
+
+def _show_command(args: argparse.Namespace, device: Device, outcome: Outcome) -> None:
+    if args.json:
+        emit_json({"device": args.url, "command": outcome.action, **outcome.as_json()})
+        return
+    state = outcome.reached.state.value if outcome.reached else "?"
+    print(f"{outcome.action}: {outcome.result}, {device.describe()} is {state}")
+    if outcome.reached is not None and args.show_status:
+        table(["", "status"], status_rows(outcome.reached))
+
+
+def _hold(args: argparse.Namespace, device: Device) -> int:
+    """Keep the connection (and so the run command) until Ctrl-C or --hold-for, then soft-stop and report."""
+    clock = device.guard.clock
+    until = None if args.hold_for is None else clock() + args.hold_for
+    interrupted = False
+    try:
+        while until is None or clock() < until:
+            status = device.status()
+            if args.json:
+                emit_json({"device": args.url, "holding": True, "status": status.as_json()})
+            else:
+                currents = " ".join(f"{k.upper()} {v.text()}" for k, v in status.currents.items())
+                print(f"holding: {status.state.value} {currents}".rstrip(), file=sys.stderr)
+            device.guard.sleep(min(0.5, max(0.0, until - clock())) if until is not None else 0.5)
+    except KeyboardInterrupt:
+        interrupted = True
+    outcome = device.command(Command.SOFT_STOP, timeout=args.wait)
+    _show_command(args, device, outcome)
+    return 130 if interrupted else 0

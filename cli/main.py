@@ -64,6 +64,11 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     p = sub.add_parser("write", help="write parameters (engineering units or enum labels; validated first)")
     _device_args(p)
     p.add_argument("assignments", nargs="+", metavar="KEY=VALUE")
+    p.add_argument(
+        "--accept-uncertain",
+        action="store_true",
+        help="acknowledge writing a code or scale the manual does not print (see `params`: certainty)",
+    )
     _guard_args(p)
     p.set_defaults(handler=device_cmds.cmd_write)
 
@@ -78,7 +83,23 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     ):
         p = sub.add_parser(name, help=help_text)
         _device_args(p)
-        p.add_argument("--show-status", action="store_true", help="read the status after the command")
+        p.add_argument("--show-status", action="store_true", help="show the whole status reached")
+        p.add_argument(
+            "--wait",
+            type=float,
+            default=5.0,
+            metavar="S",
+            help="seconds to wait for the state the command asks for (default 5); not reached: exit 1",
+        )
+        if name == "start":
+            p.add_argument(
+                "--hold",
+                action="store_true",
+                help="keep the connection (and the run command) with a live status until Ctrl-C, then soft-stop",
+            )
+            p.add_argument("--hold-for", type=float, metavar="S", help="as --hold, but soft-stop after S seconds")
+        else:
+            p.set_defaults(hold=False, hold_for=None)
         _guard_args(p)
         p.set_defaults(handler=device_cmds.cmd_command, command=name)
 

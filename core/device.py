@@ -3,6 +3,10 @@
 Everything a user can get wrong is checked here BEFORE the transport is called: unknown keys, read-only
 points, values out of range, off the resolution or not in the enum, and capabilities the transport or the
 model lacks. A write that fails validation sends nothing.
+
+Writes and commands go through the device's :class:`~starterbus.core.guarded.Guard`: certainty and state
+rules, confirmation, audit record, read-back (the value, or the state reached). ``send_write`` and
+``send_command`` are the unguarded primitives the guard itself uses.
 """
 
 from __future__ import annotations
@@ -10,7 +14,9 @@ from __future__ import annotations
 from collections.abc import Iterable, Mapping
 from types import TracebackType
 
+from starterbus.core.audit import AuditLog
 from starterbus.core.errors import UnsupportedOperationError, ValidationError
+from starterbus.core.guarded import Confirm, Guard, Outcome, always
 from starterbus.core.model import Kind, PointDef, Value
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile, get_transport
@@ -22,9 +28,18 @@ from starterbus.core.url import DeviceUrl
 class Device:
     """One soft starter reached through one transport."""
 
-    def __init__(self, transport: Transport, profile: Profile) -> None:
+    def __init__(
+        self,
+        transport: Transport,
+        profile: Profile,
+        *,
+        audit: AuditLog | None = None,
+        actor: str | None = None,
+        confirm: Confirm = always,
+    ) -> None:
         self.transport = transport
         self.profile = profile
+        self.guard = Guard(self, audit=audit, actor=actor, confirm=confirm)
 
     @property
     def capabilities(self) -> frozenset[Capability]:
@@ -92,41 +107,59 @@ class Device:
     def read_value(self, key: str | PointDef) -> Value:
         return next(iter(self.read(key).values()))
 
-    def write(self, key: str | PointDef, value: float | int | str) -> Value:
-        """Validate, then write one parameter. Returns the value written."""
-        point, raw = self.validate_write(key, value)
-        self.transport.write_parameter(point, raw)
-        return Value.from_raw(point, raw, source=self.transport.name)
+    def write(self, key: str | PointDef, value: float | int | str, *, accept_uncertain: bool = False) -> Outcome:
+        """Write one parameter through the guarded path; returns the verified outcome (``.read_back``)."""
+        return self.guard.write([(key, value)], accept_uncertain=accept_uncertain)[0]
 
-    def write_many(self, values: Mapping[str, float | int | str]) -> list[Value]:
-        """Validate ALL values first; only if every one is valid, write them in order."""
-        checked = [self.validate_write(k, v) for k, v in values.items()]
-        written = []
-        for point, raw in checked:
-            self.transport.write_parameter(point, raw)
-            written.append(Value.from_raw(point, raw, source=self.transport.name))
-        return written
+    def write_many(self, values: Mapping[str, float | int | str], *, accept_uncertain: bool = False) -> list[Outcome]:
+        """Validate ALL values first; only if every one is valid, write them in order, each read back."""
+        return self.guard.write(values, accept_uncertain=accept_uncertain)
+
+    def send_write(self, point: PointDef, raw: int) -> None:
+        """Unguarded: hand one already-validated raw value to the transport (the guard's primitive)."""
+        self.transport.write_parameter(point, raw)
 
     def status(self) -> Status:
         self._require(Capability.STATUS, "read the status")
-        return self.transport.read_status()
+        status = self.transport.read_status()
+        self.guard.note_status(status)
+        return status
 
-    def command(self, command: Command) -> None:
+    def check_command(self, command: Command) -> None:
         self._require(Capability.COMMANDS, f"send the command {command.value!r}")
+
+    def send_command(self, command: Command) -> None:
+        """Unguarded: send a command without confirmation, audit or read-back (the guard's primitive)."""
+        self.check_command(command)
         self.transport.send_command(command)
 
-    def start(self) -> None:
-        self.command(Command.START)
+    def command(self, command: Command, *, timeout: float | None = None) -> Outcome:
+        """Send a command through the guarded path; returns the outcome with the state reached."""
+        return self.guard.command(command, timeout=timeout)
 
-    def stop(self) -> None:
-        self.command(Command.SOFT_STOP)
+    def start(self, *, timeout: float | None = None) -> Outcome:
+        return self.command(Command.START, timeout=timeout)
 
-    def reset(self) -> None:
-        self.command(Command.FAULT_RESET)
+    def stop(self, *, timeout: float | None = None) -> Outcome:
+        return self.command(Command.SOFT_STOP, timeout=timeout)
+
+    def reset(self, *, timeout: float | None = None) -> Outcome:
+        return self.command(Command.FAULT_RESET, timeout=timeout)
 
 
-def open_device(url: str | DeviceUrl, model: str | Profile) -> Device:
-    """Build a :class:`Device` (not yet opened) from a URL whose scheme names the transport plugin."""
+def open_device(
+    url: str | DeviceUrl,
+    model: str | Profile,
+    *,
+    audit: AuditLog | None = None,
+    actor: str | None = None,
+    confirm: Confirm = always,
+) -> Device:
+    """Build a :class:`Device` (not yet opened) from a URL whose scheme names the transport plugin.
+
+    ``audit`` (default: the user's audit log), ``actor`` (who asks, recorded with every write and command)
+    and ``confirm`` (a hook shown each proposal; default: the call itself is the intent) set up its guard.
+    """
     parsed = url if isinstance(url, DeviceUrl) else DeviceUrl.parse(url)
     profile = model if isinstance(model, Profile) else get_profile(model)
     plugin = get_transport(parsed.transport)
@@ -134,4 +167,4 @@ def open_device(url: str | DeviceUrl, model: str | Profile) -> Device:
         raise UnsupportedOperationError(
             f"{profile.display_name} has no {plugin.name} interface (it speaks: {', '.join(profile.transports)})"
         )
-    return Device(plugin.open(parsed, profile), profile)
+    return Device(plugin.open(parsed, profile), profile, audit=audit, actor=actor, confirm=confirm)

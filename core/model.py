@@ -84,6 +84,12 @@ class PointDef:
     def writable(self) -> bool:
         return self.kind is Kind.PARAMETER and self.access.writable
 
+    def uncertainty(self, raw: int) -> str | None:
+        """Why writing ``raw`` rests on an unprinted code or scale, or None when the manual prints both."""
+        if self.scale_assumed:
+            return f"{self.address} {self.key}: the scale {self.scale:g} is assumed, not printed in the manual"
+        return None
+
     def address_for(self, protocol: str) -> int | None:
         return self.addresses.get(protocol)
 

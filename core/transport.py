@@ -39,6 +39,9 @@ class Transport(ABC):
 
     #: the plugin name (entry point / URL scheme)
     name: str = ""
+    #: True when a run command lives only while this transport stays open (DeviceNet polled I/O: closing the
+    #: connection lets the slave's watchdog soft-stop the motor); a one-shot ``start`` must hold or refuse
+    run_needs_connection: bool = False
 
     def __init__(self, url: DeviceUrl, profile: Profile) -> None:
         self.url = url

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from starterbus.core.profile import Profile
@@ -32,3 +34,11 @@ def jjr8000() -> Profile:
 @pytest.fixture
 def clock() -> ManualClock:
     return ManualClock(1000.0)
+
+
+@pytest.fixture(autouse=True)
+def _audit_log_in_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """Writes and commands are audited: keep every test's audit trail out of the user's home."""
+    path = tmp_path / "audit.jsonl"
+    monkeypatch.setenv("STARTERBUS_AUDIT_LOG", str(path))
+    return path

@@ -31,6 +31,7 @@ class RecordingTransport(Transport):
         super().__init__(DeviceUrl.parse("recording://test"), profile)
         self.caps = caps
         self.sent: list[tuple[str, int]] = []
+        self.memory: dict[str, int] = {}
 
     def open(self) -> None:
         pass
@@ -43,10 +44,11 @@ class RecordingTransport(Transport):
         return self.caps
 
     def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
-        return [Reading(p, p.default if p.default is not None else p.raw_min) for p in points]
+        return [Reading(p, self.memory.get(p.key, p.default if p.default is not None else p.raw_min)) for p in points]
 
     def write_parameter(self, point: PointDef, raw: int) -> None:
         self.sent.append((point.key, raw))
+        self.memory[point.key] = raw
 
 
 def test_out_of_range_write_sends_nothing(jjr5000: Profile) -> None:

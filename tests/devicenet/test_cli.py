@@ -53,8 +53,24 @@ def test_commands(
     assert main(["start", url, "--model", "jjr8000", "--dry-run"]) == 0
     assert "42D#0101" in capsys.readouterr().out
     assert simulated.phase is Phase.STOPPED  # a dry run sends nothing
-    assert main(["start", url, "--model", "jjr8000", "--yes", "--audit-log", log]) == 0
-    assert simulated.start_count == 1
+    # a one-shot start would die with the connection: refused in one line, nothing sent
+    assert main(["start", url, "--model", "jjr8000", "--yes", "--audit-log", log]) == 1
+    err = capsys.readouterr().err
+    assert "--hold" in err and "watchdog" in err and len(err.strip().splitlines()) == 1
+    assert simulated.start_count == 0
+    # held: started (the state reached is reported), then soft-stopped when the hold ends, both audited
+    assert main(["start", url, "--model", "jjr8000", "--yes", "--audit-log", log, "--hold-for", "0", "--json"]) == 0
+    out, docs, decoder = capsys.readouterr().out, [], json.JSONDecoder()
+    while out.strip():
+        doc, end = decoder.raw_decode(out.strip())
+        docs.append(doc)
+        out = out.strip()[end:]
+    assert simulated.start_count == 1 and simulated.phase in (Phase.STOPPING, Phase.STOPPED)
+    entries = [json.loads(x) for x in Path(log).read_text(encoding="utf-8").splitlines()]
+    assert [(e["command"], e["result"]) for e in entries] == [("start", "ok"), ("stop", "ok")]
+    assert entries[0]["reached"] in ("starting", "running") and entries[1]["reached"] in ("stopping", "stopped")
+    assert [d.get("reached") for d in docs if "reached" in d][:1] in (["starting"], ["running"])
+    assert docs[-1]["action"] == "stop" and docs[-1]["result"] == "ok"
     simulated.inject_fault(2)
     assert main(["reset", url, "--model", "jjr8000", "--yes", "--audit-log", log, "--show-status"]) == 0
     assert simulated.fault_code is None

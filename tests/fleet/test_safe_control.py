@@ -69,7 +69,7 @@ def test_read_back_mismatch_is_an_error(
     err = capsys.readouterr().err
     assert "wrote 400 % but read back 350 %" in err
     entry = json.loads(log.read_text(encoding="utf-8").splitlines()[-1])
-    assert entry["result"].startswith("error: current_limit: wrote 400 % but read back")
+    assert (entry["result"], entry["new"], entry["read_back"]) == ("mismatch", "400 %", "350 %")
 
 
 def test_without_terminal_and_without_yes_nothing_is_sent(

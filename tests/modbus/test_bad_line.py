@@ -25,6 +25,7 @@ from starterbus.core.errors import (
     TransportError,
     ValidationError,
 )
+from starterbus.core.status import Command
 from starterbus.transports.modbus.crc import append_crc
 from starterbus.transports.modbus.frames import (
     ExceptionResponse,
@@ -91,7 +92,7 @@ def test_silence_is_a_timeout(peer: PtyPeer) -> None:
 def test_exception_response_carries_the_models_meaning(peer: PtyPeer) -> None:
     peer.serve([ExceptionResponse(2, 6, 4).encode()])
     with device(peer) as d, pytest.raises(RemoteDeviceError) as info:
-        d.write("current_limit", 380)
+        d.send_write(*d.validate_write("current_limit", 380))
     assert info.value.code == 4 and info.value.protocol == "modbus-rtu"
     assert "parameter modify" in info.value.meaning.lower()
     assert info.value.data == ExceptionResponse(2, 6, 4).encode()
@@ -108,7 +109,7 @@ def test_manual_non_echo_is_malformed(peer: PtyPeer) -> None:
     """JJR8000 example 1 as printed: the start command answered with 02 06 00 00 00 00."""
     peer.serve([append_crc(bytes.fromhex("02 06 00 00 00 00"))])
     with device(peer, model="jjr8000") as d, pytest.raises(DecodeError) as info:
-        d.start()
+        d.send_command(Command.START)
     assert info.value.field == "echo"
     assert peer.received == [bytes.fromhex("02 06 00 00 00 09 49 FF")]
 
@@ -117,7 +118,7 @@ def test_manual_short_write_answer_is_malformed(peer: PtyPeer) -> None:
     """JJR8000 example 5 as printed: 02 06 02 01 90 (+CRC) is one byte short of an echo."""
     peer.serve([append_crc(bytes.fromhex("02 06 02 01 90"))])
     with device(peer, model="jjr8000") as d, pytest.raises(DecodeError) as info:
-        d.write("motor_rated_current", 400)
+        d.send_write(*d.validate_write("motor_rated_current", 400))
     assert info.value.field == "length" and "7 of 8" in str(info.value)
 
 
@@ -144,7 +145,7 @@ def test_a_write_is_not_repeated_after_it_may_have_executed(peer: PtyPeer) -> No
     write = WriteRequest(2, 0x0103, 380).encode()
     peer.serve([None, write], wait=0.5)
     with device(peer, "timeout=0.1&retries=3") as d, pytest.raises(TimeoutError, match="not repeated"):
-        d.write("current_limit", 380)
+        d.send_write(*d.validate_write("current_limit", 380))
     assert peer.received == [write] and peer.pending(0.2) == b""
 
 
@@ -152,7 +153,7 @@ def test_a_write_is_repeated_when_allowed(peer: PtyPeer) -> None:
     write = WriteRequest(2, 0x0103, 380).encode()
     peer.serve([None, write])
     with device(peer, "timeout=0.1&retries=3&retry_writes=1") as d:
-        d.write("current_limit", 380)
+        d.send_write(*d.validate_write("current_limit", 380))
     assert peer.received == [write, write]
 
 

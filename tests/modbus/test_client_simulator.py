@@ -126,10 +126,10 @@ def test_device_refusals_become_remote_errors(model: str, make_sim: SimFactory) 
                 device.write(rated.key, rated.to_engineering(rated.raw_min))
             assert protected.value.code == 4 and "parameter modif" in protected.value.meaning
             assert protected.value.data == bytes.fromhex("02 86 04") + append_crc(b"\x02\x86\x04")[-2:]
-        else:  # JJR8000: no exception 04; the rated current is locked while running
+        else:  # JJR8000: no exception 04; the rated current is locked while running (the device's own refusal)
             device.start()
             with pytest.raises(RemoteDeviceError) as locked:
-                device.write(rated.key, rated.to_engineering(rated.raw_min))
+                device.send_write(*device.validate_write(rated.key, rated.to_engineering(rated.raw_min)))
             assert locked.value.code == 3
 
 
@@ -231,7 +231,9 @@ def test_one_line_one_setting(make_sim: SimFactory) -> None:
 def test_broadcast_write_reaches_every_unit_and_reads_are_refused(make_sim: SimFactory) -> None:
     sim = make_sim("jjr5000", units=(1, 2))
     with open_device(sim.url(0, turnaround=0.01), "jjr5000") as everyone:
-        everyone.write("ramp_time", 33)  # no answer expected: returns without waiting for a timeout
+        everyone.send_write(
+            *everyone.validate_write("ramp_time", 33)
+        )  # no answer expected: returns without waiting for a timeout
         with pytest.raises(ConfigurationError, match="broadcast"):
             everyone.read("ramp_time")
         with pytest.raises(ConfigurationError, match="broadcast"):

@@ -121,7 +121,7 @@ def test_a_good_header_then_wrong_words_is_not_an_echo(peer: PtyPeer) -> None:
         open_device(f"modbus-rtu://{peer.path}?unit=2&{FAST}", "jjr5000") as device,
         pytest.raises(DecodeError) as info,
     ):
-        device.write("current_limit", 380)
+        device.send_write(*device.validate_write("current_limit", 380))
     assert info.value.field == "echo"
 
 

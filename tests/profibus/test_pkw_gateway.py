@@ -14,6 +14,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import ConfigurationError, RemoteDeviceError, TransportError
+from starterbus.core.guarded import StateRuleError
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.core.status import Status
@@ -193,8 +194,10 @@ def test_transport_over_the_gateway(
         assert values["status_word"].raw & 0x0100
         clock.advance(120)
         if model == "jjr8000":
-            with pytest.raises(PkwError) as info:
+            with pytest.raises(StateRuleError):  # the guard knows the motor runs: nothing sent
                 dev.write("current_limit", 4.0)
+            with pytest.raises(PkwError) as info:  # past the guard, the device's own refusal
+                dev.send_write(*dev.validate_write("current_limit", 4.0))
             assert (info.value.code, info.value.meaning) == (3, "cannot modify while running")
         dev.stop()
         assert starter.phase in (Phase.STOPPING, Phase.STOPPED)

@@ -196,7 +196,7 @@ def test_read_parameters_and_measurements(dev8: tuple[Device, SimulatedStarter])
 def test_write_then_read_back(dev8: tuple[Device, SimulatedStarter]) -> None:
     dev, starter = dev8
     written = dev.write("current_limit", 4.2)
-    assert written.raw == 420 and starter.params["current_limit"] == 420
+    assert written.read_back is not None and written.read_back.raw == 420 and starter.params["current_limit"] == 420
     assert dev.read_value("p7").value == 4.2
     with pytest.raises(ValidationError):
         dev.write("current_limit", 5.5)  # refused before anything is sent
@@ -208,8 +208,8 @@ def test_jjr8000_refuses_while_running_with_error_3(dev8: tuple[Device, Simulate
     dev.start()
     clock.advance(60)
     assert phase(starter) is Phase.RUNNING
-    with pytest.raises(PkwError) as info:
-        dev.write("current_limit", 4.0)
+    with pytest.raises(PkwError) as info:  # the device's own refusal: past the guard's state rule
+        dev.send_write(*dev.validate_write("current_limit", 4.0))
     error = info.value
     assert isinstance(error, RemoteDeviceError) and error.response is ResponseCode.CANNOT_EXECUTE
     assert (error.code, error.meaning) == (3, "cannot modify while running")
@@ -222,7 +222,7 @@ def test_jjr5000_write_lock_is_error_4(jjr5000: Profile, clock: ManualClock, cyc
     starter = attached("j5", jjr5000, clock, values={"parameter_modify": 0})
     with open_device(f"profibus-pkw+sim://j5?cycle={cycle}", jjr5000) as dev:
         with pytest.raises(PkwError) as info:
-            dev.write("current_limit", 380)
+            dev.send_write(*dev.validate_write("current_limit", 380))
         assert info.value.code == 4 and "parameter modification forbidden" in info.value.meaning
         dev.write("parameter_modify", 1)
         dev.write("current_limit", 380)

@@ -95,6 +95,7 @@ def parse_url(url: DeviceUrl, profile: Profile) -> tuple[ScannerConfig, LinkConf
 
 class DeviceNetTransport(Transport):
     name = NAME
+    run_needs_connection = True  # polled I/O: the slave's watchdog soft-stops the motor when the connection ends
 
     def __init__(self, url: DeviceUrl, profile: Profile) -> None:
         super().__init__(url, profile)
