@@ -111,9 +111,14 @@ class Device:
         """Write one parameter through the guarded path; returns the verified outcome (``.read_back``)."""
         return self.guard.write([(key, value)], accept_uncertain=accept_uncertain)[0]
 
-    def write_many(self, values: Mapping[str, float | int | str], *, accept_uncertain: bool = False) -> list[Outcome]:
-        """Validate ALL values first; only if every one is valid, write them in order, each read back."""
-        return self.guard.write(values, accept_uncertain=accept_uncertain)
+    def write_many(
+        self, values: Mapping[str, float | int | str], *, accept_uncertain: bool = False, actor: str | None = None
+    ) -> list[Outcome]:
+        """Validate ALL values first; only if every one is valid, write them in order, each read back.
+
+        ``actor`` (who asks: ``mqtt:CLIENT``, ``opcua:USER``) overrides the device's for the audit record.
+        """
+        return self.guard.write(values, accept_uncertain=accept_uncertain, actor=actor)
 
     def send_write(self, point: PointDef, raw: int) -> None:
         """Unguarded: hand one already-validated raw value to the transport (the guard's primitive)."""
@@ -133,9 +138,9 @@ class Device:
         self.check_command(command)
         self.transport.send_command(command)
 
-    def command(self, command: Command, *, timeout: float | None = None) -> Outcome:
+    def command(self, command: Command, *, timeout: float | None = None, actor: str | None = None) -> Outcome:
         """Send a command through the guarded path; returns the outcome with the state reached."""
-        return self.guard.command(command, timeout=timeout)
+        return self.guard.command(command, timeout=timeout, actor=actor)
 
     def start(self, *, timeout: float | None = None) -> Outcome:
         return self.command(Command.START, timeout=timeout)

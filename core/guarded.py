@@ -238,6 +238,7 @@ class Guard:
         values: Mapping[str, float | int | str] | Sequence[tuple[str | PointDef, float | int | str]],
         *,
         accept_uncertain: bool = False,
+        actor: str | None = None,
     ) -> list[Outcome]:
         """Validate all, confirm, then write in order with a read-back each; stop at the first failure.
 
@@ -246,10 +247,11 @@ class Guard:
         :class:`ReadBackMismatch`; not confirmed raises :class:`ConfirmationRefused`. Either way every outcome
         is audited and kept in :attr:`last_outcomes`.
         """
+        actor = actor or self.actor
         planned = self.plan_writes(values, accept_uncertain=accept_uncertain)
         frames = self._frames(lambda: [f for p in planned for f in self.device.transport.preview_write(p.point, p.raw)])
         proposal = Proposal(self.device.describe(), "write", tuple(planned), frames=frames)
-        self._confirm(proposal)
+        self._confirm(proposal, actor)
         can_read = Capability.READ_PARAMETERS in self.device.capabilities
         outcomes: list[Outcome] = []
         self.last_outcomes = outcomes
@@ -268,7 +270,7 @@ class Guard:
                     outcome.result = "ok" if outcome.read_back.raw == plan.raw else "mismatch"
             except StarterbusError as exc:
                 outcome.result, outcome.error, failure = "failed", str(exc), exc
-            self._record(outcome, uncertainty=plan.uncertainty)
+            self._record(outcome, actor, uncertainty=plan.uncertainty)
             if outcome.result == "mismatch":
                 back = outcome.read_back.text() if outcome.read_back else "?"
                 self._skip(planned[index + 1 :], outcomes)
@@ -296,7 +298,7 @@ class Guard:
 
     # -- commands -------------------------------------------------------------------------------------------
 
-    def command(self, command: Command, *, timeout: float | None = None) -> Outcome:
+    def command(self, command: Command, *, timeout: float | None = None, actor: str | None = None) -> Outcome:
         """Confirm, send, then read the status until the command's state is reached (or ``timeout`` passes).
 
         Returns the outcome (``ok``, with ``reached``); raises :class:`CommandNotReached` (with the outcome)
@@ -304,7 +306,8 @@ class Guard:
         """
         self.device.check_command(command)
         frames = self._frames(lambda: self.device.transport.preview_command(command))
-        self._confirm(Proposal(self.device.describe(), command.value, command=command, frames=frames))
+        actor = actor or self.actor
+        self._confirm(Proposal(self.device.describe(), command.value, command=command, frames=frames), actor)
         outcome = Outcome(command.value, self.device.describe())
         self.last_outcomes = [outcome]
         failure: StarterbusError | None = None
@@ -317,7 +320,7 @@ class Guard:
                 self._await(command, outcome, self.command_timeout if timeout is None else timeout)
         except StarterbusError as exc:
             outcome.result, outcome.error, failure = "failed", str(exc), exc
-        self._record(outcome)
+        self._record(outcome, actor)
         if failure is not None:
             raise failure
         if outcome.result != "ok" and can_verify:
@@ -357,20 +360,22 @@ class Guard:
         except StarterbusError:  # a transport without previews: the confirmation shows the raw codes alone
             return ()
 
-    def _confirm(self, proposal: Proposal) -> None:
+    def _confirm(self, proposal: Proposal, actor: str | None) -> None:
         if self.confirm(proposal):
             return
-        self.audit.append(**self._identity(), action=proposal.action, what=proposal.question(), result="not confirmed")
+        self.audit.append(
+            **self._identity(actor), action=proposal.action, what=proposal.question(), result="not confirmed"
+        )
         raise ConfirmationRefused(f"{proposal.question().rstrip('?')}: not confirmed; nothing sent")
 
-    def _identity(self) -> dict[str, object]:
+    def _identity(self, actor: str | None) -> dict[str, object]:
         ident: dict[str, object] = {"device": self.device.transport.url.text, "model": self.device.profile.name}
-        if self.actor:
-            ident["actor"] = self.actor
+        if actor:
+            ident["actor"] = actor
         return ident
 
-    def _record(self, outcome: Outcome, uncertainty: str | None = None) -> None:
-        record = self._identity()
+    def _record(self, outcome: Outcome, actor: str | None, uncertainty: str | None = None) -> None:
+        record = self._identity(actor)
         if outcome.key is not None:
             record |= {
                 "action": "write",

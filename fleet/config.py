@@ -18,6 +18,8 @@ delay = 0.005               # extra pause between two transactions on this bus (
   measurements = ["phase_a_current", "phase_b_current"]
   parameters = ["current_limit"]
   options = { retries = 1 } # extra URL parameters for this device only (e.g. ppo, out, in, assemblies)
+  # what remote callers (serve: MQTT DCMD, OPC UA methods and writes) may do; nothing unless listed here
+  remote = { commands = ["start", "stop", "reset"], write = ["current_limit"] }
 ```
 """
 
@@ -32,7 +34,9 @@ from typing import Any
 from urllib.parse import urlencode
 
 from starterbus.core.errors import ConfigurationError, StarterbusError
+from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
+from starterbus.core.status import Command
 from starterbus.core.url import DeviceUrl
 
 if sys.version_info >= (3, 11):
@@ -45,7 +49,25 @@ ADDRESS_PARAMETER = {"modbus-rtu": "unit", "devicenet": "mac"}
 
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 _BUS_FIELDS = {"name", "url", "delay", "device"}
-_DEVICE_FIELDS = {"name", "model", "address", "period", "measurements", "parameters", "options", "url"}
+_DEVICE_FIELDS = {"name", "model", "address", "period", "measurements", "parameters", "options", "url", "remote"}
+_REMOTE_FIELDS = {"commands", "write"}
+_REMOTE_COMMANDS = {"start": Command.START, "stop": Command.SOFT_STOP, "reset": Command.FAULT_RESET}
+
+
+@dataclass(frozen=True, slots=True)
+class RemotePolicy:
+    """What remote callers (a broker's DCMD, an OPC UA client) may do to one device: nothing by default."""
+
+    commands: frozenset[Command] = frozenset()
+    write: frozenset[str] = frozenset()  # parameter keys
+
+    def allows_command(self, command: Command) -> bool:
+        return command in self.commands
+
+    def allows_write(self, key: str) -> bool:
+        return key in self.write
+
+
 _POLL_FIELDS = {"period", "max_backoff"}
 
 
@@ -59,6 +81,7 @@ class DeviceConfig:
     period: float
     measurements: tuple[str, ...]
     parameters: tuple[str, ...]
+    remote: RemotePolicy = RemotePolicy()
 
 
 @dataclass(frozen=True, slots=True)
@@ -236,6 +259,7 @@ def parse_fleet(text: str, source: str = "<fleet>") -> FleetConfig:
             if "measurements" not in dev:
                 points["measurements"] = tuple(p.key for p in profile.phase_currents())
             dperiod = _positive(dev.get("period", period), f"{dwhere}.period", fail)
+            remote = _remote(dev.get("remote", {}), profile, f"{dwhere}.remote", fail)
             config = DeviceConfig(
                 name=dname,
                 bus=name,
@@ -245,6 +269,7 @@ def parse_fleet(text: str, source: str = "<fleet>") -> FleetConfig:
                 period=dperiod,
                 measurements=points["measurements"],
                 parameters=points["parameters"],
+                remote=remote,
             )
             devices[dname] = config
             bus_devices.append(config)
@@ -261,6 +286,28 @@ def _device_url(bus: DeviceUrl, address: int | None, options: Mapping[str, Any])
         query[param] = str(address)
     base = bus.text.split("?", 1)[0]
     return f"{base}?{urlencode(query)}" if query else base
+
+
+def _remote(table: object, profile: Profile, where: str, fail: Any) -> RemotePolicy:
+    if not isinstance(table, dict):
+        raise fail(where, "must be a table: { commands = [...], write = [...] }")
+    _check_fields(table, _REMOTE_FIELDS, where, fail)
+    commands = table.get("commands", [])
+    if not isinstance(commands, list) or not all(isinstance(c, str) and c in _REMOTE_COMMANDS for c in commands):
+        raise fail(f"{where}.commands", f"{commands!r} must be a list of: {', '.join(_REMOTE_COMMANDS)}")
+    keys = table.get("write", [])
+    if not isinstance(keys, list) or not all(isinstance(k, str) for k in keys):
+        raise fail(f"{where}.write", f"{keys!r} must be a list of parameter keys")
+    writable = set()
+    for key in keys:
+        try:
+            point = profile.point(key)
+        except StarterbusError as exc:
+            raise fail(f"{where}.write", str(exc)) from None
+        if not point.writable:
+            raise fail(f"{where}.write", f"{key!r} is not a writable parameter of {profile.display_name}")
+        writable.add(point.key)
+    return RemotePolicy(frozenset(_REMOTE_COMMANDS[c] for c in commands), frozenset(writable))
 
 
 def _check_fields(table: Mapping[str, Any], known: set[str], where: str, fail: Any) -> None:
