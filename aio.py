@@ -1,0 +1,169 @@
+"""The asyncio API: an async device and an async fleet (samples as an async stream, guarded remote commands).
+
+Blocking I/O never runs on the event loop: a device's calls run in a worker thread (one at a time per device),
+a fleet's polls and commands run in the poller's bus threads and come back through futures and a queue.
+
+```python
+import asyncio
+from starterbus.aio import AsyncFleet
+from starterbus.fleet.config import load_fleet
+
+async def main() -> None:
+    async with AsyncFleet(load_fleet("fleet.toml")) as fleet:
+        async for sample in fleet.samples():
+            print(sample.device, sample.status.state if sample.status else "offline")
+
+asyncio.run(main())
+```
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+from collections.abc import AsyncIterator, Callable, Mapping
+from types import TracebackType
+from typing import TypeVar
+
+from starterbus.core.device import Device, open_device
+from starterbus.core.errors import StarterbusError
+from starterbus.core.guarded import Outcome
+from starterbus.core.model import Value
+from starterbus.core.status import Command, Status
+from starterbus.fleet.config import DeviceConfig, FleetConfig
+from starterbus.fleet.poller import FleetPoller, Sample
+
+T = TypeVar("T")
+
+
+class RemoteNotAllowed(StarterbusError):
+    """A remote caller asked for a command or a write the fleet file does not enable for that device."""
+
+
+class AsyncDevice:
+    """:class:`~starterbus.core.device.Device` for asyncio code: the same operations, awaited."""
+
+    def __init__(self, device: Device) -> None:
+        self.device = device
+        self._lock = asyncio.Lock()
+
+    @classmethod
+    def open_url(cls, url: str, model: str, **kwargs: object) -> AsyncDevice:
+        return cls(open_device(url, model, **kwargs))  # type: ignore[arg-type]
+
+    async def _run(self, fn: Callable[..., T], *args: object, **kwargs: object) -> T:
+        async with self._lock:
+            return await asyncio.to_thread(functools.partial(fn, *args, **kwargs))
+
+    async def open(self) -> AsyncDevice:
+        await self._run(self.device.open)
+        return self
+
+    async def close(self) -> None:
+        await self._run(self.device.close)
+
+    async def __aenter__(self) -> AsyncDevice:
+        return await self.open()
+
+    async def __aexit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        await self.close()
+
+    async def read(self, *keys: str) -> dict[str, Value]:
+        return await self._run(self.device.read, *keys)
+
+    async def status(self) -> Status:
+        return await self._run(self.device.status)
+
+    async def write(self, values: Mapping[str, float | int | str], **kwargs: object) -> list[Outcome]:
+        return await self._run(self.device.write_many, values, **kwargs)
+
+    async def command(self, command: Command, **kwargs: object) -> Outcome:
+        return await self._run(self.device.command, command, **kwargs)
+
+
+class AsyncFleet:
+    """A running :class:`~starterbus.fleet.poller.FleetPoller` seen from asyncio.
+
+    ``samples()`` streams every poll; ``remote_write`` / ``remote_command`` check the fleet file's ``remote``
+    table, then run the guarded path in the device's bus worker (between polls), audited with ``actor``.
+    """
+
+    def __init__(self, config: FleetConfig, *, queue_size: int = 10_000, **poller_kwargs: object) -> None:
+        self.config = config
+        self._queue_size = queue_size
+        self._poller_kwargs = poller_kwargs
+        self._subscribers: list[asyncio.Queue[Sample]] = []
+        self.dropped = 0  # samples a slow subscriber missed (its queue was full)
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self.poller: FleetPoller | None = None
+
+    async def __aenter__(self) -> AsyncFleet:
+        self._loop = asyncio.get_running_loop()
+        self.poller = FleetPoller(self.config, self._on_sample, **self._poller_kwargs)  # type: ignore[arg-type]
+        self.poller.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        if self.poller is not None:
+            await asyncio.to_thread(self.poller.stop)
+
+    def _on_sample(self, sample: Sample) -> None:  # a bus thread
+        loop = self._loop
+        if loop is not None and not loop.is_closed():
+            loop.call_soon_threadsafe(self._deliver, sample)
+
+    def _deliver(self, sample: Sample) -> None:  # the event loop
+        for queue in self._subscribers:
+            try:
+                queue.put_nowait(sample)
+            except asyncio.QueueFull:
+                self.dropped += 1
+
+    async def samples(self) -> AsyncIterator[Sample]:
+        """Every sample from now on, in the order the poller produced them."""
+        queue: asyncio.Queue[Sample] = asyncio.Queue(self._queue_size)
+        self._subscribers.append(queue)
+        try:
+            while True:
+                yield await queue.get()
+        finally:
+            self._subscribers.remove(queue)
+
+    def device_config(self, name: str) -> DeviceConfig:
+        try:
+            return self.config.devices_by_name[name]
+        except KeyError:
+            raise RemoteNotAllowed(f"no device named {name!r} in {self.config.source}") from None
+
+    async def run(self, name: str, fn: Callable[[Device], T]) -> T:
+        """Run ``fn(device)`` in the device's bus worker and await its result."""
+        if self.poller is None:
+            raise StarterbusError("the fleet is not running (use `async with AsyncFleet(...)`)")
+        return await asyncio.wrap_future(self.poller.submit(name, fn))
+
+    async def remote_command(self, name: str, command: Command, *, actor: str) -> Outcome:
+        if not self.device_config(name).remote.allows_command(command):
+            raise RemoteNotAllowed(
+                f"{name}: the fleet file does not allow the command {command.value!r} from remote callers "
+                f"(add it to remote.commands of this device in {self.config.source})"
+            )
+        return await self.run(name, lambda device: device.command(command, actor=actor))
+
+    async def remote_write(self, name: str, values: Mapping[str, float | int | str], *, actor: str) -> list[Outcome]:
+        config = self.device_config(name)
+        for key in values:
+            device_key = self._key(config, key)
+            if not config.remote.allows_write(device_key):
+                raise RemoteNotAllowed(
+                    f"{name}: the fleet file does not allow remote writes of {key!r} "
+                    f"(add it to remote.write of this device in {self.config.source})"
+                )
+        return await self.run(name, lambda device: device.write_many(values, actor=actor))
+
+    @staticmethod
+    def _key(config: DeviceConfig, key: str) -> str:
+        from starterbus.core.registry import get_profile
+
+        return get_profile(config.model).point(key).key
