@@ -19,8 +19,21 @@ def _json_flag(p: argparse.ArgumentParser) -> None:
 
 
 def _device_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("url", metavar="URL", help="device URL, e.g. modbus-rtu:///dev/ttyUSB0?unit=2&baudrate=9600")
-    p.add_argument("--model", required=True, help="device model (jjr5000, ssd1, jjr8000) or a profile .toml")
+    p.add_argument(
+        "url",
+        metavar="URL|NAME",
+        help="device URL (modbus-rtu:///dev/ttyUSB0?unit=2&baudrate=9600) or a device name from the fleet file",
+    )
+    p.add_argument(
+        "--model", default=None, help="device model (jjr5000, ssd1, jjr8000) or a profile .toml; required with a URL"
+    )
+    p.add_argument(
+        "--fleet",
+        metavar="FILE",
+        default=None,
+        help="fleet file for device names (default $STARTERBUS_FLEET, or `fleet` in ~/.config/starterbus/config.toml)",
+    )
+    p.set_defaults(resolve_target=True)
     _json_flag(p)
 
 
@@ -41,6 +54,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         prog="starterbus",
         description="Monitor, configure and control soft starters over Modbus RTU, Profibus DP and DeviceNet.",
     )
+    parser.add_argument("--version", action=_Version, nargs=0, help="print the version and exit")
     sub = parser.add_subparsers(dest="command_name", required=True, metavar="COMMAND")
 
     p = sub.add_parser("models", help="list installed device models")
@@ -134,9 +148,26 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
 #: later commands (fleet polling, demo, crosscheck, identify) register here: fn(subparsers, wanted_command)
 _EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser], str], None]] = []
 
-from starterbus.cli import identify  # noqa: E402  (DeviceNet issue: `starterbus identify URL`)
+from starterbus.cli import completion, identify, validate, watch  # noqa: E402
 
 _EXTENSIONS.append(identify.add_parser)
+_EXTENSIONS.append(watch.add_parser)
+_EXTENSIONS.append(validate.add_parser)
+_EXTENSIONS.append(completion.add_parser)
+
+
+class _Version(argparse.Action):
+    """``--version``, looked up only when asked (importlib.metadata is slow to import)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, *_: object) -> None:
+        from importlib.metadata import PackageNotFoundError, version
+
+        try:
+            text = version("starterbus")
+        except PackageNotFoundError:
+            text = "unknown (not installed)"
+        print(f"starterbus {text}")
+        parser.exit(0)
 
 
 def _quiet_libraries() -> None:
@@ -157,19 +188,23 @@ def main(argv: Sequence[str] | None = None) -> int:
             getattr(args, rest).extend(extra)
         elif extra:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        if getattr(args, "resolve_target", False):
+            from starterbus.cli.target import resolve
+
+            resolve(args)
         handler: Handler = args.handler
         return handler(args)
     except StarterbusError as exc:
         print(f"starterbus: error: {exc}", file=sys.stderr)
         return 1
+    except BrokenPipeError:  # output piped into `head` and the like: the reader has what it wanted
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except OSError as exc:
         print(f"starterbus: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         return 130
-    except BrokenPipeError:  # output piped into `head` and the like
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 141
 
 
 if __name__ == "__main__":

@@ -3,64 +3,124 @@
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import sys
 import threading
 import time
+from pathlib import Path
 
+from starterbus.cli.sim_script import parse_script
 from starterbus.core.errors import ConfigurationError
+from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile, transports
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.transport import RunningSimulator
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--model", required=True, help="device model (jjr5000, ssd1, jjr8000) or a profile .toml")
+    parser.description = (
+        "Serve simulated soft starters behind protocol front ends, for rehearsals without hardware. "
+        "Several models may share one line: --unit 2:jjr5000 --unit 3:ssd1."
+    )
+    parser.epilog = (
+        "examples:\n  starterbus simulate --model jjr5000 --unit 2 --modbus-rtu PTY\n"
+        "  starterbus simulate --unit 2:jjr5000 --unit 3:ssd1 --modbus-rtu PTY --script faults.txt\n"
+        "script lines: AT UNIT ACTION [ARG], e.g. '5 2 fault 6', '9 2 clear', '12 3 start', '20 3 stop'"
+    )
+    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.add_argument("--model", default=None, help="device model for units given without one (jjr5000, ssd1, ...)")
     parser.add_argument(
         "--unit",
-        type=int,
         action="append",
         default=None,
-        help="device address of a simulated starter (Modbus unit id); repeat for several on one line (default 1)",
+        metavar="ADDR[:MODEL]",
+        help="address of a simulated starter (Modbus unit id, DP station), optionally with its own model; "
+        "repeat for several on one line (default 1)",
     )
     parser.add_argument("--load", type=float, default=0.8, help="running current as a fraction of rated current")
     parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    parser.add_argument("--fault", action="append", default=[], metavar="UNIT:CODE", help="start with a fault active")
+    parser.add_argument("--script", metavar="FILE", help="timed events: AT UNIT fault CODE|clear|start|stop")
+    parser.add_argument("--json", action="store_true", help="print where each front end listens as JSON")
     for entry in transports.load_all():
         if entry.loaded is not None:
             group = parser.add_argument_group(f"{entry.name} front end")
             entry.loaded.add_simulator_arguments(group)  # type: ignore[arg-type]
 
 
+def _units(args: argparse.Namespace) -> list[tuple[int, Profile]]:
+    units: list[tuple[int, Profile]] = []
+    for text in args.unit or ["1"]:
+        addr, _, model = str(text).partition(":")
+        if not addr.strip().isdigit():
+            raise ConfigurationError(f"--unit {text}: give ADDR or ADDR:MODEL (e.g. 2 or 2:ssd1)")
+        model = model.strip() or args.model
+        if not model:
+            raise ConfigurationError(f"--unit {text}: no model (give --model or ADDR:MODEL)")
+        units.append((int(addr), get_profile(model)))
+    addresses = [a for a, _ in units]
+    if len(set(addresses)) != len(addresses):
+        raise ConfigurationError(f"--unit given twice with the same address: {addresses}")
+    return units
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
-    profile = get_profile(args.model)
-    units = args.unit or [1]
-    if len(set(units)) != len(units):
-        raise ConfigurationError(f"--unit given twice with the same address: {units}")
-    starters = [SimulatedStarter(profile, load=args.load) for _ in units]
-    args.unit = units
+    units = _units(args)
+    profile = units[0][1]
+    starters = {addr: SimulatedStarter(p, load=args.load) for addr, p in units}
+    events = []
+    if args.script:
+        try:
+            text = Path(args.script).read_text(encoding="utf-8")
+        except (OSError, UnicodeDecodeError) as exc:
+            raise ConfigurationError(f"{args.script}: {exc}") from None
+        events = parse_script(text, args.script, set(starters))
+    for spec in args.fault:
+        unit, _, code = spec.partition(":")
+        if not unit.isdigit() or not code.isdigit() or int(unit) not in starters:
+            raise ConfigurationError(f"--fault {spec}: give UNIT:CODE for a simulated unit")
+        starters[int(unit)].inject_fault(int(code))
+    args.unit = list(starters)
     running: list[RunningSimulator] = []
+    interrupted = False
     try:
         for entry in transports.entries():
             if entry.loaded is not None:
-                running.extend(entry.loaded.start_simulators(args, profile, starters))
+                running.extend(entry.loaded.start_simulators(args, profile, list(starters.values())))
         if not running:
             raise ConfigurationError("no front end asked for: give at least one of the protocol options (see --help)")
-        for sim in running:
-            for line in sim.describe():
-                print(line, flush=True)
+        if args.json:
+            listing = {
+                "units": {str(a): p.name for a, p in units},
+                "front_ends": [{"listen": sim.describe(), "urls": sim.client_urls()} for sim in running],
+            }
+            print(json.dumps(listing, ensure_ascii=False), flush=True)
+        else:
+            for sim in running:
+                for line in sim.describe():
+                    print(line, flush=True)
         stop = threading.Event()
         if threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGTERM, lambda *_: stop.set())
-        deadline = None if args.duration is None else time.monotonic() + args.duration
+        began = time.monotonic()
+        deadline = None if args.duration is None else began + args.duration
         try:
             while not stop.is_set():
-                remaining = None if deadline is None else deadline - time.monotonic()
-                if remaining is not None and remaining <= 0:
+                now = time.monotonic()
+                while events and events[0].at <= now - began:
+                    print(f"script: {events.pop(0).apply(starters)}", file=sys.stderr, flush=True)
+                waits = [0.5]
+                if deadline is not None:
+                    waits.append(deadline - now)
+                if events:
+                    waits.append(began + events[0].at - now)
+                if deadline is not None and now >= deadline:
                     break
-                stop.wait(0.5 if remaining is None else min(0.5, remaining))
+                stop.wait(max(0.0, min(waits)))
         except KeyboardInterrupt:
-            print("stopped", file=sys.stderr)
+            interrupted = True
     finally:
         for sim in running:
             sim.close()
-    return 0
+    return 130 if interrupted else 0

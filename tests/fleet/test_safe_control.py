@@ -25,7 +25,7 @@ class StickyStarter(SimulatedStarter):
             super().write(point, raw)
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture
 def line() -> Iterator[tuple[dict[int, str], dict[int, SimulatedStarter]]]:
     from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 

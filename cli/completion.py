@@ -1,0 +1,66 @@
+"""``starterbus completion bash|zsh|fish``: a completion script for the shell, generated from the parser."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: str) -> None:
+    p = sub.add_parser(
+        "completion",
+        help="print a shell completion script (bash, zsh, fish)",
+        description="Print a completion script for commands and options.",
+        epilog="install:\n  bash: starterbus completion bash > ~/.local/share/bash-completion/completions/starterbus\n"
+        '  zsh:  starterbus completion zsh > "${fpath[1]}/_starterbus"\n'
+        "  fish: starterbus completion fish > ~/.config/fish/completions/starterbus.fish",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("shell", choices=["bash", "zsh", "fish"])
+    p.set_defaults(handler=cmd_completion)
+
+
+def commands() -> dict[str, list[str]]:
+    """Command -> its long options, read from the real parser."""
+    from starterbus.cli.main import build_parser
+
+    parser = build_parser([])
+    out: dict[str, list[str]] = {}
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                out[name] = sorted(o for a in sub._actions for o in a.option_strings if o.startswith("--"))
+    return out
+
+
+def cmd_completion(args: argparse.Namespace) -> int:
+    table = commands()
+    names = " ".join(sorted(table))
+    if args.shell == "bash":
+        cases = "\n".join(f'        {c}) opts="{" ".join(o)}" ;;' for c, o in sorted(table.items()))
+        print(f"""_starterbus() {{
+    local cur=${{COMP_WORDS[COMP_CWORD]}} cmd=${{COMP_WORDS[1]}} opts=""
+    if [ "$COMP_CWORD" -eq 1 ]; then COMPREPLY=($(compgen -W "{names} --help --version" -- "$cur")); return; fi
+    case "$cmd" in
+{cases}
+    esac
+    if [[ "$cur" == -* ]]; then COMPREPLY=($(compgen -W "$opts" -- "$cur"))
+    else COMPREPLY=($(compgen -f -- "$cur")); fi
+}}
+complete -F _starterbus starterbus""")
+    elif args.shell == "zsh":
+        cases = "\n".join(f'    {c}) _arguments {" ".join(repr(o) for o in opts)} "*:file:_files" ;;'
+                          for c, opts in sorted(table.items()))  # fmt: skip
+        print(f"""#compdef starterbus
+if (( CURRENT == 2 )); then
+  compadd {names}
+else
+  case $words[2] in
+{cases}
+  esac
+fi""")
+    else:
+        lines = [f"complete -c starterbus -n '__fish_use_subcommand' -a '{names}'"]
+        for c, opts in sorted(table.items()):
+            lines += [f"complete -c starterbus -n '__fish_seen_subcommand_from {c}' -l {o[2:]}" for o in opts]
+        print("\n".join(lines))
+    return 0

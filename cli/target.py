@@ -1,0 +1,73 @@
+"""Which device a command means: a URL with ``--model``, or a device name from a fleet file.
+
+The fleet file is ``--fleet FILE``, else ``$STARTERBUS_FLEET``, else ``fleet`` in the user's config file
+(``$XDG_CONFIG_HOME/starterbus/config.toml``: ``fleet = "/etc/starterbus/plant.toml"``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from starterbus.core.errors import ConfigurationError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+FLEET_ENV = "STARTERBUS_FLEET"
+
+
+def config_file() -> Path:
+    base = os.environ.get("XDG_CONFIG_HOME") or str(Path.home() / ".config")
+    return Path(base) / "starterbus" / "config.toml"
+
+
+def default_fleet(explicit: str | None) -> str | None:
+    """The fleet file to look device names up in, or None when none is configured."""
+    if explicit:
+        return explicit
+    if os.environ.get(FLEET_ENV):
+        return os.environ[FLEET_ENV]
+    path = config_file()
+    if not path.is_file():
+        return None
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigurationError(f"{path}: {exc}") from None
+    fleet = data.get("fleet")
+    if fleet is not None and not isinstance(fleet, str):
+        raise ConfigurationError(f"{path}: fleet: {fleet!r} is not a file name")
+    return fleet
+
+
+def resolve(args: argparse.Namespace) -> None:
+    """Turn ``args.url`` (a URL or a device name) and ``args.model`` into a URL and a model, in place."""
+    target: str = args.url
+    if "://" in target:
+        if not args.model:
+            raise ConfigurationError(f"{target}: give --model with a URL (or use a device name from a fleet file)")
+        return
+    fleet_path = default_fleet(getattr(args, "fleet", None))
+    if fleet_path is None:
+        raise ConfigurationError(
+            f"{target!r} is neither a device URL (scheme://...) nor a device name: no fleet file to look it up in "
+            f"(give --fleet FILE, set ${FLEET_ENV}, or `fleet = ...` in {config_file()})"
+        )
+    from starterbus.fleet.config import load_fleet
+
+    fleet = load_fleet(fleet_path)
+    device = fleet.devices_by_name.get(target)
+    if device is None:
+        names = ", ".join(sorted(fleet.devices_by_name)) or "none"
+        raise ConfigurationError(f"{fleet_path}: no device named {target!r} (devices: {names})")
+    if args.model and args.model != device.model:
+        raise ConfigurationError(
+            f"{target}: --model {args.model} disagrees with the fleet file ({fleet_path}: model {device.model})"
+        )
+    args.url, args.model = device.url, device.model
+    args.device_name = target
