@@ -15,7 +15,7 @@ from collections.abc import Iterable, Mapping
 from types import TracebackType
 
 from starterbus.core.audit import AuditLog
-from starterbus.core.errors import UnsupportedOperationError, ValidationError
+from starterbus.core.errors import NotOpenError, UnsupportedOperationError, ValidationError
 from starterbus.core.guarded import Confirm, Guard, Outcome, always
 from starterbus.core.model import Kind, PointDef, Value
 from starterbus.core.profile import Profile
@@ -40,6 +40,7 @@ class Device:
         self.transport = transport
         self.profile = profile
         self.guard = Guard(self, audit=audit, actor=actor, confirm=confirm)
+        self.is_open = False
 
     @property
     def capabilities(self) -> frozenset[Capability]:
@@ -51,11 +52,19 @@ class Device:
     # -- lifecycle -----------------------------------------------------------------------------------------
 
     def open(self) -> Device:
-        self.transport.open()
+        if not self.is_open:
+            self.transport.open()
+            self.is_open = True
         return self
 
     def close(self) -> None:
-        self.transport.close()
+        if self.is_open:
+            self.is_open = False
+            self.transport.close()
+
+    def _require_open(self) -> None:
+        if not self.is_open:
+            raise NotOpenError(f"{self.describe()} is not open (use `with open_device(...) as device:` or open())")
 
     def __enter__(self) -> Device:
         return self.open()
@@ -101,6 +110,7 @@ class Device:
         """Read parameters and/or measurements by key or manual address; values in engineering units."""
         points = self.resolve(keys)
         self._check_readable(points)
+        self._require_open()
         readings = self.transport.read_points(points)
         return {r.point.key: r.value(self.transport.name) for r in readings}
 
@@ -122,10 +132,12 @@ class Device:
 
     def send_write(self, point: PointDef, raw: int) -> None:
         """Unguarded: hand one already-validated raw value to the transport (the guard's primitive)."""
+        self._require_open()
         self.transport.write_parameter(point, raw)
 
     def status(self) -> Status:
         self._require(Capability.STATUS, "read the status")
+        self._require_open()
         status = self.transport.read_status()
         self.guard.note_status(status)
         return status
@@ -136,6 +148,7 @@ class Device:
     def send_command(self, command: Command) -> None:
         """Unguarded: send a command without confirmation, audit or read-back (the guard's primitive)."""
         self.check_command(command)
+        self._require_open()
         self.transport.send_command(command)
 
     def command(self, command: Command, *, timeout: float | None = None, actor: str | None = None) -> Outcome:

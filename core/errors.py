@@ -54,6 +54,10 @@ class TransportError(StarterbusError):
     """Moving bytes or frames failed (port, socket, bus)."""
 
 
+class NotOpenError(ConfigurationError):
+    """A device or transport used before ``open()`` or after ``close()``: one error, whatever the transport."""
+
+
 class TimeoutError(TransportError, builtins.TimeoutError):
     """No (complete) answer arrived in time. Also a builtin ``TimeoutError``."""
 

@@ -53,7 +53,7 @@ class RecordingTransport(Transport):
 
 def test_out_of_range_write_sends_nothing(jjr5000: Profile) -> None:
     transport = RecordingTransport(jjr5000, frozenset(Capability))
-    device = Device(transport, jjr5000)
+    device = Device(transport, jjr5000).open()
     with pytest.raises(ValidationError, match="149 % is out of range 150..500 %"):
         device.write("current_limit", 149)
     with pytest.raises(ValidationError):
@@ -65,14 +65,14 @@ def test_out_of_range_write_sends_nothing(jjr5000: Profile) -> None:
 
 def test_write_many_is_all_or_nothing(jjr5000: Profile) -> None:
     transport = RecordingTransport(jjr5000, frozenset(Capability))
-    device = Device(transport, jjr5000)
+    device = Device(transport, jjr5000).open()
     with pytest.raises(ValidationError):
         device.write_many({"current_limit": 300, "ramp_time": 999})
     assert transport.sent == []
 
 
 def test_read_only_and_measurements_refused(jjr5000: Profile) -> None:
-    device = Device(RecordingTransport(jjr5000, frozenset(Capability)), jjr5000)
+    device = Device(RecordingTransport(jjr5000, frozenset(Capability)), jjr5000).open()
     with pytest.raises(ValidationError, match="measurement"):
         device.write("phase_a_current", 1)
     with pytest.raises(UnknownPointError, match="no parameter or measurement 'warp'"):
@@ -81,7 +81,7 @@ def test_read_only_and_measurements_refused(jjr5000: Profile) -> None:
 
 def test_missing_capability_is_unsupported_and_sends_nothing(jjr8000: Profile) -> None:
     transport = RecordingTransport(jjr8000, frozenset({Capability.STATUS, Capability.READ_MEASUREMENTS}))
-    device = Device(transport, jjr8000)
+    device = Device(transport, jjr8000).open()
     with pytest.raises(UnsupportedOperationError, match="cannot write parameters"):
         device.write("p7", 3.5)
     with pytest.raises(UnsupportedOperationError, match="cannot read parameters"):

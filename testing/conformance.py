@@ -1,0 +1,278 @@
+"""The transport conformance kit: one set of tests every transport plugin passes, built-in or third-party.
+
+Subclass :class:`TransportConformance` in your plugin's tests, name the transport and a model, and say how to
+serve a :class:`~starterbus.core.simulator.SimulatedStarter` behind your protocol::
+
+    class TestAcmeLoop(TransportConformance):
+        transport = "acme-loop"
+        model = "jjr5000"
+
+        @contextlib.contextmanager
+        def serve(self, starter):
+            with AcmeSimulator(starter) as sim:
+                yield f"acme-loop://{sim.address}"
+
+The kit checks declared capabilities against behaviour (what is declared works, what is not is refused with
+``UnsupportedOperationError``), read/write round trips against the simulator's own registers, the status,
+every command through the guarded path (the state reached), validation before sending, typed device errors,
+dry-run previews, the lifecycle (no thread or file descriptor left behind), and a cross-check against the
+reference transport (Modbus RTU on a pseudo-terminal) serving the same starter.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import threading
+import time
+from collections.abc import Callable, Iterator
+
+import pytest
+
+from starterbus.core.device import Device, open_device
+from starterbus.core.errors import (
+    RemoteDeviceError,
+    StarterbusError,
+    UnsupportedOperationError,
+    ValidationError,
+)
+from starterbus.core.guarded import ConfirmationRefused, Proposal
+from starterbus.core.model import Kind, PointDef
+from starterbus.core.profile import Profile
+from starterbus.core.registry import get_profile, get_transport
+from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
+from starterbus.core.status import Command, MotorState
+from starterbus.core.transport import Capability
+
+REFERENCE = "modbus-rtu"
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float = 5.0) -> bool:
+    """Poll an observable until it holds (threads ending, descriptors closing); never a fixed sleep."""
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.01)
+    return True
+
+
+def phase(starter: SimulatedStarter) -> Phase:
+    return starter.phase
+
+
+def open_fds() -> int:
+    try:
+        return len(os.listdir("/proc/self/fd"))
+    except OSError:  # not Linux: the thread check still runs
+        return 0
+
+
+class TransportConformance:
+    """Base class of a transport's conformance tests (pytest collects subclasses named ``Test*``)."""
+
+    transport: str = ""
+    model: str = "jjr5000"
+    #: parameters the kit may write (default: writable, not locked while running, addressed on this transport)
+    writable_sample = 4
+
+    def serve(self, starter: SimulatedStarter) -> contextlib.AbstractContextManager[str]:
+        """Serve ``starter`` behind the transport under test; a context manager giving the URL a client opens."""
+        raise NotImplementedError("a conformance test class must implement serve(starter)")
+
+    # -- fixtures -------------------------------------------------------------------------------------------
+
+    @pytest.fixture
+    def profile(self) -> Profile:
+        return get_profile(self.model)
+
+    @pytest.fixture
+    def starter(self, profile: Profile) -> SimulatedStarter:
+        return SimulatedStarter(profile, ManualClock(0.0), load=0.5)
+
+    @pytest.fixture
+    def url(self, starter: SimulatedStarter) -> Iterator[str]:
+        with self.serve(starter) as url:
+            yield url
+
+    @pytest.fixture
+    def device(self, url: str, profile: Profile) -> Iterator[Device]:
+        with open_device(url, profile) as device:
+            yield device
+
+    # -- helpers --------------------------------------------------------------------------------------------
+
+    def addressed(self, device: Device, kind: Kind) -> list[PointDef]:
+        """Points of this kind the transport can address (a point with no address here is refused, not read)."""
+        points = device.profile.parameters if kind is Kind.PARAMETER else device.profile.measurements
+        usable = []
+        for point in points:
+            try:
+                device.transport.preview_write(point, point.raw_min) if point.writable else None
+            except UnsupportedOperationError:
+                continue
+            except StarterbusError:
+                pass
+            usable.append(point)
+        return usable
+
+    def candidates(self, device: Device) -> list[PointDef]:
+        locked = device.profile.control.locked_while_running | {device.profile.control.write_protect_key}
+        points = [
+            p
+            for p in self.addressed(device, Kind.PARAMETER)
+            if p.writable and p.key not in locked and p.raw_max > p.raw_min and p.uncertainty(p.raw_min) is None
+        ]
+        return points[: self.writable_sample]
+
+    # -- the tests ------------------------------------------------------------------------------------------
+
+    def test_plugin_is_registered(self) -> None:
+        plugin = get_transport(self.transport)
+        assert plugin.name == self.transport
+        assert plugin.capabilities <= frozenset(Capability) and plugin.url_forms and plugin.summary
+
+    def test_undeclared_capabilities_are_refused(self, device: Device, starter: SimulatedStarter) -> None:
+        caps = device.capabilities
+        before = dict(starter.params)
+        calls: dict[Capability, Callable[[], object]] = {
+            Capability.STATUS: device.status,
+            Capability.READ_MEASUREMENTS: lambda: device.read(device.profile.measurements[0].key),
+            Capability.READ_PARAMETERS: lambda: device.read(device.profile.parameters[0].key),
+            Capability.WRITE_PARAMETERS: lambda: device.write(self._any_writable(device).key, self._other(device)),
+            Capability.COMMANDS: device.start,
+        }
+        for capability, call in calls.items():
+            if capability in caps:
+                continue
+            with pytest.raises(UnsupportedOperationError):
+                call()
+        assert starter.params == before and starter.phase is Phase.STOPPED
+
+    def _any_writable(self, device: Device) -> PointDef:
+        return next(p for p in device.profile.parameters if p.writable)
+
+    def _other(self, device: Device) -> float | int:
+        point = self._any_writable(device)
+        return point.to_engineering(point.raw_min)
+
+    def test_measurements_match_the_simulator(self, device: Device, starter: SimulatedStarter) -> None:
+        if Capability.READ_MEASUREMENTS not in device.capabilities:
+            pytest.skip(f"{self.transport} does not declare {Capability.READ_MEASUREMENTS.value}")
+        points = self.addressed(device, Kind.MEASUREMENT)
+        values = device.read(*[p.key for p in points])
+        for point in points:
+            value = values[point.key]
+            expected = point.to_engineering(starter.read(point))
+            assert abs(float(value.value) - float(expected)) <= value.resolution, point.key
+
+    def test_parameters_match_the_simulator(self, device: Device, starter: SimulatedStarter) -> None:
+        if Capability.READ_PARAMETERS not in device.capabilities:
+            pytest.skip(f"{self.transport} does not declare {Capability.READ_PARAMETERS.value}")
+        points = self.addressed(device, Kind.PARAMETER)
+        values = device.read(*[p.key for p in points])
+        assert {k: v.raw for k, v in values.items()} == {p.key: starter.read(p) for p in points}
+
+    def test_writes_round_trip_through_the_guarded_path(self, device: Device, starter: SimulatedStarter) -> None:
+        if Capability.WRITE_PARAMETERS not in device.capabilities:
+            pytest.skip(f"{self.transport} does not declare {Capability.WRITE_PARAMETERS.value}")
+        for point in self.candidates(device):
+            raw = point.raw_max if starter.read(point) != point.raw_max else point.raw_min
+            value = point.to_engineering(raw) if point.enum is None else raw
+            outcome = device.write(point.key, value)
+            assert outcome.ok and starter.params[point.key] == raw, point.key
+            assert outcome.read_back is None or outcome.read_back.raw == raw
+
+    def test_invalid_or_unconfirmed_writes_send_nothing(
+        self, url: str, profile: Profile, starter: SimulatedStarter
+    ) -> None:
+        def refuse(_: Proposal) -> bool:
+            return False
+
+        before = dict(starter.params)
+        with open_device(url, profile, confirm=refuse) as device:
+            point = self._any_writable(device)
+            with pytest.raises(ValidationError):
+                device.write(point.key, point.to_engineering(point.raw_max + 1) if point.enum is None else 10**6)
+            if Capability.WRITE_PARAMETERS in device.capabilities and self.candidates(device):
+                target = self.candidates(device)[0]
+                with pytest.raises(ConfirmationRefused):
+                    device.write(target.key, target.to_engineering(target.raw_min))
+            if Capability.COMMANDS in device.capabilities:
+                with pytest.raises(ConfirmationRefused):
+                    device.start()
+        assert starter.params == before and starter.phase is Phase.STOPPED
+
+    def test_status_follows_the_starter(self, device: Device, starter: SimulatedStarter) -> None:
+        if Capability.STATUS not in device.capabilities:
+            pytest.skip(f"{self.transport} does not declare {Capability.STATUS.value}")
+        assert wait_until(lambda: device.status().state in (MotorState.READY, MotorState.STOPPED))
+        starter.start()
+        assert wait_until(lambda: device.status().state is MotorState.STARTING)
+        starter.inject_fault(6)
+        assert wait_until(lambda: device.status().fault)
+        status = device.status()
+        assert status.fault_code == 6 and status.fault_text == device.profile.faults.text(6)
+
+    def test_every_command_reaches_its_state(self, device: Device, starter: SimulatedStarter) -> None:
+        if Capability.COMMANDS not in device.capabilities:
+            pytest.skip(f"{self.transport} does not declare {Capability.COMMANDS.value}")
+        started = device.start()
+        assert started.ok and phase(starter) is Phase.STARTING
+        stopped = device.stop()
+        assert stopped.ok and phase(starter) in (Phase.STOPPING, Phase.STOPPED)
+        starter.inject_fault(2)
+        reset = device.reset()
+        assert reset.ok and starter.fault_code is None
+
+    def test_device_refusals_are_typed(self, device: Device, starter: SimulatedStarter) -> None:
+        if Capability.WRITE_PARAMETERS not in device.capabilities:
+            pytest.skip(f"{self.transport} does not declare {Capability.WRITE_PARAMETERS.value}")
+        control = device.profile.control
+        if control.write_protect_key:
+            starter.params[control.write_protect_key] = 0
+            point = self.candidates(device)[0]
+        elif control.locked_while_running:
+            starter.start()
+            point = device.profile.point(sorted(control.locked_while_running)[0])
+        else:
+            pytest.skip(f"{device.profile.display_name} documents no refusal to provoke")
+        with pytest.raises(RemoteDeviceError) as info:
+            device.send_write(point, point.raw_min)  # past the guard: the device's own refusal
+        assert info.value.meaning and info.value.protocol
+
+    def test_dry_run_previews_send_nothing(self, device: Device, starter: SimulatedStarter) -> None:
+        before = dict(starter.params)
+        if Capability.WRITE_PARAMETERS in device.capabilities and self.candidates(device):
+            point = self.candidates(device)[0]
+            frames = device.transport.preview_write(point, point.raw_min)
+            assert frames and all(isinstance(f, str) and f for f in frames)
+        if Capability.COMMANDS in device.capabilities:
+            frames = device.transport.preview_command(Command.START)
+            assert frames and all(isinstance(f, str) and f for f in frames)
+        assert starter.params == before and starter.phase is Phase.STOPPED
+
+    def test_lifecycle_leaves_nothing_behind(self, url: str, profile: Profile) -> None:
+        with open_device(url, profile):
+            pass  # the first open may start shared, process-wide services
+        threads, fds = threading.active_count(), open_fds()
+        for _ in range(3):
+            device = open_device(url, profile)
+            with device:
+                if Capability.STATUS in device.capabilities:
+                    device.status()
+            with pytest.raises(StarterbusError):
+                device.status()  # closed: a typed error, never a hang or an AttributeError
+        assert wait_until(lambda: threading.active_count() <= threads), "threads left running after close"
+        assert wait_until(lambda: open_fds() <= fds), "file descriptors left open after close"
+
+    def test_agrees_with_the_reference_transport(self, url: str, profile: Profile, starter: SimulatedStarter) -> None:
+        if self.transport == REFERENCE or not profile.supports(REFERENCE):
+            pytest.skip("this is the reference transport, or the model has no reference interface")
+        from starterbus.fleet.crosscheck import crosscheck
+        from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+
+        starter.start()
+        with ModbusRtuSimulator({1: starter}, pty=True) as reference:
+            report = crosscheck([url, reference.client_urls()[1]], profile)
+        assert report.ok, [row.what for row in report.rows if row.agree is False] + [p.error for p in report.paths]

@@ -1,0 +1,64 @@
+"""The three built-in transports pass the conformance kit that third-party plugins use."""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import os
+from collections.abc import Iterator
+
+from starterbus.core.simulator import SimulatedStarter
+from starterbus.testing import TransportConformance
+
+_channels = itertools.count()
+
+
+class TestModbusRtu(TransportConformance):
+    transport = "modbus-rtu"
+    model = "jjr5000"
+
+    @contextlib.contextmanager
+    def serve(self, starter: SimulatedStarter) -> Iterator[str]:
+        from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+
+        with ModbusRtuSimulator({2: starter}, pty=True) as sim:
+            yield sim.client_urls()[2] + "&timeout=0.5"
+
+
+class TestModbusRtuJjr8000(TestModbusRtu):
+    model = "jjr8000"
+
+
+class TestProfibusPpo1(TransportConformance):
+    transport = "profibus-pkw"
+    model = "jjr8000"
+
+    @contextlib.contextmanager
+    def serve(self, starter: SimulatedStarter) -> Iterator[str]:
+        from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
+
+        with ProfibusGatewaySimulator(starter, ppo=1, cycle=0.002) as sim:
+            yield sim.client_urls()[1] + "&timeout=2"
+
+
+class TestProfibusPpo3(TestProfibusPpo1):
+    @contextlib.contextmanager
+    def serve(self, starter: SimulatedStarter) -> Iterator[str]:
+        from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
+
+        with ProfibusGatewaySimulator(starter, ppo=3, cycle=0.002) as sim:
+            yield sim.client_urls()[1] + "&timeout=2"
+
+
+class TestDeviceNet(TransportConformance):
+    transport = "devicenet"
+    model = "jjr8000"
+
+    @contextlib.contextmanager
+    def serve(self, starter: SimulatedStarter) -> Iterator[str]:
+        from starterbus.transports.devicenet.simulator import DeviceNetSimulator
+
+        channel = f"conformance-{os.getpid()}-{next(_channels)}"
+        with DeviceNetSimulator(("virtual", channel), dup_mac_wait=0.05) as sim:
+            sim.add_node(starter, 5)
+            yield f"devicenet://virtual/{channel}?mac=5&assemblies=extended&dup_mac_wait=0.05&timeout=1"
