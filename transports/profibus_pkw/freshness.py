@@ -34,13 +34,14 @@ task is verifiably answered (the handshake sends a *fence*: a read of another IN
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 from starterbus.transports.profibus_pkw.telegram import PkwRequest, PkwResponse, ResponseCode, TaskCode
 
 
-@dataclass(frozen=True, slots=True)
-class Mark:
-    """One observation: the ``n``-th input fed to the engine (1-based), at time ``t``."""
+class Mark(NamedTuple):
+    """One observation: the ``n``-th input fed to the engine (1-based), at time ``t``. (A named tuple: one is
+    made per exchange, and a tuple is the cheapest to build.)"""
 
     n: int
     t: float
@@ -119,9 +120,14 @@ class Freshness:
 
     def answered(self, request: PkwRequest, basis: Mark, obs: Mark) -> None:
         """A verified answer to ``request`` (value, or refusal 2/3) was seen at ``obs``."""
-        self.records[request.indl] = IndexRecord(request, basis, obs, obs)
+        indl = request.ind & 0xFF
+        rec = self.records.get(indl)
+        if rec is None:
+            self.records[indl] = IndexRecord(request, basis, obs, obs)
+        else:  # reused: one is updated per answer
+            rec.request, rec.basis, rec.ended, rec.answered = request, basis, obs, obs
         self.accepted = obs
-        self.accepted_indl = request.indl
+        self.accepted_indl = indl
 
     def unanswered(self, request: PkwRequest, basis: Mark, ended: Mark) -> None:
         """``request`` was sent but ended without a verified answer (timeout, corrupt answer, broken channel)."""

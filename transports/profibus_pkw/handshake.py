@@ -178,7 +178,8 @@ class PkwEngine:
 
     def output(self, now: float) -> PkwRequest:
         """The PKW words to send this cycle (call once per exchange, before :meth:`receive`)."""
-        self._book.begin(now)
+        if self._book.start is None:
+            self._book.begin(now)
         job = self._current
         if job is None and self._queue:
             job = self._current = self._queue.popleft()
@@ -196,22 +197,24 @@ class PkwEngine:
 
     def receive(self, response: PkwResponse, now: float) -> PkwJob | None:
         """Feed the PKW words received in this cycle; returns the job this cycle finished, if any."""
-        self._book.begin(now)
+        book = self._book
+        if book.start is None:
+            book.begin(now)
         self._n += 1
         obs = Mark(self._n, now)
-        code = (response.ind >> 8) & 0xFF
+        ind = response.ind
+        code = (ind >> 8) & 0xFF
         self._last = (obs, code)
         job = self._current
-        sending = job is not None and job.state is JobState.SENDING
-        if code and not (sending and job is not None and response.ind & 0xFF == job.request.indl):
-            self._book.late(response, obs)
-        if job is None:
-            return None
-        if job.state is JobState.CLEARING:
+        if job is None or job.state is not JobState.SENDING:
+            if code and book.records:
+                book.late(response, obs)
+            if job is None:
+                return None
             fence = self._fence
             if fence is not None:
-                if code and self._book.fresh(fence.basis, obs) and answers(fence.request, response):
-                    self._book.answered(fence.request, fence.basis, obs)
+                if code and book.fresh(fence.basis, obs) and answers(fence.request, response):
+                    book.answered(fence.request, fence.basis, obs)
                     self._fence = None
             elif code == 0:
                 self._clear(job, obs)
@@ -219,12 +222,19 @@ class PkwEngine:
         # SENDING
         if code == 0:
             return self._check_limits(job, now)
-        if response.ind & 0xFF != job.request.indl:
+        request = job.request
+        if ind & 0xFF != request.ind & 0xFF:
+            if book.records:
+                book.late(response, obs)
             job.foreign += 1
             return self._check_limits(job, now)
-        if not self._book.fresh(self._basis, obs):
+        if not book.fresh(self._basis, obs):
             job.stale += 1
             return self._check_limits(job, now)
+        if code == ResponseCode.VALUE and (request.ind >> 8 != TaskCode.WRITE_PARAMETER or response.pwe == request.pwe):
+            job.response = response  # the common case first: a value that answers the task
+            book.answered(request, self._basis, obs)
+            return self._finish(job, JobState.DONE, now)
         raw = _pkw_bytes(response)
         if code > ResponseCode.CANNOT_EXECUTE:
             job.error = DecodeError(
@@ -236,9 +246,7 @@ class PkwEngine:
             job.last_mismatch = raw
             return self._check_limits(job, now)
         job.response = response
-        self._book.answered(job.request, self._basis, obs)
-        if code == ResponseCode.VALUE:
-            return self._finish(job, JobState.DONE, now)
+        book.answered(request, self._basis, obs)
         if code == ResponseCode.NO_WRITE_PERMISSION:
             job.error = PkwError(
                 ResponseCode.NO_WRITE_PERMISSION,
@@ -310,12 +318,13 @@ class PkwEngine:
     # -- internals -------------------------------------------------------------------------------------------
 
     def _finish(self, job: PkwJob, state: JobState, now: float) -> PkwJob:
-        ended = Mark(self._n, now)
-        if job.state is JobState.SENDING and job.error is not None and not isinstance(job.error, PkwError):
-            self._book.unanswered(job.request, self._basis, ended)  # sent, never verifiably answered
-        if self._fence is not None:
-            self._book.unanswered(self._fence.request, self._fence.basis, ended)
-            self._fence = None
+        if job.error is not None:
+            ended = Mark(self._n, now)
+            if job.state is JobState.SENDING and not isinstance(job.error, PkwError):
+                self._book.unanswered(job.request, self._basis, ended)  # sent, never verifiably answered
+            if self._fence is not None:
+                self._book.unanswered(self._fence.request, self._fence.basis, ended)
+                self._fence = None
         job.state = state
         job.finished = now
         self._current = None
