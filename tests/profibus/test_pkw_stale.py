@@ -252,10 +252,17 @@ class OrderedSlave:
 
 
 def drive(
-    jobs: list[PkwRequest], slave: OrderedSlave, lag: Callable[[int], int], limits: Limits, *, monotonic: bool
+    jobs: list[PkwRequest],
+    slave: OrderedSlave,
+    lag: Callable[[int], int],
+    limits: Limits,
+    *,
+    monotonic: bool,
+    clock: Callable[[int], float] = lambda k: k * 0.001,
 ) -> tuple[list[PkwJob], dict[int, PkwJob]]:
     """Run the engine against the slave through an input that lags by ``lag(k)`` exchanges (``monotonic``:
-    never showing an older image than before, else any image within the lag: jitter and replays)."""
+    never showing an older image than before, else any image within the lag: jitter and replays); exchange
+    ``k`` happens at ``clock(k)``."""
     engine = PkwEngine(limits=limits)
     submitted = [engine.submit(request, f"job {i}") for i, request in enumerate(jobs)]
     shown: list[PkwResponse] = []
@@ -264,13 +271,13 @@ def drive(
     for k in range(len(jobs) * limits.max_cycles + 20):
         if not engine.busy:
             break
-        out = engine.output(k * 0.001)
+        out = engine.output(clock(k))
         current = engine.current
         if current is not None and current.state is JobState.SENDING:
             sent_by[k] = current
         shown.append(slave.step(k, out))
         seen = max(seen, k - lag(k)) if monotonic else max(0, k - lag(k))
-        engine.receive(shown[seen], k * 0.001)
+        engine.receive(shown[seen], clock(k))
     assert not engine.busy
     return submitted, sent_by
 
@@ -324,6 +331,33 @@ def test_no_value_belongs_to_another_task_with_jitter_and_replays(
     submitted, sent_by = drive(
         requests(names), slave, lambda k: min(lags[k % len(lags)], margin), limits, monotonic=False
     )
+    check(submitted, sent_by, slave)
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    steps=st.lists(st.sampled_from([0.0005, 0.001, 0.004, 0.02]), min_size=1, max_size=12),
+    lags=st.lists(st.integers(0, 40), min_size=1, max_size=12),
+    **SCHEDULES,
+)
+def test_no_value_belongs_to_another_task_with_a_time_margin(
+    names: list[str], delays: list[int], refusals: list[bool], drop: bool, steps: list[float], lags: list[int]
+) -> None:
+    # Exchanges at irregular times; the input may be any image up to 10 ms old, however many exchanges that is
+    # (a gateway that we poll faster than it cycles); the engine is told stale_time=0.01 and no cycle margin.
+    times = [0.0]
+    for k in range(1, len(names) * 10 + 21):
+        times.append(times[-1] + steps[k % len(steps)])
+
+    def lag(k: int) -> int:
+        back = min(lags[k % len(lags)], k)
+        while back and times[k] - times[k - back] > 0.01:
+            back -= 1
+        return back
+
+    slave = OrderedSlave(deque(delays), deque(refusals), drop)
+    limits = Limits(max_cycles=10, timeout=1e9, stale_time=0.01)
+    submitted, sent_by = drive(requests(names), slave, lag, limits, monotonic=False, clock=lambda k: times[k])
     check(submitted, sent_by, slave)
 
 

@@ -362,6 +362,8 @@ class PkwEngine:
                 "PWE" if job.request.task == TaskCode.WRITE_PARAMETER else "INDH",
             )
             return self._finish(job, JobState.FAILED, now)
+        if job.state is JobState.SENDING and job.request.task == TaskCode.WRITE_PARAMETER:
+            extra += "; the slave may still carry the write out"
         job.error = TimeoutError(
             f"{PROTOCOL}: {job.describe()}: {why}{'; ' + stage if stage else ''}{extra} "
             f"[task {hex_text(_pkw_bytes(job.request))}]"
