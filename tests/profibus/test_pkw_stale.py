@@ -196,3 +196,30 @@ def test_a_write_never_echoed_fails_typed_naming_what_was_shown() -> None:
     assert isinstance(job.error, DecodeError) and job.error.data == bytes.fromhex("01 03 00 0C")
     assert "does not echo the task [02 03 00 14]" in str(job.error)
     assert engine.quarantined(3)  # no verified answer
+
+
+def test_with_verify_start_the_first_task_of_a_session_waits_for_a_fence() -> None:
+    # An earlier session left "read p3" on the slave; its answer (12) shows after our session started.
+    engine = PkwEngine(limits=Limits(max_cycles=8, timeout=100, verify_start=True))
+    assert engine.quarantined(3) and engine.quarantined(200)  # the unknown past blocks every INDL
+    job = engine.submit(READ_P3)
+    run(
+        engine,
+        [
+            (NO_TASK, NO_RESPONSE),
+            (FENCE_P4, r(1, 3, 12)),  # the earlier session's answer: a value for nobody
+            (FENCE_P4, r(1, 4, 40)),
+            (NO_TASK, NO_RESPONSE),
+            (READ_P3, r(1, 3, 15)),
+        ],
+    )
+    assert job.response == r(1, 3, 15) and job.fences == 1 and not engine.quarantined(200)
+
+
+def test_with_verify_start_a_slave_that_never_answers_says_nothing_was_verified() -> None:
+    engine = PkwEngine(limits=Limits(max_cycles=4, timeout=100, verify_start=True))
+    job = engine.submit(READ_M3)
+    run(engine, [(NO_TASK, NO_RESPONSE)] + [(FENCE_P4, NO_RESPONSE)] * 4)
+    assert isinstance(job.error, TimeoutError)
+    assert "nothing has been verifiably answered yet in this session" in str(job.error)
+    assert "limit 4, and 4 for fence reads" in str(job.error)

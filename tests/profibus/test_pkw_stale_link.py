@@ -84,6 +84,29 @@ def test_after_a_timed_out_read_the_next_task_gets_its_own_answer(jjr8000: Profi
         link.close()
 
 
+@pytest.mark.parametrize("verify_start", [True, False])
+def test_a_task_left_by_an_earlier_session_does_not_answer_the_next_sessions_first(
+    jjr8000: Profile, verify_start: bool
+) -> None:
+    # Session 1 gives up on a read of p3 and dies; the slave (40 exchanges late) is still working on it.
+    first, slave, _ = starter_link(jjr8000, Limits(max_cycles=30, timeout=100), latency=40)
+    with pytest.raises(TimeoutError):
+        first.pkw(READ_P3)
+    slave.latency = 20  # still slow: the old answer shows on its own for a while
+    # Session 2's first task, m3 (INDL 3 too). The transport builds its engine with verify_start: the task waits
+    # for a verified fence read. Without it, the old answer (12) is taken for m3 (0 A): the reason for the rule.
+    limits = Limits(max_cycles=100, timeout=100, verify_start=verify_start)
+    second = CyclicLink(SimChannel(slave), PkwEngine(limits=limits), cycle=0)
+    second.open()
+    try:
+        job = second.pkw(READ_M3)
+        assert job.response is not None
+        assert (job.response.pwe, job.fences) == ((0, 1) if verify_start else (12, 0))
+    finally:
+        second.close()
+        first.close()
+
+
 def test_a_replaying_gateway_never_lends_p3_to_m3(jjr8000: Profile) -> None:
     replaying: list[StaleInputChannel] = []
 
@@ -123,6 +146,6 @@ def test_a_jittering_gateway_within_the_margin(jjr8000: Profile) -> None:
 
 def test_the_gateway_url_carries_the_margin(jjr8000: Profile) -> None:
     gateway = LinkSettings.from_url(DeviceUrl.parse("profibus-pkw+gateway://127.0.0.1:1502"), jjr8000)
-    assert (gateway.limits.stale_cycles, gateway.limits.stale_time) == (1, 0.0)
+    assert (gateway.limits.stale_cycles, gateway.limits.stale_time, gateway.limits.verify_start) == (1, 0.0, True)
     sim = LinkSettings.from_url(DeviceUrl.parse("profibus-pkw+sim://?stale_cycles=3&stale_time=0.02"), jjr8000)
     assert (sim.limits.stale_cycles, sim.limits.stale_time) == (3, 0.02)

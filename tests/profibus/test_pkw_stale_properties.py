@@ -15,6 +15,7 @@ from starterbus.core.errors import DecodeError, TimeoutError
 from starterbus.transports.profibus_pkw.handshake import JobState, Limits, PkwEngine, PkwError, PkwJob
 from starterbus.transports.profibus_pkw.telegram import (
     NO_RESPONSE,
+    NO_TASK,
     PkwRequest,
     PkwResponse,
     TaskCode,
@@ -88,7 +89,7 @@ def drive(
     shown: list[PkwResponse] = []
     sent_by: dict[int, PkwJob] = {}
     seen = 0
-    for k in range(len(jobs) * limits.max_cycles + 20):
+    for k in range(len(jobs) * 2 * limits.max_cycles + 20):  # fence reads have a budget of their own
         if not engine.busy:
             break
         out = engine.output(clock(k))
@@ -137,17 +138,56 @@ SCHEDULES = dict(
     delays=st.lists(st.integers(0, 14), min_size=1, max_size=12),
     refusals=st.lists(st.booleans(), min_size=1, max_size=6),
     drop=st.booleans(),
+    verify=st.booleans(),  # Limits.verify_start: the first task waits for a fence
 )
+OLD_TASKS = {
+    "p3": READ_P3,
+    "m3": READ_M3,
+    "p4": READ_P4,
+    "w3": pkw_request(TaskCode.WRITE_PARAMETER, 3, 30000),  # no job writes 30000
+}
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    old=st.sampled_from(sorted(OLD_TASKS)),
+    closed=st.booleans(),
+    lags=st.lists(st.integers(0, 2), min_size=1, max_size=12),
+    margin=st.integers(0, 2),
+    **SCHEDULES,
+)
+def test_a_task_an_earlier_session_left_on_the_slave_never_answers_ours(
+    names: list[str],
+    delays: list[int],
+    refusals: list[bool],
+    drop: bool,
+    verify: bool,
+    old: str,
+    closed: bool,
+    lags: list[int],
+    margin: int,
+) -> None:
+    # An earlier master sent one task (and, if it closed properly, "no task") and went away; the slave may still
+    # be working on it. With verify_start (what the transport uses) the first task waits for a verified fence.
+    slave = OrderedSlave(deque(delays), deque(refusals), drop)
+    prelude = [OLD_TASKS[old]] + ([NO_TASK] if closed else [])
+    for i, out in enumerate(prelude):
+        slave.step(i - len(prelude), out)
+    limits = Limits(max_cycles=10, timeout=1e9, stale_cycles=margin, verify_start=True)
+    submitted, sent_by = drive(
+        requests(names), slave, lambda k: min(lags[k % len(lags)], margin), limits, monotonic=False
+    )
+    check(submitted, sent_by, slave)
 
 
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(lags=st.lists(st.integers(0, 3), min_size=1, max_size=12), margin=st.integers(0, 3), **SCHEDULES)
 def test_no_value_belongs_to_another_task_with_jitter_and_replays(
-    names: list[str], delays: list[int], refusals: list[bool], drop: bool, lags: list[int], margin: int
+    names: list[str], delays: list[int], refusals: list[bool], drop: bool, verify: bool, lags: list[int], margin: int
 ) -> None:
     # Inputs up to `margin` exchanges old, in any order; the engine is told that margin.
     slave = OrderedSlave(deque(delays), deque(refusals), drop)
-    limits = Limits(max_cycles=10, timeout=1e9, stale_cycles=margin)
+    limits = Limits(max_cycles=10, timeout=1e9, stale_cycles=margin, verify_start=verify)
     submitted, sent_by = drive(
         requests(names), slave, lambda k: min(lags[k % len(lags)], margin), limits, monotonic=False
     )
@@ -161,12 +201,18 @@ def test_no_value_belongs_to_another_task_with_jitter_and_replays(
     **SCHEDULES,
 )
 def test_no_value_belongs_to_another_task_with_a_time_margin(
-    names: list[str], delays: list[int], refusals: list[bool], drop: bool, steps: list[float], lags: list[int]
+    names: list[str],
+    delays: list[int],
+    refusals: list[bool],
+    drop: bool,
+    verify: bool,
+    steps: list[float],
+    lags: list[int],
 ) -> None:
     # Exchanges at irregular times; the input may be any image up to 10 ms old, however many exchanges that is
     # (a gateway that we poll faster than it cycles); the engine is told stale_time=0.01 and no cycle margin.
     times = [0.0]
-    for k in range(1, len(names) * 10 + 21):
+    for k in range(1, len(names) * 20 + 21):
         times.append(times[-1] + steps[k % len(steps)])
 
     def lag(k: int) -> int:
@@ -176,7 +222,7 @@ def test_no_value_belongs_to_another_task_with_a_time_margin(
         return back
 
     slave = OrderedSlave(deque(delays), deque(refusals), drop)
-    limits = Limits(max_cycles=10, timeout=1e9, stale_time=0.01)
+    limits = Limits(max_cycles=10, timeout=1e9, stale_time=0.01, verify_start=verify)
     submitted, sent_by = drive(requests(names), slave, lag, limits, monotonic=False, clock=lambda k: times[k])
     check(submitted, sent_by, slave)
 
@@ -184,11 +230,11 @@ def test_no_value_belongs_to_another_task_with_a_time_margin(
 @settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(lags=st.lists(st.integers(0, 8), min_size=1, max_size=12), **SCHEDULES)
 def test_no_value_belongs_to_another_task_with_a_lagging_gateway(
-    names: list[str], delays: list[int], refusals: list[bool], drop: bool, lags: list[int]
+    names: list[str], delays: list[int], refusals: list[bool], drop: bool, verify: bool, lags: list[int]
 ) -> None:
     # A gateway whose image lags by a varying number of exchanges but never goes back: no margin needed.
     slave = OrderedSlave(deque(delays), deque(refusals), drop)
-    limits = Limits(max_cycles=10, timeout=1e9)
+    limits = Limits(max_cycles=10, timeout=1e9, verify_start=verify)
     submitted, sent_by = drive(requests(names), slave, lambda k: lags[k % len(lags)], limits, monotonic=True)
     check(submitted, sent_by, slave)
 

@@ -29,6 +29,9 @@ A new task on INDL ``i`` may start (:meth:`Freshness.proof`) at a "no response" 
 
 Its answer is then accepted only if fresh after the basis. An orphan on ``i`` satisfies neither until some other
 task is verifiably answered (the handshake sends a *fence*: a read of another INDL) or its own late answer shows.
+
+With ``verify_start`` the unknown past counts as an orphan on every INDL: a task that an earlier session left
+on the slave could still be answered, so the session's first task waits for a fence too.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from starterbus.transports.profibus_pkw.telegram import PkwRequest, PkwResponse, ResponseCode, TaskCode
+from starterbus.transports.profibus_pkw.telegram import NO_TASK, PkwRequest, PkwResponse, ResponseCode, TaskCode
 
 
 class Mark(NamedTuple):
@@ -82,6 +85,7 @@ class Freshness:
     accepted: Mark | None = None  # the last verified answer (any INDL)
     accepted_indl: int | None = None
     start: Mark | None = None  # before the first exchange: what the slave did earlier is unknown
+    verify_start: bool = False  # treat that unknown past as an orphan on every INDL
 
     def begin(self, now: float) -> None:
         if self.start is None:
@@ -94,18 +98,27 @@ class Freshness:
         return self.stale_time <= 0 or obs.t - mark.t > self.stale_time
 
     def orphan(self, indl: int) -> IndexRecord | None:
-        """The unanswered task that blocks INDL ``indl`` (rule 1 not yet met), if any."""
+        """The unanswered task that blocks INDL ``indl`` (rule 1 not yet met), if any; with ``verify_start``,
+        before the first verified answer, a record of the unknown past (request "no task")."""
         rec = self.records.get(indl)
+        if rec is None and self.verify_start and self.accepted is None:
+            start = self.start or Mark(0, 0.0)
+            return IndexRecord(NO_TASK, start, start, None)
         if rec is None or rec.answered is not None:
             return None
         if self.accepted is not None and self.accepted.n > rec.ended.n:
             return None
         return rec
 
-    def proof(self, indl: int, obs: Mark) -> Mark | None:
-        """The basis for a new task on ``indl`` if "no response" seen at ``obs`` may start it, else None."""
+    def proof(self, indl: int, obs: Mark, *, fence: bool = False) -> Mark | None:
+        """The basis for a new task on ``indl`` if "no response" seen at ``obs`` may start it, else None.
+
+        A ``fence`` may start on an INDL not used yet even with ``verify_start``: if an old task on that INDL
+        answers it, that old task is done, and (the slave being ordered) so is everything before it."""
         rec = self.records.get(indl)
         answered: Mark | None
+        if rec is None and self.verify_start and self.accepted is None and not fence:
+            return None
         if rec is None:
             # Nothing sent on this INDL in this session: treated as answered at the start. (A task that an
             # earlier session left running on the slave is not covered; see docs/profibus.md.)

@@ -15,7 +15,8 @@ p3). Rule used here (documented in docs/profibus.md, "Stale answers"; the bookke
 answer, broken channel) leaves its INDL quarantined, in both data areas: the next task on it waits until
 another exchange is verifiably answered; the engine forces one with a *fence*, a read of another INDL, unless
 the orphan's own late answer shows first. "No response" alone never lifts it: a slave still working on the old
-task shows "no response" too.
+task shows "no response" too. With ``Limits.verify_start`` (what the transport uses) the unknown past before the
+session counts as such a task on every INDL: the session's first task is preceded by a fence.
 
 Outcomes of a job (each a defined state, never a hang):
 
@@ -26,8 +27,8 @@ Outcomes of a job (each a defined state, never a hang):
   a value);
 - responses with another INDL (``job.foreign``), not fresh (``job.stale``) or not echoing the task
   (``job.mismatched``: response 2 to a read, a write echo with another value) are ignored;
-- no answer within ``max_cycles`` exchanges or ``timeout`` seconds (clearing and fencing included):
-  :class:`~starterbus.core.errors.TimeoutError`;
+- no answer within ``max_cycles`` exchanges (clearing included; fence reads have ``max_cycles`` of their own)
+  or ``timeout`` seconds (everything included): :class:`~starterbus.core.errors.TimeoutError`;
 - the channel failing: the driver calls :meth:`PkwEngine.fail` with its :class:`TransportError`.
 
 No clocks, sockets or threads here: the driver passes ``now`` in and moves the words.
@@ -93,6 +94,7 @@ class PkwJob:
     mismatched: int = 0  # responses with the task's INDL that do not echo the task
     last_mismatch: bytes = b""  # the last of them (the PKW bytes)
     fences: int = 0  # fence reads sent to lift a quarantine on the task's INDL
+    fence_cycles: int = 0  # exchanges spent sending them (a budget of their own: max_cycles)
     started: float | None = None
     finished: float | None = None
 
@@ -115,6 +117,7 @@ class Limits:
     timeout: float = 2.0
     stale_cycles: int = 0
     stale_time: float = 0.0
+    verify_start: bool = False  # the session's first task waits for a verified fence read (see freshness.py)
 
     def __post_init__(self) -> None:
         if self.max_cycles < 2:
@@ -148,7 +151,7 @@ class PkwEngine:
     _fence: _Fence | None = None
 
     def __post_init__(self) -> None:
-        self._book = Freshness(self.limits.stale_cycles, self.limits.stale_time)
+        self._book = Freshness(self.limits.stale_cycles, self.limits.stale_time, verify_start=self.limits.verify_start)
 
     # -- requests --------------------------------------------------------------------------------------------
 
@@ -193,7 +196,10 @@ class PkwEngine:
         job.cycles += 1
         if job.state is JobState.SENDING:
             return job.request
-        return self._fence.request if self._fence is not None else NO_TASK
+        if self._fence is not None:
+            job.fence_cycles += 1
+            return self._fence.request
+        return NO_TASK
 
     def receive(self, response: PkwResponse, now: float) -> PkwJob | None:
         """Feed the PKW words received in this cycle; returns the job this cycle finished, if any."""
@@ -278,7 +284,7 @@ class PkwEngine:
         if self._book.orphan(job.request.indl) is None:
             return  # the previous answer on this INDL may still be shown: wait for a fresh "no response"
         indl = self._book.fence_indl(job.request.indl)
-        fence_basis = self._book.proof(indl, obs)
+        fence_basis = self._book.proof(indl, obs, fence=True)
         if fence_basis is not None:
             self._fence = _Fence(pkw_request(TaskCode.READ_PARAMETER, indl), fence_basis)
             job.fences += 1
@@ -333,8 +339,10 @@ class PkwEngine:
     def _check_limits(self, job: PkwJob, now: float) -> PkwJob | None:
         started = job.started if job.started is not None else now
         why = ""
-        if job.cycles >= self.limits.max_cycles:
-            why = f"no response within {job.cycles} DP cycles (limit {self.limits.max_cycles})"
+        limit = self.limits.max_cycles
+        if job.cycles - job.fence_cycles >= limit or job.fence_cycles >= limit:
+            why = f"no response within {job.cycles} DP cycles (limit {limit}"
+            why += f", and {limit} for fence reads)" if job.fence_cycles else ")"
         elif now - started > self.limits.timeout:
             why = f"no response within {now - started:.3f} s (limit {self.limits.timeout:g} s, {job.cycles} cycles)"
         if not why:
@@ -343,10 +351,13 @@ class PkwEngine:
         if job.state is JobState.CLEARING:
             orphan = self._book.orphan(job.request.indl)
             if orphan is not None:
-                stage = (
-                    f"INDL {job.request.indl:#04x} is quarantined: an earlier task on it "
-                    f"[{hex_text(_pkw_bytes(orphan.request))}] got no verified answer"
-                    + (f", and {job.fences} fence read(s) of another INDL got none either" if job.fences else "")
+                earlier = (
+                    "nothing has been verifiably answered yet in this session"
+                    if orphan.request == NO_TASK
+                    else f"an earlier task on it [{hex_text(_pkw_bytes(orphan.request))}] got no verified answer"
+                )
+                stage = f"INDL {job.request.indl:#04x} is quarantined: {earlier}" + (
+                    f", and {job.fences} fence read(s) of another INDL got none either" if job.fences else ""
                 )
             else:
                 stage = "the slave never answered 'no task' with 'no response'"

@@ -106,6 +106,7 @@ class LinkSettings:
             url.get_float("timeout", 2.0, 0.001, 600.0),
             url.get_int("stale_cycles", 1 if gateway else 0, 0, 10_000),
             url.get_float("stale_time", 0.0, 0.0, 60.0),
+            verify_start=True,  # a task an earlier session left on the slave must not answer our first one
         )
         hold = url.get_int("hold", 3, 1, 1000)
         pulse = url.get_float("pulse", 0.05 if gateway else 0.0, 0.0, 10.0)
