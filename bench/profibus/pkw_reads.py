@@ -8,7 +8,11 @@ once at the Device level (``Device.read``: validation, scaling). Channels:
 
 - ``sim``: the in-process simulated DP slave (no I/O);
 - ``gateway``: the simulated Modbus TCP gateway on loopback (a real pymodbus server with its own DP cycle),
-  reached with pymodbus' sync TCP client: each exchange is an FC16 write and an FC03 read.
+  reached with pymodbus' sync TCP client: each exchange is an FC16 write and an FC03 read; with its default
+  input staleness margin (``stale_cycles=1``); ``gw-m0``: the same with ``stale_cycles=0``.
+
+Level ``link`` reads p3 back to back: every task has the INDL of the one before, the case the staleness margin
+costs most; ``mixed`` alternates p3 and p4.
 
 ``cycle=0`` runs exchanges back to back on demand; ``cycle>0`` is a background DP cycle, so a read costs at
 least two cycle times. The ``floor`` line is a bare pymodbus FC16 + FC03 pair against the same gateway: one
@@ -28,11 +32,16 @@ from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.transports.profibus_pkw.channels import attach_slave, detach_slave
 from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
+from starterbus.transports.profibus_pkw.handshake import Limits
 from starterbus.transports.profibus_pkw.link import CyclicLink
 from starterbus.transports.profibus_pkw.telegram import TaskCode, pkw_request
 from starterbus.transports.profibus_pkw.transport import ProfibusPkwTransport
 
 READ_P3 = pkw_request(TaskCode.READ_PARAMETER, 3)
+READ_P4 = pkw_request(TaskCode.READ_PARAMETER, 4)
+#: does this tree know input staleness margins (``stale_cycles`` in the URL)? The bench also runs on older trees
+#: (PYTHONPATH=<checkout of another commit>) so that a baseline can be measured side by side.
+HAS_MARGIN = "stale_cycles" in getattr(Limits, "__dataclass_fields__", {})
 
 
 def timed(op: Callable[[], object], seconds: float) -> tuple[int, float]:
@@ -46,16 +55,20 @@ def timed(op: Callable[[], object], seconds: float) -> tuple[int, float]:
     return n, time.perf_counter() - t0
 
 
-def link_reads(url: str, seconds: float) -> dict[str, object]:
+def link_reads(url: str, seconds: float, *, mixed: bool = False) -> dict[str, object]:
+    """Reads of p3 back to back (each task on the INDL of the one before), or alternating p3 and p4 (mixed)."""
     with open_device(url, "jjr8000") as dev:
         transport = dev.transport
         assert isinstance(transport, ProfibusPkwTransport) and transport.link is not None
         link: CyclicLink = transport.link
         cycles: list[int] = []
+        flip = [False]
 
         def op() -> None:
-            job = link.pkw(READ_P3)
-            assert job.response is not None and job.response.pwe == 12
+            request = READ_P4 if mixed and flip[0] else READ_P3
+            flip[0] = not flip[0]
+            job = link.pkw(request)
+            assert job.response is not None and job.response.indl == request.indl
             cycles.append(job.cycles)
 
         n, wall = timed(op, seconds)
@@ -101,6 +114,8 @@ def main(argv: list[str] | None = None) -> int:
             url = f"profibus-pkw+sim://bench?ppo=1&cycle={cycle}"
             rows.append({"channel": "sim", "cycle": cycle, "level": "link", **link_reads(url, args.seconds)})
         url = "profibus-pkw+sim://bench?ppo=1&cycle=0"
+        rows.append({"channel": "sim", "cycle": "0", "level": "mixed", **link_reads(url, args.seconds, mixed=True)})
+        url = "profibus-pkw+sim://bench?ppo=1&cycle=0"
         rows.append({"channel": "sim", "cycle": "0", "level": "device", **device_reads(url, args.seconds)})
     finally:
         detach_slave("bench")
@@ -110,6 +125,12 @@ def main(argv: list[str] | None = None) -> int:
         for cycle in ("0", "0.005"):
             url = f"{sim.url(0)}&cycle={cycle}"
             rows.append({"channel": "gateway", "cycle": cycle, "level": "link", **link_reads(url, args.seconds)})
+            rows.append(
+                {"channel": "gateway", "cycle": cycle, "level": "mixed", **link_reads(url, args.seconds, mixed=True)}
+            )
+            if HAS_MARGIN:  # the gateway's default margin is stale_cycles=1; without it, as before
+                url += "&stale_cycles=0"
+                rows.append({"channel": "gw-m0", "cycle": cycle, "level": "link", **link_reads(url, args.seconds)})
         rows.append({"channel": "gateway", "cycle": "0", "level": "device",
                      **device_reads(f"{sim.url(0)}&cycle=0", args.seconds)})  # fmt: skip
 
@@ -126,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     for r in rows:
         cyc = r.get("cycles_per_read", "")
         ratio = ""
-        if r["channel"] == "gateway":
+        if r["channel"] in ("gateway", "gw-m0"):
             ratio = f"{float(r['ms_per_read']) / float(floor['ms_per_exchange']):.1f}"  # type: ignore[arg-type]
         print(
             f"{r['channel']:8} {r['cycle']:>8} {r['level']:7} {r['per_second']:>10} {r['ms_per_read']:>9} "

@@ -163,13 +163,15 @@ def test_unknown_response_code_fails_without_a_value(code: int) -> None:
 def test_every_task_response_combination(task: PkwRequest, code: int) -> None:
     engine = PkwEngine(limits=Limits(max_cycles=3, timeout=100))
     job = engine.submit(task)
-    run(engine, [(NO_TASK, NO_RESPONSE), (task, r(code, task.indl, 5))])
-    if code == 0:  # still waiting; then the cycle limit
-        assert not job.done
+    write = task.task == TaskCode.WRITE_PARAMETER
+    value = task.pwe if write else 5  # a write's answer echoes the value written
+    run(engine, [(NO_TASK, NO_RESPONSE), (task, r(code, task.indl, value))])
+    if code == 0 or (code == 2 and not write):  # still waiting (response 2 cannot answer a read); then the limit
+        assert not job.done and job.mismatched == (code == 2)
         run(engine, [(task, r(0))])
-        assert isinstance(job.error, TimeoutError)
+        assert isinstance(job.error, DecodeError if code == 2 else TimeoutError)
     elif code == 1:
-        assert state(job) is JobState.DONE and job.response is not None and job.response.pwe == 5
+        assert state(job) is JobState.DONE and job.response is not None and job.response.pwe == value
     elif code in (2, 3):
         assert isinstance(job.error, PkwError) and job.error.response == code
     else:

@@ -294,5 +294,5 @@ def test_a_wrong_write_echo_is_a_decode_error(jjr8000: Profile) -> None:
             return MisEcho(SimulatedDpSlave(SimulatedStarter(jjr8000), Ppo.PPO1))
 
     transport = Transport(DeviceUrl.parse("profibus-pkw+sim://?cycle=0"), jjr8000)
-    with Device(transport, jjr8000) as dev, pytest.raises(DecodeError, match="answered the write of 20"):
+    with Device(transport, jjr8000) as dev, pytest.raises(DecodeError, match="does not echo the task"):
         dev.write("ramp_time", 20)

@@ -3,26 +3,32 @@
 The vendor protocol has no sequence number: a response is recognised only by its INDL and a non-zero response
 code, and the slave keeps showing its last response until it sees the next task. So the master cannot tell the
 answer to "read p3" from the answer to the previous "read p3" (or from the old value of p3 when it now writes
-p3). Rule used here (the PROFIdrive PKW convention; documented in docs/profibus.md):
+p3). Rule used here (documented in docs/profibus.md, "Stale answers"; the bookkeeping is in ``freshness.py``):
 
-    Between two tasks the master sends "no task" (INDH 0) until the input shows "no response" (INDH 0).
-    Only a response seen AFTER that clear cycle, with the task's INDL and a non-zero code, answers the task.
+    Between two tasks the master sends "no task" (INDH 0) until the input shows "no response" (INDH 0) at a
+    moment that PROVES the slave has left the previous task on the same INDL behind: fresh after that task's
+    verified answer, or after a later task's verified answer. Only a response fresh after that proof, with the
+    task's INDL, a non-zero code and every echoed field matching, answers the task.
 
-A slave's input changes only in reaction to the master's output, so once the "no response" has been seen every
-later non-zero response was produced by a task sent after it. Each job therefore takes at least two exchanges
-(clear, then task) unless the channel already showed "no response" (an idle cyclic master keeps sending task 0,
-so its next job starts at once).
+"Fresh after" allows for an input up to ``Limits.stale_cycles`` exchanges and ``Limits.stale_time`` seconds old
+(a gateway that lags or replays its image). A task that ended WITHOUT a verified answer (timeout, corrupt
+answer, broken channel) leaves its INDL quarantined, in both data areas: the next task on it waits until
+another exchange is verifiably answered; the engine forces one with a *fence*, a read of another INDL, unless
+the orphan's own late answer shows first. "No response" alone never lifts it: a slave still working on the old
+task shows "no response" too. With ``Limits.verify_start`` (what the transport uses) the unknown past before the
+session counts as such a task on every INDL: the session's first task is preceded by a fence.
 
 Outcomes of a job (each a defined state, never a hang):
 
-- response 1 with the task's INDL: ``job.response`` holds it (``PWE`` = value; for writes the echo);
-- response 2: :class:`PkwError` "no write permission";
+- response 1 with the task's INDL (and, for a write, the value written): ``job.response`` holds it;
+- response 2 to a write: :class:`PkwError` "no write permission";
 - response 3: :class:`PkwError` with the error number in PWE and its meaning from the model's table;
 - INDH 4-255 with the task's INDL: :class:`~starterbus.core.errors.DecodeError` (a corrupt answer never yields
   a value);
-- responses with another INDL are ignored (counted in ``job.foreign``);
-- no answer within ``max_cycles`` exchanges or ``timeout`` seconds (clearing included):
-  :class:`~starterbus.core.errors.TimeoutError`;
+- responses with another INDL (``job.foreign``), not fresh (``job.stale``) or not echoing the task
+  (``job.mismatched``: response 2 to a read, a write echo with another value) are ignored;
+- no answer within ``max_cycles`` exchanges (clearing included; fence reads have ``max_cycles`` of their own)
+  or ``timeout`` seconds (everything included): :class:`~starterbus.core.errors.TimeoutError`;
 - the channel failing: the driver calls :meth:`PkwEngine.fail` with its :class:`TransportError`.
 
 No clocks, sockets or threads here: the driver passes ``now`` in and moves the words.
@@ -37,6 +43,7 @@ from dataclasses import dataclass, field
 
 from starterbus.core.errors import DecodeError, RemoteDeviceError, StarterbusError, TimeoutError
 from starterbus.core.model import Label
+from starterbus.transports.profibus_pkw.freshness import Freshness, Mark, answers
 from starterbus.transports.profibus_pkw.telegram import (
     NO_TASK,
     PROTOCOL,
@@ -48,6 +55,7 @@ from starterbus.transports.profibus_pkw.telegram import (
     TaskCode,
     error_label,
     hex_text,
+    pkw_request,
 )
 
 
@@ -82,6 +90,11 @@ class PkwJob:
     error: StarterbusError | None = None
     cycles: int = 0  # exchanges from activation to the answer, clearing included
     foreign: int = 0  # non-zero responses with another INDL seen while sending
+    stale: int = 0  # responses with the task's INDL not fresh after the proof (possibly an older answer)
+    mismatched: int = 0  # responses with the task's INDL that do not echo the task
+    last_mismatch: bytes = b""  # the last of them (the PKW bytes)
+    fences: int = 0  # fence reads sent to lift a quarantine on the task's INDL
+    fence_cycles: int = 0  # exchanges spent sending them (a budget of their own: max_cycles)
     started: float | None = None
     finished: float | None = None
 
@@ -97,16 +110,30 @@ class PkwJob:
 
 @dataclass(frozen=True, slots=True)
 class Limits:
-    """When a PKW job gives up. ``max_cycles`` counts exchanges; ``timeout`` is in seconds."""
+    """When a PKW job gives up (``max_cycles`` exchanges, ``timeout`` seconds), and how old an input may be:
+    at most ``stale_cycles`` exchanges and ``stale_time`` seconds (0 and 0: the input is always current)."""
 
     max_cycles: int = 50
     timeout: float = 2.0
+    stale_cycles: int = 0
+    stale_time: float = 0.0
+    verify_start: bool = False  # the session's first task waits for a verified fence read (see freshness.py)
 
     def __post_init__(self) -> None:
         if self.max_cycles < 2:
             raise ValueError("max_cycles must be at least 2 (one clear cycle and one task cycle)")
         if self.timeout <= 0:
             raise ValueError("timeout must be positive")
+        if self.stale_cycles < 0 or self.stale_time < 0:
+            raise ValueError("stale_cycles and stale_time must be >= 0")
+
+
+@dataclass(slots=True)
+class _Fence:
+    """A read of another INDL, sent while the current job's INDL is quarantined; its verified answer lifts it."""
+
+    request: PkwRequest
+    basis: Mark
 
 
 @dataclass(slots=True)
@@ -117,7 +144,14 @@ class PkwEngine:
     limits: Limits = field(default_factory=Limits)
     _queue: deque[PkwJob] = field(default_factory=deque)
     _current: PkwJob | None = None
-    _cleared: bool = False  # the input has shown "no response" since the last task ended
+    _book: Freshness = field(init=False)
+    _n: int = 0  # inputs received
+    _last: tuple[Mark, int] | None = None  # the last observation and its response code
+    _basis: Mark = field(default_factory=lambda: Mark(0, 0.0))  # the current job's answers: fresh after this
+    _fence: _Fence | None = None
+
+    def __post_init__(self) -> None:
+        self._book = Freshness(self.limits.stale_cycles, self.limits.stale_time, verify_start=self.limits.verify_start)
 
     # -- requests --------------------------------------------------------------------------------------------
 
@@ -139,44 +173,87 @@ class PkwEngine:
     def pending(self) -> list[PkwJob]:
         return ([self._current] if self._current else []) + list(self._queue)
 
+    def quarantined(self, indl: int) -> bool:
+        """Is INDL ``indl`` blocked by a task that ended without a verified answer?"""
+        return self._book.orphan(indl) is not None
+
     # -- one cycle -------------------------------------------------------------------------------------------
 
     def output(self, now: float) -> PkwRequest:
         """The PKW words to send this cycle (call once per exchange, before :meth:`receive`)."""
+        if self._book.start is None:
+            self._book.begin(now)
         job = self._current
         if job is None and self._queue:
             job = self._current = self._queue.popleft()
             job.started = now
-            job.state = JobState.SENDING if self._cleared else JobState.CLEARING
+            job.state = JobState.CLEARING
+            self._fence = None
+            if self._last is not None and self._last[1] == 0:
+                self._clear(job, self._last[0])
         if job is None:
             return NO_TASK
         job.cycles += 1
-        return job.request if job.state is JobState.SENDING else NO_TASK
+        if job.state is JobState.SENDING:
+            return job.request
+        if self._fence is not None:
+            job.fence_cycles += 1
+            return self._fence.request
+        return NO_TASK
 
     def receive(self, response: PkwResponse, now: float) -> PkwJob | None:
         """Feed the PKW words received in this cycle; returns the job this cycle finished, if any."""
-        code = (response.ind >> 8) & 0xFF
+        book = self._book
+        if book.start is None:
+            book.begin(now)
+        self._n += 1
+        obs = Mark(self._n, now)
+        ind = response.ind
+        code = (ind >> 8) & 0xFF
+        self._last = (obs, code)
         job = self._current
-        if job is None:
-            self._cleared = code == 0
-            return None
-        if job.state is JobState.CLEARING:
-            if code == 0:
-                self._cleared = True
-                job.state = JobState.SENDING
+        if job is None or job.state is not JobState.SENDING:
+            if code and book.records:
+                book.late(response, obs)
+            if job is None:
+                return None
+            fence = self._fence
+            if fence is not None:
+                if code and book.fresh(fence.basis, obs) and answers(fence.request, response):
+                    book.answered(fence.request, fence.basis, obs)
+                    self._fence = None
+            elif code == 0:
+                self._clear(job, obs)
             return self._check_limits(job, now)
         # SENDING
         if code == 0:
             return self._check_limits(job, now)
-        if response.ind & 0xFF != job.request.indl:
+        request = job.request
+        if ind & 0xFF != request.ind & 0xFF:
+            if book.records:
+                book.late(response, obs)
             job.foreign += 1
             return self._check_limits(job, now)
-        if code == ResponseCode.VALUE:
-            job.response = response
+        if not book.fresh(self._basis, obs):
+            job.stale += 1
+            return self._check_limits(job, now)
+        if code == ResponseCode.VALUE and (request.ind >> 8 != TaskCode.WRITE_PARAMETER or response.pwe == request.pwe):
+            job.response = response  # the common case first: a value that answers the task
+            book.answered(request, self._basis, obs)
             return self._finish(job, JobState.DONE, now)
         raw = _pkw_bytes(response)
+        if code > ResponseCode.CANNOT_EXECUTE:
+            job.error = DecodeError(
+                f"unknown response code {code} (INDH) to {job.describe()}; no value taken", raw, "INDH"
+            )
+            return self._finish(job, JobState.FAILED, now)
+        if not answers(job.request, response):
+            job.mismatched += 1
+            job.last_mismatch = raw
+            return self._check_limits(job, now)
+        job.response = response
+        book.answered(request, self._basis, obs)
         if code == ResponseCode.NO_WRITE_PERMISSION:
-            job.response = response
             job.error = PkwError(
                 ResponseCode.NO_WRITE_PERMISSION,
                 2,
@@ -184,8 +261,7 @@ class PkwEngine:
                 f"response 2 to {job.describe()}",
                 raw,
             )
-        elif code == ResponseCode.CANNOT_EXECUTE:
-            job.response = response
+        else:
             label = error_label(self.errors, response.pwe)
             zh = f" / {label.zh}" if label.zh else ""
             job.error = PkwError(
@@ -195,11 +271,23 @@ class PkwEngine:
                 f"response 3 to {job.describe()}{zh}",
                 raw,
             )
-        else:
-            job.error = DecodeError(
-                f"unknown response code {code} (INDH) to {job.describe()}; no value taken", raw, "INDH"
-            )
         return self._finish(job, JobState.FAILED, now)
+
+    def _clear(self, job: PkwJob, obs: Mark) -> None:
+        """The input shows "no response" at ``obs``: start the task if that proves the old one is left behind,
+        else (its INDL quarantined) start a fence read of another INDL."""
+        basis = self._book.proof(job.request.indl, obs)
+        if basis is not None:
+            self._basis = basis
+            job.state = JobState.SENDING
+            return
+        if self._book.orphan(job.request.indl) is None:
+            return  # the previous answer on this INDL may still be shown: wait for a fresh "no response"
+        indl = self._book.fence_indl(job.request.indl)
+        fence_basis = self._book.proof(indl, obs, fence=True)
+        if fence_basis is not None:
+            self._fence = _Fence(pkw_request(TaskCode.READ_PARAMETER, indl), fence_basis)
+            job.fences += 1
 
     def fail(self, error: StarterbusError, now: float, *, all_jobs: bool = False) -> list[PkwJob]:
         """End the current job (and with ``all_jobs`` the queued ones) with ``error``: the channel broke."""
@@ -236,23 +324,57 @@ class PkwEngine:
     # -- internals -------------------------------------------------------------------------------------------
 
     def _finish(self, job: PkwJob, state: JobState, now: float) -> PkwJob:
+        if job.error is not None:
+            ended = Mark(self._n, now)
+            if job.state is JobState.SENDING and not isinstance(job.error, PkwError):
+                self._book.unanswered(job.request, self._basis, ended)  # sent, never verifiably answered
+            if self._fence is not None:
+                self._book.unanswered(self._fence.request, self._fence.basis, ended)
+                self._fence = None
         job.state = state
         job.finished = now
         self._current = None
-        self._cleared = False  # the slave now shows this job's response: clear before the next task
         return job
 
     def _check_limits(self, job: PkwJob, now: float) -> PkwJob | None:
         started = job.started if job.started is not None else now
         why = ""
-        if job.cycles >= self.limits.max_cycles:
-            why = f"no response within {job.cycles} DP cycles (limit {self.limits.max_cycles})"
+        limit = self.limits.max_cycles
+        if job.cycles - job.fence_cycles >= limit or job.fence_cycles >= limit:
+            why = f"no response within {job.cycles} DP cycles (limit {limit}"
+            why += f", and {limit} for fence reads)" if job.fence_cycles else ")"
         elif now - started > self.limits.timeout:
             why = f"no response within {now - started:.3f} s (limit {self.limits.timeout:g} s, {job.cycles} cycles)"
         if not why:
             return None
-        stage = "the slave never answered 'no task' with 'no response'" if job.state is JobState.CLEARING else ""
+        stage = ""
+        if job.state is JobState.CLEARING:
+            orphan = self._book.orphan(job.request.indl)
+            if orphan is not None:
+                earlier = (
+                    "nothing has been verifiably answered yet in this session"
+                    if orphan.request == NO_TASK
+                    else f"an earlier task on it [{hex_text(_pkw_bytes(orphan.request))}] got no verified answer"
+                )
+                stage = f"INDL {job.request.indl:#04x} is quarantined: {earlier}" + (
+                    f", and {job.fences} fence read(s) of another INDL got none either" if job.fences else ""
+                )
+            else:
+                stage = "the slave never answered 'no task' with 'no response'"
         extra = f"; ignored {job.foreign} responses for other addresses" if job.foreign else ""
+        if job.stale:
+            extra += f"; ignored {job.stale} possibly stale responses"
+        if job.mismatched:  # a fresh answer that is not this task's: a typed error, never a value
+            job.error = DecodeError(
+                f"{PROTOCOL}: {job.describe()}: the slave showed {hex_text(job.last_mismatch)} "
+                f"{job.mismatched} time(s), which does not echo the task [{hex_text(_pkw_bytes(job.request))}] "
+                f"(response 2 to a read, or a write echo of another value), and nothing that does; {why}",
+                job.last_mismatch,
+                "PWE" if job.request.task == TaskCode.WRITE_PARAMETER else "INDH",
+            )
+            return self._finish(job, JobState.FAILED, now)
+        if job.state is JobState.SENDING and job.request.task == TaskCode.WRITE_PARAMETER:
+            extra += "; the slave may still carry the write out"
         job.error = TimeoutError(
             f"{PROTOCOL}: {job.describe()}: {why}{'; ' + stage if stage else ''}{extra} "
             f"[task {hex_text(_pkw_bytes(job.request))}]"

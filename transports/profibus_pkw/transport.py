@@ -8,7 +8,8 @@ URL forms (the part after ``+`` picks the channel)::
 
 Common parameters: ``ppo`` (1 or 3, default 1), ``cycle`` (s between DP exchanges; 0 = on demand, no thread),
 ``timeout`` (PKW time limit, s), ``max_cycles`` (PKW cycle limit), ``hold`` (exchanges per command word),
-``pulse`` (minimum s per command word), ``station`` (the DP address, for messages; checked against the model).
+``pulse`` (minimum s per command word), ``station`` (the DP address, for messages; checked against the model),
+``stale_cycles`` / ``stale_time`` (how many exchanges / seconds old an input may be; sim 0/0, gateway 1/0).
 Sim only: ``latency`` (exchanges before a private slave's PKW response shows). Gateway only: ``out``, ``in``
 (register offsets of the output and input words), ``unit`` (Modbus unit id), ``in_fc`` (3 or 4: how inputs
 are read).
@@ -46,7 +47,7 @@ PPO1_CAPABILITIES = frozenset(Capability)
 PPO3_CAPABILITIES = frozenset({Capability.STATUS, Capability.COMMANDS})
 ACT_SCALE = 0.1  # PZD ACT: phase A current in 0.1 A (MANUALS.md section 3)
 
-_COMMON = ("ppo", "cycle", "timeout", "max_cycles", "hold", "pulse", "station")
+_COMMON = ("ppo", "cycle", "timeout", "max_cycles", "hold", "pulse", "station", "stale_cycles", "stale_time")
 _SIM = (*_COMMON, "latency")
 _GATEWAY = (*_COMMON, "out", "in", "unit", "in_fc")
 
@@ -98,7 +99,15 @@ class LinkSettings:
             )
         gateway = url.variant == "gateway"
         cycle = url.get_float("cycle", 0.01, 0.0, 10.0)
-        limits = Limits(url.get_int("max_cycles", 100, 2, 1_000_000), url.get_float("timeout", 2.0, 0.001, 600.0))
+        # How old an input may be (docs/profibus.md, "Stale answers"): the in-process slave's is always current;
+        # a gateway's image may lag, and a faulty one may show an older image again.
+        limits = Limits(
+            url.get_int("max_cycles", 100, 2, 1_000_000),
+            url.get_float("timeout", 2.0, 0.001, 600.0),
+            url.get_int("stale_cycles", 1 if gateway else 0, 0, 10_000),
+            url.get_float("stale_time", 0.0, 0.0, 60.0),
+            verify_start=True,  # a task an earlier session left on the slave must not answer our first one
+        )
         hold = url.get_int("hold", 3, 1, 1000)
         pulse = url.get_float("pulse", 0.05 if gateway else 0.0, 0.0, 10.0)
         if not gateway:
