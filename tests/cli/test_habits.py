@@ -167,6 +167,7 @@ def test_simulate_several_models_on_one_line_with_a_fault_script(tmp_path: Path)
         [EXE, "simulate", "--unit", "2:jjr5000", "--unit", "3:ssd1", "--modbus-rtu", "PTY", "--script", str(script),
          "--json"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # a background runner may ignore Ctrl-C
     )  # fmt: skip
     try:
         assert proc.stdout is not None and proc.stderr is not None
