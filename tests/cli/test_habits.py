@@ -163,12 +163,14 @@ def test_decode_from_stdin_and_candump_logs(tmp_path: Path) -> None:
 def test_simulate_several_models_on_one_line_with_a_fault_script(tmp_path: Path) -> None:
     script = tmp_path / "s.txt"
     script.write_text("0 2 fault 6   # trip at once\n")
+    # a runner started in the background ignores SIGINT, and a child inherits that: give it the default handling
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     proc = subprocess.Popen(
         [EXE, "simulate", "--unit", "2:jjr5000", "--unit", "3:ssd1", "--modbus-rtu", "PTY", "--script", str(script),
          "--json"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),  # a background runner may ignore Ctrl-C
     )  # fmt: skip
+    signal.signal(signal.SIGINT, previous)
     try:
         assert proc.stdout is not None and proc.stderr is not None
         listing = json.loads(proc.stdout.readline())
