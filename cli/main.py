@@ -1,17 +1,34 @@
-"""Entry point of the ``starterbus`` command: parser and dispatch; each command lives in its own module."""
+"""Entry point of the ``starterbus`` command: parser and dispatch; each command lives in its own module.
+
+Start-up is kept short: a command's module (and with it the core, the plugins and the profiles) is imported
+only when that command runs, and its options are built only when it is the command asked for (``--help``
+lists the commands without importing any of them).
+"""
 
 from __future__ import annotations
 
 import argparse
-import logging
+import importlib
 import os
 import sys
 from collections.abc import Callable, Sequence
 
-from starterbus.cli import crosscheck, decode, demo, device_cmds, info, poll, simulate
-from starterbus.core.errors import StarterbusError
-
 Handler = Callable[[argparse.Namespace], int]
+
+
+def _module(name: str) -> object:
+    return importlib.import_module(f"starterbus.cli.{name}")
+
+
+def _handler(name: str, function: str) -> str:
+    """A handler named ``module:function`` in ``starterbus.cli``, imported when the command runs."""
+    return f"{name}:{function}"
+
+
+def _setup(p: argparse.ArgumentParser, wanted: bool, name: str, function: str) -> None:
+    """Add a command's own options (``module.function(p)``), only when it is the command asked for."""
+    if wanted:
+        getattr(_module(name), function)(p)
 
 
 def _json_flag(p: argparse.ArgumentParser) -> None:
@@ -45,31 +62,31 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
 
     p = sub.add_parser("models", help="list installed device models")
     _json_flag(p)
-    p.set_defaults(handler=info.cmd_models)
+    p.set_defaults(handler=_handler("info", "cmd_models"))
 
     p = sub.add_parser("params", help="list a model's parameters and measurements")
     p.add_argument("model", metavar="MODEL")
     _json_flag(p)
-    p.set_defaults(handler=info.cmd_params)
+    p.set_defaults(handler=_handler("info", "cmd_params"))
 
     p = sub.add_parser("transports", help="list installed transport plugins, capabilities and load errors")
     _json_flag(p)
-    p.set_defaults(handler=info.cmd_transports)
+    p.set_defaults(handler=_handler("info", "cmd_transports"))
 
     p = sub.add_parser("read", help="read parameters/measurements (all measurements if no KEY)")
     _device_args(p)
     p.add_argument("keys", nargs="*", metavar="KEY", help="key or manual address (motor_rated_current, 0x0100, p7, m3)")
-    p.set_defaults(handler=device_cmds.cmd_read, rest_into="keys")
+    p.set_defaults(handler=_handler("device_cmds", "cmd_read"), rest_into="keys")
 
     p = sub.add_parser("write", help="write parameters (engineering units or enum labels; validated first)")
     _device_args(p)
     p.add_argument("assignments", nargs="+", metavar="KEY=VALUE")
     _guard_args(p)
-    p.set_defaults(handler=device_cmds.cmd_write)
+    p.set_defaults(handler=_handler("device_cmds", "cmd_write"))
 
     p = sub.add_parser("status", help="read the decoded status")
     _device_args(p)
-    p.set_defaults(handler=device_cmds.cmd_status)
+    p.set_defaults(handler=_handler("device_cmds", "cmd_status"))
 
     for name, help_text in (
         ("start", "start the motor"),
@@ -80,50 +97,47 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         _device_args(p)
         p.add_argument("--show-status", action="store_true", help="read the status after the command")
         _guard_args(p)
-        p.set_defaults(handler=device_cmds.cmd_command, command=name)
+        p.set_defaults(handler=_handler("device_cmds", "cmd_command"), command=name)
 
     wants = argv[0] if argv else ""
-    p = sub.add_parser("simulate", help="serve simulated soft starters behind protocol front ends")
-    if wants == "simulate":  # loading every plugin only when this command is used
-        simulate.add_arguments(p)
-    p.set_defaults(handler=simulate.cmd_simulate)
-
-    p = sub.add_parser("decode", help="annotate frames/telegrams of a protocol")
-    if wants == "decode":
-        decode.add_subparsers(p)
-    p.set_defaults(handler=decode.cmd_decode)
-
-    p = sub.add_parser("poll", help="poll a fleet file: live table, JSON lines, CSV log")
-    poll.add_arguments(p)
-    p.set_defaults(handler=poll.cmd_poll)
-
-    p = sub.add_parser("demo", help="the main job on a simulated mixed fleet (no hardware needed)")
-    demo.add_arguments(p)
-    p.set_defaults(handler=demo.cmd_demo)
-
-    p = sub.add_parser("crosscheck", help="read one device through several URLs and compare")
-    crosscheck.add_arguments(p)
-    p.set_defaults(handler=crosscheck.cmd_crosscheck)
+    for name, module, setup, help_text in (
+        ("simulate", "simulate", "add_arguments", "serve simulated soft starters behind protocol front ends"),
+        ("decode", "decode", "add_subparsers", "annotate frames/telegrams of a protocol"),
+        ("poll", "poll", "add_arguments", "poll a fleet file: live table, JSON lines, CSV log"),
+        ("demo", "demo", "add_arguments", "the main job on a simulated mixed fleet (no hardware needed)"),
+        ("crosscheck", "crosscheck", "add_arguments", "read one device through several URLs and compare"),
+    ):
+        p = sub.add_parser(name, help=help_text)
+        _setup(p, wants == name, module, setup)
+        p.set_defaults(handler=_handler(module, f"cmd_{name}"))
 
     for extend in _EXTENSIONS:
         extend(sub, wants)
     return parser
 
 
-#: later commands (fleet polling, demo, crosscheck, identify) register here: fn(subparsers, wanted_command)
-_EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser], str], None]] = []
+def _identify(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: str) -> None:
+    """``starterbus identify URL`` (DeviceNet issue); its module is imported only when asked for."""
+    if wants == "identify":
+        _module("identify").add_parser(sub, wants)  # type: ignore[attr-defined]
+    else:
+        sub.add_parser("identify", help="read the device's identity (DeviceNet identity object)")
 
-from starterbus.cli import identify  # noqa: E402  (DeviceNet issue: `starterbus identify URL`)
 
-_EXTENSIONS.append(identify.add_parser)
+#: later commands register here: fn(subparsers, wanted_command); build a command's options only when wanted
+_EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser], str], None]] = [_identify]
 
 
 def _quiet_libraries() -> None:
     """pymodbus logs connection failures itself; starterbus reports them as one typed error, once."""
+    import logging
+
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from starterbus.core.errors import StarterbusError
+
     args_list = list(sys.argv[1:] if argv is None else argv)
     _quiet_libraries()
     try:
@@ -136,19 +150,23 @@ def main(argv: Sequence[str] | None = None) -> int:
             getattr(args, rest).extend(extra)
         elif extra:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
-        handler: Handler = args.handler
+        handler: Handler | str = args.handler
+        if isinstance(handler, str):  # "module:function" in starterbus.cli, imported now
+            module, _, function = handler.partition(":")
+            handler = getattr(_module(module), function)
+            assert callable(handler)
         return handler(args)
     except StarterbusError as exc:
         print(f"starterbus: error: {exc}", file=sys.stderr)
         return 1
+    except BrokenPipeError:  # output piped into `head` and the like (before OSError: it is one)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except OSError as exc:
         print(f"starterbus: error: {exc}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         return 130
-    except BrokenPipeError:  # output piped into `head` and the like
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 141
 
 
 if __name__ == "__main__":

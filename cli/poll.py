@@ -1,4 +1,7 @@
-"""``starterbus poll FLEET.toml``: the live fleet table, JSON lines or a CSV log."""
+"""``starterbus poll FLEET.toml``: the live fleet table, JSON lines or a CSV log.
+
+The fleet machinery is imported when the command runs, not when its options are built (``poll --help``).
+"""
 
 from __future__ import annotations
 
@@ -6,15 +9,16 @@ import argparse
 import sys
 import time
 from collections.abc import Callable
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from starterbus.cli.output import emit_json, table
-from starterbus.core.errors import ConfigurationError
-from starterbus.fleet.config import FleetConfig, load_fleet
-from starterbus.fleet.output import TABLE_HEADERS, CsvLog, JsonLines, table_rows
-from starterbus.fleet.plan import BusPlan, fleet_plan
-from starterbus.fleet.poller import FleetPoller, Sample
-from starterbus.fleet.probing import DEFAULT_PROBE_SHARE, DEFAULT_PROBE_TIMEOUT, ProbeSettings
+from starterbus.fleet.probing import DEFAULT_PROBE_SHARE, DEFAULT_PROBE_TIMEOUT
+
+if TYPE_CHECKING:
+    from starterbus.fleet.config import FleetConfig
+    from starterbus.fleet.plan import BusPlan
+    from starterbus.fleet.poller import FleetPoller, Sample
+    from starterbus.fleet.probing import ProbeSettings
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -44,6 +48,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def render(poller: FleetPoller, out: TextIO, in_place: bool, banner: str = "") -> None:
+    from starterbus.fleet.output import TABLE_HEADERS, table_rows
+
     if in_place:
         out.write("\x1b[H\x1b[J")
     now = poller.clock()
@@ -72,6 +78,9 @@ def run_fleet(
     probing: ProbeSettings | None = None,
 ) -> int:
     """Poll a fleet and show it; shared by ``poll`` and ``demo``. Returns the exit code."""
+    from starterbus.fleet.output import CsvLog, JsonLines
+    from starterbus.fleet.poller import FleetPoller
+
     out = out or sys.stdout
     sinks = list(sinks or [])
     csv_log = CsvLog(csv_path) if csv_path else None
@@ -139,6 +148,11 @@ def print_plan(plans: list[BusPlan], out: TextIO) -> None:
 
 
 def cmd_poll(args: argparse.Namespace) -> int:
+    from starterbus.core.errors import ConfigurationError
+    from starterbus.fleet.config import load_fleet
+    from starterbus.fleet.plan import fleet_plan
+    from starterbus.fleet.probing import ProbeSettings
+
     config = load_fleet(args.fleet)
     if args.plan:
         plans = fleet_plan(config)
