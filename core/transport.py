@@ -72,8 +72,9 @@ class PlannedRequest:
 class TransportCounters:
     """What one transport put on the wire since it was made (counters only grow).
 
-    ``requests`` counts frames sent, retries included; ``transactions`` the calls that sent them; ``busy_time``
-    is the time the transport held its line; ``wire_time`` the time its frames and silences occupied the wire.
+    ``requests`` counts frames sent, retries included; ``transactions`` the calls that sent them; ``timeouts``
+    and ``errors`` the transactions that failed (no answer; any failure); ``busy_time`` the time the transport
+    held its line (0 if it does not measure it); ``wire_time`` the time its frames and silences occupied the wire.
     """
 
     transactions: int = 0
@@ -86,15 +87,32 @@ class TransportCounters:
     busy_time: float = 0.0
     wire_time: float = 0.0
 
+    def _values(self) -> tuple[int, int, int, int, int, int, int, float, float]:
+        return (
+            self.transactions, self.requests, self.retries, self.timeouts, self.errors,
+            self.bytes_sent, self.bytes_received, self.busy_time, self.wire_time,
+        )  # fmt: skip
+
     def copy(self) -> TransportCounters:
-        return dataclasses.replace(self)
+        return TransportCounters(*self._values())
 
     def add(self, other: TransportCounters) -> None:
-        for f in dataclasses.fields(self):
-            setattr(self, f.name, getattr(self, f.name) + getattr(other, f.name))
+        self.transactions += other.transactions
+        self.requests += other.requests
+        self.retries += other.retries
+        self.timeouts += other.timeouts
+        self.errors += other.errors
+        self.bytes_sent += other.bytes_sent
+        self.bytes_received += other.bytes_received
+        self.busy_time += other.busy_time
+        self.wire_time += other.wire_time
 
     def minus(self, other: TransportCounters) -> TransportCounters:
-        return TransportCounters(*(getattr(self, f.name) - getattr(other, f.name) for f in dataclasses.fields(self)))
+        a, b = self._values(), other._values()
+        return TransportCounters(
+            a[0] - b[0], a[1] - b[1], a[2] - b[2], a[3] - b[3], a[4] - b[4], a[5] - b[5], a[6] - b[6],
+            a[7] - b[7], a[8] - b[8],
+        )  # fmt: skip
 
     def as_json(self) -> dict[str, object]:
         out: dict[str, object] = {}

@@ -43,6 +43,18 @@ from starterbus.fleet.probing import ProbeBudget, ProbeSettings, backoff
 
 T = TypeVar("T")
 Clock = Callable[[], float]
+_PR_SET_TIMERSLACK = 29
+
+
+def _precise_timers() -> None:
+    """Linux: 1 us timer slack for the calling bus worker instead of 50 us, so that a wait for the line's silent
+    interval ends when the interval does (a line's throughput is a chain of such waits). Best effort."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
 
 
 @dataclass(frozen=True, slots=True)
@@ -132,6 +144,7 @@ class BusWorker:
         rounds_left = poller.rounds
         done_in_round: set[int] = set()
         self.stats.started = poller.clock()
+        _precise_timers()
         try:
             while not poller.stopping.is_set():
                 self._run_jobs()

@@ -36,6 +36,7 @@ from starterbus.transports.modbus.annotate import exception_meaning
 from starterbus.transports.modbus.config import ModbusRtuConfig
 from starterbus.transports.modbus.frames import (
     BROADCAST,
+    EXCEPTION_FRAME_LENGTH,
     ExceptionResponse,
     ReadRequest,
     ReadResponse,
@@ -168,9 +169,10 @@ class ModbusRtuTransport(Transport):
         except StarterbusError as exc:
             self._tally(exchange, line.retries - retries, 0, isinstance(exc, TimeoutError))
             raise
-        self._tally(exchange, line.retries - retries, 0 if response is None else exchange.answer_length, False)
         if isinstance(response, ExceptionResponse):
+            self._tally(exchange, line.retries - retries, EXCEPTION_FRAME_LENGTH, False)
             raise self._remote_error(exchange.request, response)
+        self._tally(exchange, line.retries - retries, 0 if response is None else exchange.answer_length, False)
         return response
 
     def _tally(self, exchange: Exchange, retries: int, received: int, timeout: bool) -> None:
