@@ -40,6 +40,7 @@ from starterbus.fleet.config import BusConfig, DeviceConfig, FleetConfig
 from starterbus.fleet.line_stats import LineStats
 from starterbus.fleet.plan import poll_points
 from starterbus.fleet.probing import ProbeBudget, ProbeSettings, backoff
+from starterbus.fleet.sample import Sample
 
 T = TypeVar("T")
 Clock = Callable[[], float]
@@ -55,49 +56,6 @@ def _precise_timers() -> None:
         ctypes.CDLL(None).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0)
     except (OSError, AttributeError):
         pass
-
-
-@dataclass(frozen=True, slots=True)
-class Sample:
-    """One poll of one device."""
-
-    device: str
-    bus: str
-    model: str
-    time: float  # wall clock, seconds since the epoch
-    online: bool
-    status: Status | None
-    values: dict[str, Value]
-    error: str | None
-    errors: int  # errors of this device so far
-    unreadable: tuple[str, ...] = ()  # configured keys this device's transport cannot read
-    wire: TransportCounters | None = None  # what this poll put on the wire (None: the transport does not count)
-    probe: bool = False  # a probe of an offline device (one attempt, short timeout)
-
-    def as_json(self) -> dict[str, object]:
-        return {
-            "device": self.device,
-            "bus": self.bus,
-            "model": self.model,
-            "time": round(self.time, 3),
-            "online": self.online,
-            "status": self.status.as_json() if self.status else None,
-            "values": {
-                k: {
-                    "value": v.value,
-                    "unit": v.unit,
-                    "resolution": v.resolution,
-                    "raw": v.raw,
-                    "label": v.label.en if v.label else None,
-                }
-                for k, v in self.values.items()
-            },
-            "error": self.error,
-            "errors": self.errors,
-            "unreadable": list(self.unreadable),
-            "probe": self.probe,
-            "wire": self.wire.as_json() if self.wire is not None else None,
-        }
 
 
 @dataclass
@@ -398,3 +356,6 @@ class FleetPoller:
         """Per bus: what went over its wire so far and how busy the line was (copies, safe to keep)."""
         now = self.clock()
         return {w.bus.name: w.stats.snapshot(now) for w in self.workers}
+
+
+__all__ = ["BusWorker", "DeviceRuntime", "FleetPoller", "Sample"]

@@ -131,3 +131,27 @@ def test_poll_gives_the_status_and_the_values_of_separate_reads(counting_line: M
     assert {r.point.key: r.value("modbus-rtu") for r in polled.readings} == separate_values
     assert [r.point for r in polled.readings] == points
     assert profile.name == "jjr5000"
+
+
+def test_plan_and_line_counts_as_text(
+    counting_line: ModbusRtuSimulator, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    fleet = _fleet(counting_line, tmp_path)
+    assert main(["poll", str(fleet), "--plan"]) == 0
+    text = capsys.readouterr().out
+    assert "unit 1 FC03 0x0001 x4: status_word, phase_a_current, phase_b_current, phase_c_current" in text
+    assert text.count("unit 3 FC03") == 4
+    # 2 FC03 of 4 registers + 4 of 1 register at 19200 baud: (2 x 21 + 4 x 15) characters + 12 silences
+    assert "line budget: 82.5 ms of wire per round vs 1000 ms: 8.2 % of the line; at most 12.1 rounds/s" in text
+    assert main(["poll", str(fleet), "--once"]) == 0
+    assert "line rtu: 6 requests (0 retries, 0 timeouts), 48 B out, 54 B in" in capsys.readouterr().out
+
+
+def test_probe_settings_out_of_range_are_one_line_errors(
+    counting_line: ModbusRtuSimulator, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    fleet = _fleet(counting_line, tmp_path)
+    assert main(["poll", str(fleet), "--once", "--probe-share", "0"]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("starterbus: error: probe share 0.0 must be in (0, 1]") and err.count("\n") == 1
+    assert counting_line.counters.requests == 0
