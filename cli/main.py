@@ -139,7 +139,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     from starterbus.core.errors import StarterbusError
 
     args_list = list(sys.argv[1:] if argv is None else argv)
-    _quiet_libraries()
     try:
         parser = build_parser(args_list)
         args, extra = parser.parse_known_args(args_list)
@@ -150,6 +149,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             getattr(args, rest).extend(extra)
         elif extra:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        _quiet_libraries()  # after parsing: `--help` exits before, without importing logging
         handler: Handler | str = args.handler
         if isinstance(handler, str):  # "module:function" in starterbus.cli, imported now
             module, _, function = handler.partition(":")
