@@ -60,11 +60,14 @@ def render(poller: FleetPoller, out: TextIO, in_place: bool, banner: str = "") -
     table(TABLE_HEADERS, table_rows(poller.runtimes(), now), out)
     for bus, stats in poller.line_stats().items():
         wire = stats.wire
-        out.write(
-            f"line {bus}: {wire.requests} requests ({wire.retries} retries, {wire.timeouts} timeouts), "
-            f"{wire.bytes_sent} B out, {wire.bytes_received} B in, busy {stats.utilisation:.0%}, "
-            f"wire {stats.wire_utilisation:.0%}, {stats.probes} probes\n"
-        )
+        if wire.bytes_sent:
+            counted = (
+                f"{wire.requests} requests ({wire.retries} retries, {wire.timeouts} timeouts), "
+                f"{wire.bytes_sent} B out, {wire.bytes_received} B in, wire {stats.wire_utilisation:.0%}"
+            )
+        else:
+            counted = f"{wire.transactions} calls (its transport does not count frames)"
+        out.write(f"line {bus}: {counted}, busy {stats.utilisation:.0%}, {stats.probes} probes\n")
     if banner:
         out.write(banner + "\n")
     out.flush()

@@ -144,7 +144,7 @@ def test_plan_and_line_counts_as_text(
     # 2 FC03 of 4 registers + 4 of 1 register at 19200 baud: (2 x 21 + 4 x 15) characters + 12 silences
     assert "line budget: 82.5 ms of wire per round vs 1000 ms: 8.2 % of the line; at most 12.1 rounds/s" in text
     assert main(["poll", str(fleet), "--once"]) == 0
-    assert "line rtu: 6 requests (0 retries, 0 timeouts), 48 B out, 54 B in" in capsys.readouterr().out
+    assert "line rtu: 6 requests (0 retries, 0 timeouts), 48 B out, 54 B in, wire " in capsys.readouterr().out
 
 
 def test_probe_settings_out_of_range_are_one_line_errors(

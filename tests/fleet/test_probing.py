@@ -38,8 +38,11 @@ def test_probes_never_take_more_than_their_share_of_the_line(
     budget = ProbeBudget(share, burst, now=0.0)
     now = 0.0
     for took, gap in zip(probes, gaps, strict=False):
-        now += budget.wait(now)  # the worker defers a probe until the budget allows it
-        assert budget.wait(now) == 0.0
+        deferrals = 0
+        while (wait := budget.wait(now)) > 0:  # the worker defers a probe until the budget allows it
+            now += wait
+            deferrals += 1
+        assert deferrals <= 2, "one deferral pays the debt back (a second only for rounding)"
         budget.spend(took, now + took)
         now += took + gap  # the live devices' polls in between
     assert budget.spent <= share * now + burst + max(probes) + 1e-9
