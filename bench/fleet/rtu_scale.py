@@ -21,7 +21,9 @@ The window opens once every device has answered once and closes ``--seconds`` la
 * errors and timeouts; the share of the window the poller spent inside its transactions (busy); the median
   turnarounds the emulator saw (master: answer delivered -> next request; slave: request -> answer; the plan
   counts 3.5 characters = 2.005 ms for each) and how often the master broke the 3.5-character silence;
-* the CPU of the rig (the simulator process and the emulators), since all of it shares the machine's cores.
+* the CPU of the rig (the simulator process and the emulators), since all of it shares the machine's cores;
+* with ``--floor``: the rig's own limit, without the poller: one thread per line sends the same FC03 to every
+  unit back to back through the transport; its rate against the wire limit of the plan (1 / wire per round).
 """
 
 from __future__ import annotations
@@ -116,7 +118,53 @@ def fleet_text(emulators: list[Emulator], counts: list[int], period: float) -> s
     return "".join(parts)
 
 
-def measure(n: int, lines: int, seconds: float, period: float) -> dict[str, object]:
+def direct_loop(emulators: list[Emulator], counts: list[int], seconds: float) -> list[float]:
+    """The floor without the poller: per line one thread reading every unit's status FC03 (the same request as
+    the poll plan) through the transport, back to back, for ``seconds``. Returns transactions/s per line."""
+    from starterbus.core.device import open_device
+    from starterbus.core.errors import StarterbusError
+    from starterbus.transports.modbus.client import ModbusRtuTransport
+
+    done = [0] * len(counts)
+    failed: list[str] = []
+    stop = threading.Event()
+
+    def run(index: int) -> None:
+        url = f"modbus-rtu://{emulators[index].client}?baudrate={BAUD}&timeout=0.2&retries=1"
+        devices = [open_device(f"{url}&unit={u}", MODELS[u % 2]) for u in range(1, counts[index] + 1)]
+        for device in devices:
+            device.open()
+        try:
+            while not stop.is_set():
+                for device in devices:
+                    transport = device.transport
+                    assert isinstance(transport, ModbusRtuTransport)
+                    try:
+                        transport.read_registers(1, 4)
+                    except StarterbusError as exc:
+                        failed.append(f"{transport.describe()}: {exc}")
+                        continue
+                    done[index] += 1
+        finally:
+            for device in devices:
+                device.close()
+
+    threads = [threading.Thread(target=run, args=(i,), daemon=True) for i in range(len(counts))]
+    for thread in threads:
+        thread.start()
+    time.sleep(1.0)
+    before, t0 = list(done), time.monotonic()
+    time.sleep(seconds)
+    after, t1 = list(done), time.monotonic()
+    stop.set()
+    for thread in threads:
+        thread.join(timeout=5)
+    if failed:
+        print(f"  without the poller: {len(failed)} failed transactions, e.g. {failed[0]}", flush=True)
+    return [(a - b) / (t1 - t0) for a, b in zip(after, before, strict=True)]
+
+
+def measure(n: int, lines: int, seconds: float, period: float, floor: bool = False) -> dict[str, object]:
     from starterbus.fleet.config import parse_fleet
     from starterbus.fleet.plan import fleet_plan
     from starterbus.fleet.poller import FleetPoller, Sample
@@ -168,6 +216,7 @@ def measure(n: int, lines: int, seconds: float, period: float) -> dict[str, obje
             t1, c1, r1 = time.monotonic(), time.process_time(), [process_cpu(pid) for pid in rig]
             end_stats = poller.line_stats()
             wire_seen = [e.stats() for e in emulators]
+        direct = direct_loop(emulators, used, seconds) if floor else []
     finally:
         sims.stdin.close()
         sims.wait(timeout=20)
@@ -177,7 +226,7 @@ def measure(n: int, lines: int, seconds: float, period: float) -> dict[str, obje
     rates = {d: (end_good[d] - start_good[d]) / window for d in end_good}
     per_line = []
     transactions = 0
-    for (name, plan), seen_stats in zip(plans.items(), wire_seen, strict=True):
+    for index, ((name, plan), seen_stats) in enumerate(zip(plans.items(), wire_seen, strict=True)):
         devices = [d.name for d in plan.devices]
         line_rate = statistics.mean(rates[d] for d in devices)
         limit = min(1.0 / period, plan.max_rounds_per_s or float("inf"))
@@ -197,6 +246,7 @@ def measure(n: int, lines: int, seconds: float, period: float) -> dict[str, obje
                 "plan_wire_per_round_s": plan.wire_time,
                 "wire_utilisation": wire.wire_time / window,
                 "busy": wire.busy_time / window,
+                "direct_of_wire_limit": direct[index] * (plan.wire_time or 0) / len(devices) if direct else None,
                 "emulator_bytes_utilisation": chars * 11 / BAUD / window,
                 "timeouts": wire.timeouts,
                 "retries": wire.retries,
@@ -235,6 +285,12 @@ def report(result: dict[str, object]) -> None:
         f"emulators {result['emulators_cpu_cores']:.2f} cores",
         flush=True,
     )
+    direct = [line["direct_of_wire_limit"] for line in lines if line["direct_of_wire_limit"] is not None]
+    if direct:
+        print(
+            f"  without the poller (one thread per line reading the same FC03 back to back): "
+            f"{min(direct):.3f}..{max(direct):.3f} of the wire limit of the plan (1 / wire time per round)"
+        )
     head = f"  {'line':<7} {'dev':>3} {'rounds/s':>8} {'limit':>6} {'of lim':>6} {'wire %':>6} {'emul %':>6} {'t/o':>4}"
     print(f"{head} {'busy %':>6} {'master ms':>9} {'slave ms':>8} {'<3.5ch':>6}")
     for line in lines:
@@ -262,10 +318,13 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--period", type=float, default=1.0)
     parser.add_argument("--json", metavar="FILE", help="also write the results as JSON")
+    parser.add_argument(
+        "--floor", action="store_true", help="also measure the rig without the poller (the same FC03 back to back)"
+    )
     args = parser.parse_args()
     results = []
     for n in args.sizes:
-        result = measure(n, args.lines, args.seconds, args.period)
+        result = measure(n, args.lines, args.seconds, args.period, args.floor)
         report(result)
         results.append(result)
     if args.json:
