@@ -109,11 +109,10 @@ class BusWorker:
                 due, index = queue[0]
                 now = poller.clock()
                 runtime = self.devices[index]
-                if due <= now and self._probing(runtime):
-                    due = max(due, now + self.budget.wait(now))  # the line's probe time is used up: later
-                    if due > now:
-                        heapq.heapreplace(queue, (due, index))
-                        continue
+                later = self.start_time(due, runtime, now)
+                if later > due:
+                    heapq.heapreplace(queue, (later, index))
+                    continue
                 wait = due - now
                 if wait > 0:
                     self.wake.wait(wait)
@@ -138,6 +137,15 @@ class BusWorker:
             for runtime in self.devices:
                 self._close(runtime)
             self.stats.stopped = poller.clock()
+
+    def start_time(self, due: float, runtime: DeviceRuntime, now: float) -> float:
+        """When a device's poll due at ``due`` may start: then, or for a probe of an offline device, once the
+        line's probe budget allows it."""
+        if due <= now and self._probing(runtime):
+            wait = self.budget.wait(now)
+            if wait > 0:
+                return now + wait
+        return due
 
     def _probing(self, runtime: DeviceRuntime) -> bool:
         """An offline device is probed, not polled (unless probes are switched off)."""
