@@ -1,14 +1,25 @@
-"""starterbus: one protocol-neutral model for RENLE soft starters over Modbus RTU, Profibus DP and DeviceNet."""
+"""starterbus: one protocol-neutral model for RENLE soft starters over Modbus RTU, Profibus DP and DeviceNet.
 
-from starterbus.core import (
-    Command,
-    Device,
-    Profile,
-    StarterbusError,
-    Status,
-    load_profile,
-    open_device,
-)
+The names below are imported on first use (PEP 562), so that the command line starts fast.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (mypy knows the name)
+if TYPE_CHECKING:
+    from typing import Any
+
+    from starterbus.core import (
+        Command,
+        Device,
+        Profile,
+        StarterbusError,
+        Status,
+        load_profile,
+        open_device,
+    )
 
 __all__ = [
     "Command",
@@ -20,3 +31,11 @@ __all__ = [
     "open_device",
 ]
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> Any:
+    if name not in __all__:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module("starterbus.core"), name)
+    globals()[name] = value
+    return value

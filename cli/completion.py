@@ -23,13 +23,18 @@ def commands() -> dict[str, list[str]]:
     """Command -> its long options, read from the real parser."""
     from starterbus.cli.main import build_parser
 
-    parser = build_parser([])
     out: dict[str, list[str]] = {}
+    for name in _subparsers(build_parser([])):
+        sub = _subparsers(build_parser([name]))[name]  # a command's options are built only when it is asked for
+        out[name] = sorted(o for a in sub._actions for o in a.option_strings if o.startswith("--"))
+    return out
+
+
+def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
-            for name, sub in action.choices.items():
-                out[name] = sorted(o for a in sub._actions for o in a.option_strings if o.startswith("--"))
-    return out
+            return dict(action.choices)
+    return {}
 
 
 def cmd_completion(args: argparse.Namespace) -> int:

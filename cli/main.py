@@ -1,17 +1,34 @@
-"""Entry point of the ``starterbus`` command: parser and dispatch; each command lives in its own module."""
+"""Entry point of the ``starterbus`` command: parser and dispatch; each command lives in its own module.
+
+Start-up is kept short: a command's module (and with it the core, the plugins and the profiles) is imported
+only when that command runs, and its options are built only when it is the command asked for (``--help``
+lists the commands without importing any of them).
+"""
 
 from __future__ import annotations
 
 import argparse
-import logging
+import importlib
 import os
 import sys
 from collections.abc import Callable, Sequence
 
-from starterbus.cli import crosscheck, decode, demo, device_cmds, info, poll, simulate
-from starterbus.core.errors import StarterbusError
-
 Handler = Callable[[argparse.Namespace], int]
+
+
+def _module(name: str) -> object:
+    return importlib.import_module(f"starterbus.cli.{name}")
+
+
+def _handler(name: str, function: str) -> str:
+    """A handler named ``module:function`` in ``starterbus.cli``, imported when the command runs."""
+    return f"{name}:{function}"
+
+
+def _setup(p: argparse.ArgumentParser, wanted: bool, name: str, function: str) -> None:
+    """Add a command's own options (``module.function(p)``), only when it is the command asked for."""
+    if wanted:
+        getattr(_module(name), function)(p)
 
 
 def _json_flag(p: argparse.ArgumentParser) -> None:
@@ -59,21 +76,21 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
 
     p = sub.add_parser("models", help="list installed device models")
     _json_flag(p)
-    p.set_defaults(handler=info.cmd_models)
+    p.set_defaults(handler=_handler("info", "cmd_models"))
 
     p = sub.add_parser("params", help="list a model's parameters and measurements")
     p.add_argument("model", metavar="MODEL")
     _json_flag(p)
-    p.set_defaults(handler=info.cmd_params)
+    p.set_defaults(handler=_handler("info", "cmd_params"))
 
     p = sub.add_parser("transports", help="list installed transport plugins, capabilities and load errors")
     _json_flag(p)
-    p.set_defaults(handler=info.cmd_transports)
+    p.set_defaults(handler=_handler("info", "cmd_transports"))
 
     p = sub.add_parser("read", help="read parameters/measurements (all measurements if no KEY)")
     _device_args(p)
     p.add_argument("keys", nargs="*", metavar="KEY", help="key or manual address (motor_rated_current, 0x0100, p7, m3)")
-    p.set_defaults(handler=device_cmds.cmd_read, rest_into="keys")
+    p.set_defaults(handler=_handler("device_cmds", "cmd_read"), rest_into="keys")
 
     p = sub.add_parser("write", help="write parameters (engineering units or enum labels; validated first)")
     _device_args(p)
@@ -84,11 +101,11 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         help="acknowledge writing a code or scale the manual does not print (see `params`: certainty)",
     )
     _guard_args(p)
-    p.set_defaults(handler=device_cmds.cmd_write)
+    p.set_defaults(handler=_handler("device_cmds", "cmd_write"))
 
     p = sub.add_parser("status", help="read the decoded status")
     _device_args(p)
-    p.set_defaults(handler=device_cmds.cmd_status)
+    p.set_defaults(handler=_handler("device_cmds", "cmd_status"))
 
     for name, help_text in (
         ("start", "start the motor"),
@@ -115,45 +132,43 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         else:
             p.set_defaults(hold=False, hold_for=None)
         _guard_args(p)
-        p.set_defaults(handler=device_cmds.cmd_command, command=name)
+        p.set_defaults(handler=_handler("device_cmds", "cmd_command"), command=name)
 
     wants = argv[0] if argv else ""
-    p = sub.add_parser("simulate", help="serve simulated soft starters behind protocol front ends")
-    if wants == "simulate":  # loading every plugin only when this command is used
-        simulate.add_arguments(p)
-    p.set_defaults(handler=simulate.cmd_simulate)
-
-    p = sub.add_parser("decode", help="annotate frames/telegrams of a protocol")
-    if wants == "decode":
-        decode.add_subparsers(p)
-    p.set_defaults(handler=decode.cmd_decode)
-
-    p = sub.add_parser("poll", help="poll a fleet file: live table, JSON lines, CSV log")
-    poll.add_arguments(p)
-    p.set_defaults(handler=poll.cmd_poll)
-
-    p = sub.add_parser("demo", help="the main job on a simulated mixed fleet (no hardware needed)")
-    demo.add_arguments(p)
-    p.set_defaults(handler=demo.cmd_demo)
-
-    p = sub.add_parser("crosscheck", help="read one device through several URLs and compare")
-    crosscheck.add_arguments(p)
-    p.set_defaults(handler=crosscheck.cmd_crosscheck)
+    for name, module, setup, help_text in (
+        ("simulate", "simulate", "add_arguments", "serve simulated soft starters behind protocol front ends"),
+        ("decode", "decode", "add_subparsers", "annotate frames/telegrams of a protocol"),
+        ("poll", "poll", "add_arguments", "poll a fleet file: live table, JSON lines, CSV log"),
+        ("demo", "demo", "add_arguments", "the main job on a simulated mixed fleet (no hardware needed)"),
+        ("crosscheck", "crosscheck", "add_arguments", "read one device through several URLs and compare"),
+    ):
+        p = sub.add_parser(name, help=help_text)
+        _setup(p, wants == name, module, setup)
+        p.set_defaults(handler=_handler(module, f"cmd_{name}"))
 
     for extend in _EXTENSIONS:
         extend(sub, wants)
     return parser
 
 
-#: later commands (fleet polling, demo, crosscheck, identify) register here: fn(subparsers, wanted_command)
-_EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser], str], None]] = []
+def _identify(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: str) -> None:
+    """``starterbus identify URL`` (DeviceNet issue); its module is imported only when asked for."""
+    if wants == "identify":
+        _module("identify").add_parser(sub, wants)  # type: ignore[attr-defined]
+    else:
+        sub.add_parser("identify", help="read the device's identity (DeviceNet identity object)")
 
-from starterbus.cli import completion, identify, validate, watch  # noqa: E402
 
-_EXTENSIONS.append(identify.add_parser)
-_EXTENSIONS.append(watch.add_parser)
-_EXTENSIONS.append(validate.add_parser)
-_EXTENSIONS.append(completion.add_parser)
+def _lazy(name: str, help_text: str) -> Callable[[argparse._SubParsersAction[argparse.ArgumentParser], str], None]:
+    """A command whose module (with its ``add_parser``) is imported only when it is the command asked for."""
+
+    def extend(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: str) -> None:
+        if wants == name:
+            _module(name).add_parser(sub, wants)  # type: ignore[attr-defined]
+        else:
+            sub.add_parser(name, help=help_text)
+
+    return extend
 
 
 class _Version(argparse.Action):
@@ -170,14 +185,26 @@ class _Version(argparse.Action):
         parser.exit(0)
 
 
+#: later commands register here: fn(subparsers, wanted_command); build a command's options only when wanted
+_EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser], str], None]] = [
+    _identify,
+    _lazy("watch", "watch one device: status and chosen points, refreshed in place"),
+    _lazy("validate", "check fleet files without opening any port or bus"),
+    _lazy("completion", "print a shell completion script (bash, zsh, fish)"),
+]
+
+
 def _quiet_libraries() -> None:
     """pymodbus logs connection failures itself; starterbus reports them as one typed error, once."""
+    import logging
+
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    from starterbus.core.errors import StarterbusError
+
     args_list = list(sys.argv[1:] if argv is None else argv)
-    _quiet_libraries()
     try:
         parser = build_parser(args_list)
         args, extra = parser.parse_known_args(args_list)
@@ -188,11 +215,16 @@ def main(argv: Sequence[str] | None = None) -> int:
             getattr(args, rest).extend(extra)
         elif extra:
             parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        _quiet_libraries()  # after parsing: `--help` exits before, without importing logging
         if getattr(args, "resolve_target", False):
             from starterbus.cli.target import resolve
 
             resolve(args)
-        handler: Handler = args.handler
+        handler: Handler | str = args.handler
+        if isinstance(handler, str):  # "module:function" in starterbus.cli, imported now
+            module, _, function = handler.partition(":")
+            handler = getattr(_module(module), function)
+            assert callable(handler)
         return handler(args)
     except StarterbusError as exc:
         print(f"starterbus: error: {exc}", file=sys.stderr)

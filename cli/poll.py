@@ -1,4 +1,7 @@
-"""``starterbus poll FLEET.toml``: the live fleet table, JSON lines or a CSV log."""
+"""``starterbus poll FLEET.toml``: the live fleet table, JSON lines or a CSV log.
+
+The fleet machinery is imported when the command runs, not when its options are built (``poll --help``).
+"""
 
 from __future__ import annotations
 
@@ -6,12 +9,16 @@ import argparse
 import sys
 import time
 from collections.abc import Callable
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
-from starterbus.cli.output import table
-from starterbus.fleet.config import FleetConfig, load_fleet
-from starterbus.fleet.output import TABLE_HEADERS, CsvLog, JsonLines, table_rows
-from starterbus.fleet.poller import FleetPoller, Sample
+from starterbus.cli.output import emit_json, table
+from starterbus.fleet.probing import DEFAULT_PROBE_SHARE, DEFAULT_PROBE_TIMEOUT
+
+if TYPE_CHECKING:
+    from starterbus.fleet.config import FleetConfig
+    from starterbus.fleet.plan import BusPlan
+    from starterbus.fleet.poller import FleetPoller, Sample
+    from starterbus.fleet.probing import ProbeSettings
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -21,9 +28,28 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--csv", metavar="FILE", help="append every sample to a CSV log")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("--refresh", type=float, default=0.5, help="table refresh period on a terminal, s")
+    p.add_argument(
+        "--plan", action="store_true", help="print each device's poll plan and each line's wire budget; send nothing"
+    )
+    p.add_argument(
+        "--probe-timeout",
+        type=float,
+        default=DEFAULT_PROBE_TIMEOUT,
+        metavar="S",
+        help=f"answer timeout of a probe of an offline device (one attempt), s (default {DEFAULT_PROBE_TIMEOUT})",
+    )
+    p.add_argument(
+        "--probe-share",
+        type=float,
+        default=DEFAULT_PROBE_SHARE,
+        metavar="F",
+        help=f"largest share of a line's time spent probing offline devices (default {DEFAULT_PROBE_SHARE})",
+    )
 
 
 def render(poller: FleetPoller, out: TextIO, in_place: bool, banner: str = "") -> None:
+    from starterbus.fleet.output import TABLE_HEADERS, table_rows
+
     if in_place:
         out.write("\x1b[H\x1b[J")
     now = poller.clock()
@@ -32,6 +58,16 @@ def render(poller: FleetPoller, out: TextIO, in_place: bool, banner: str = "") -
         f"transactions {poller.transactions()}\n"
     )
     table(TABLE_HEADERS, table_rows(poller.runtimes(), now), out)
+    for bus, stats in poller.line_stats().items():
+        wire = stats.wire
+        if wire.bytes_sent:
+            counted = (
+                f"{wire.requests} requests ({wire.retries} retries, {wire.timeouts} timeouts), "
+                f"{wire.bytes_sent} B out, {wire.bytes_received} B in, wire {stats.wire_utilisation:.0%}"
+            )
+        else:
+            counted = f"{wire.transactions} calls (its transport does not count frames)"
+        out.write(f"line {bus}: {counted}, busy {stats.utilisation:.0%}, {stats.probes} probes\n")
     if banner:
         out.write(banner + "\n")
     out.flush()
@@ -49,8 +85,12 @@ def run_fleet(
     during: Callable[[FleetPoller], None] | None = None,
     sinks: list[Callable[[Sample], None]] | None = None,
     banner: Callable[[], str] | None = None,
+    probing: ProbeSettings | None = None,
 ) -> int:
     """Poll a fleet and show it; shared by ``poll`` and ``demo``. Returns the exit code."""
+    from starterbus.fleet.output import CsvLog, JsonLines
+    from starterbus.fleet.poller import FleetPoller
+
     out = out or sys.stdout
     sinks = list(sinks or [])
     csv_log = CsvLog(csv_path) if csv_path else None
@@ -63,7 +103,7 @@ def run_fleet(
         for sink in sinks:
             sink(sample)
 
-    poller = FleetPoller(config, on_sample, rounds=1 if once else None)
+    poller = FleetPoller(config, on_sample, rounds=1 if once else None, probing=probing)
     in_place = out.isatty() and not json_out
     poller.start()
     try:
@@ -93,8 +133,48 @@ def run_fleet(
     return 1 if once and bad else 0
 
 
+def _ms(seconds: float | None) -> str:
+    return "?" if seconds is None else f"{seconds * 1000:.1f}"
+
+
+def print_plan(plans: list[BusPlan], out: TextIO) -> None:
+    for bus in plans:
+        out.write(f"bus {bus.name}  {bus.url}\n")
+        rows: list[list[object]] = []
+        for device in bus.devices:
+            rows.append([device.name, device.model, len(device.requests), device.registers, _ms(device.wire_time), ""])
+            rows += [["", "", "", r.registers, _ms(r.wire_time), r.text] for r in device.requests]
+        table(["device", "model", "requests", "registers", "wire ms", "request"], rows, out)
+        if bus.wire_time is None or bus.load is None:
+            out.write("line budget: unknown (the transport does not tell its wire time)\n\n")
+            continue
+        periods = sorted({d.period for d in bus.devices})
+        period = f"{periods[0] * 1000:g} ms" if len(periods) == 1 else "the devices' periods"
+        out.write(
+            f"line budget: {_ms(bus.wire_time)} ms of wire per round vs {period}: {bus.load * 100:.1f} % of the line"
+            f"{'  (OVER: the line cannot keep the periods)' if bus.load > 1 else ''}; "
+            f"at most {bus.max_rounds_per_s:.1f} rounds/s\n\n"
+        )
+
+
 def cmd_poll(args: argparse.Namespace) -> int:
+    from starterbus.core.errors import ConfigurationError
+    from starterbus.fleet.config import load_fleet
+    from starterbus.fleet.plan import fleet_plan
+    from starterbus.fleet.probing import ProbeSettings
+
     config = load_fleet(args.fleet)
+    if args.plan:
+        plans = fleet_plan(config)
+        if args.json:
+            emit_json({"fleet": config.source, "buses": [p.as_json() for p in plans]})
+        else:
+            print_plan(plans, sys.stdout)
+        return 0
+    try:
+        probing = ProbeSettings(args.probe_timeout, args.probe_share)
+    except ValueError as exc:
+        raise ConfigurationError(str(exc)) from None
     return run_fleet(
         config,
         once=args.once,
@@ -102,4 +182,5 @@ def cmd_poll(args: argparse.Namespace) -> int:
         csv_path=args.csv,
         duration=args.duration,
         refresh=args.refresh,
+        probing=probing,
     )

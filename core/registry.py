@@ -16,13 +16,15 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from importlib.metadata import EntryPoint, entry_points
 from pathlib import Path
-from typing import Generic, TypeVar
+from typing import TYPE_CHECKING, Generic, TypeVar
 
 from starterbus.core.errors import PluginError, StarterbusError
 from starterbus.core.profile import Profile, load_profile_file, load_profile_text
 from starterbus.core.transport import TransportPlugin
+
+if TYPE_CHECKING:
+    from importlib.metadata import EntryPoint
 
 TRANSPORT_GROUP = "starterbus.transports"
 PROFILE_GROUP = "starterbus.profiles"
@@ -64,6 +66,8 @@ class Registry(Generic[T]):
     def _scan(self) -> dict[str, PluginEntry[T]]:
         with self._lock:
             if self._entries is None:
+                from importlib.metadata import entry_points  # only when a command needs plugins: start-up
+
                 entries: dict[str, PluginEntry[T]] = {}
                 seen: set[tuple[str, str]] = set()
                 for ep in entry_points(group=self.group):

@@ -1,15 +1,24 @@
 """Polling a fleet: one worker thread per bus, one transaction at a time per bus, devices on their own periods.
 
-A device that stops answering is marked offline at once (its values are dropped, never shown as fresh),
-retried with exponential backoff up to ``max_backoff`` and comes back by itself. A bad device costs its own
-bus at most its transport timeout (times the transport's retries) per attempt and never touches other buses.
-Commands and writes for a device are queued to its bus worker (:meth:`FleetPoller.submit`), so they take
-their turn on the line like any poll.
+Each poll is one :meth:`Transport.poll <starterbus.core.transport.Transport.poll>`: the status and the configured
+points through the transport's poll plan (on Modbus RTU every register once, merged into the fewest requests).
+A device is polled on a grid of its period, so a poll that starts late (the line was busy) does not push the
+following ones back.
+
+A device that stops answering is marked offline at once (its values are dropped, never shown as fresh). From
+then on it is only probed (:mod:`starterbus.fleet.probing`): one attempt with a short timeout, with exponential
+backoff and jitter up to ``max_backoff``, and all probes of a line within a bounded share of its time; it comes
+back by itself. It never touches other buses. Commands and writes for a device are queued to its bus worker
+(:meth:`FleetPoller.submit`), so they take their turn on the line like any poll.
+
+Each bus worker adds up what its transports report putting on the wire (:meth:`FleetPoller.line_stats`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import heapq
+import random
 import threading
 import time
 from collections.abc import Callable
@@ -24,52 +33,29 @@ from starterbus.core.errors import (
     TransportError,
     UnsupportedOperationError,
 )
-from starterbus.core.model import Value
+from starterbus.core.model import PointDef, Value
 from starterbus.core.status import Status
-from starterbus.core.transport import Capability
+from starterbus.core.transport import TransportCounters
 from starterbus.fleet.config import BusConfig, DeviceConfig, FleetConfig
+from starterbus.fleet.line_stats import LineStats
+from starterbus.fleet.plan import poll_points
+from starterbus.fleet.probing import ProbeBudget, ProbeSettings, backoff
+from starterbus.fleet.sample import Sample
 
 T = TypeVar("T")
 Clock = Callable[[], float]
+_PR_SET_TIMERSLACK = 29
 
 
-@dataclass(frozen=True, slots=True)
-class Sample:
-    """One poll of one device."""
+def _precise_timers() -> None:
+    """Linux: 1 us timer slack for the calling bus worker instead of 50 us, so that a wait for the line's silent
+    interval ends when the interval does (a line's throughput is a chain of such waits). Best effort."""
+    try:
+        import ctypes
 
-    device: str
-    bus: str
-    model: str
-    time: float  # wall clock, seconds since the epoch
-    online: bool
-    status: Status | None
-    values: dict[str, Value]
-    error: str | None
-    errors: int  # errors of this device so far
-    unreadable: tuple[str, ...] = ()  # configured keys this device's transport cannot read
-
-    def as_json(self) -> dict[str, object]:
-        return {
-            "device": self.device,
-            "bus": self.bus,
-            "model": self.model,
-            "time": round(self.time, 3),
-            "online": self.online,
-            "status": self.status.as_json() if self.status else None,
-            "values": {
-                k: {
-                    "value": v.value,
-                    "unit": v.unit,
-                    "resolution": v.resolution,
-                    "raw": v.raw,
-                    "label": v.label.en if v.label else None,
-                }
-                for k, v in self.values.items()
-            },
-            "error": self.error,
-            "errors": self.errors,
-            "unreadable": list(self.unreadable),
-        }
+        ctypes.CDLL(None).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
 
 
 @dataclass
@@ -86,6 +72,10 @@ class DeviceRuntime:
     failures_in_a_row: int = 0
     next_due: float = 0.0
     skipped: set[str] = field(default_factory=set)  # keys this transport cannot read, reported once
+    points: list[PointDef] | None = None  # what each poll reads, resolved once the device is open
+    status: bool = False  # whether each poll reads the status
+    slowest_request: float = 0.0  # longest time per request of a good poll, s (floor of the probe timeout)
+    probes: int = 0
 
 
 class BusWorker:
@@ -96,7 +86,12 @@ class BusWorker:
         self.jobs: list[tuple[str, Callable[[Device], Any], Future[Any]]] = []
         self.wake = threading.Event()
         self.thread = threading.Thread(target=self._run, name=f"bus-{bus.name}", daemon=True)
-        self.transactions = 0
+        self.stats = LineStats(bus.name, started=poller.clock())
+        self.budget = ProbeBudget(poller.probing.share, poller.probing.timeout or 1.0, poller.clock())
+
+    @property
+    def transactions(self) -> int:
+        return self.stats.wire.transactions
 
     # -- the loop -----------------------------------------------------------------------------------------
 
@@ -106,17 +101,25 @@ class BusWorker:
         heapq.heapify(queue)
         rounds_left = poller.rounds
         done_in_round: set[int] = set()
+        self.stats.started = poller.clock()
+        _precise_timers()
         try:
             while not poller.stopping.is_set():
                 self._run_jobs()
                 due, index = queue[0]
-                wait = due - poller.clock()
+                now = poller.clock()
+                runtime = self.devices[index]
+                later = self.start_time(due, runtime, now)
+                if later > due:
+                    heapq.heapreplace(queue, (later, index))
+                    continue
+                wait = due - now
                 if wait > 0:
                     self.wake.wait(wait)
                     self.wake.clear()
                     continue
                 heapq.heappop(queue)
-                runtime = self.devices[index]
+                runtime.next_due = due
                 self._poll(runtime)
                 if self.bus.delay:
                     poller.stopping.wait(self.bus.delay)
@@ -133,6 +136,20 @@ class BusWorker:
             self._run_jobs()
             for runtime in self.devices:
                 self._close(runtime)
+            self.stats.stopped = poller.clock()
+
+    def start_time(self, due: float, runtime: DeviceRuntime, now: float) -> float:
+        """When a device's poll due at ``due`` may start: then, or for a probe of an offline device, once the
+        line's probe budget allows it."""
+        if due <= now and self._probing(runtime):
+            wait = self.budget.wait(now)
+            if wait > 0:
+                return now + wait
+        return due
+
+    def _probing(self, runtime: DeviceRuntime) -> bool:
+        """An offline device is probed, not polled (unless probes are switched off)."""
+        return runtime.online is False and self.poller.probing.timeout is not None
 
     def _run_jobs(self) -> None:
         while self.jobs:
@@ -142,10 +159,31 @@ class BusWorker:
                 continue
             try:
                 device = self._ensure_open(runtime)
-                future.set_result(fn(device))
-                self.transactions += 1
+                before, began = self._counters(device), self.poller.clock()
+                try:
+                    future.set_result(fn(device))
+                finally:
+                    self._count(device, before, began)
             except BaseException as exc:  # delivered to the caller through the future
                 future.set_exception(exc)
+
+    # -- counting -----------------------------------------------------------------------------------------
+
+    @staticmethod
+    def _counters(device: Device) -> TransportCounters | None:
+        counters = device.transport.counters()
+        return counters.copy() if counters is not None else None
+
+    def _count(self, device: Device, before: TransportCounters | None, began: float) -> TransportCounters:
+        """What one poll or job put on the wire (a transport that does not count: one transaction)."""
+        after = device.transport.counters()
+        if before is None or after is None:
+            delta = TransportCounters(transactions=1, requests=1)
+        else:
+            delta = after.minus(before)
+        delta.busy_time = self.poller.clock() - began  # the time this worker held the line
+        self.stats.wire.add(delta)
+        return delta
 
     # -- one device ---------------------------------------------------------------------------------------
 
@@ -164,27 +202,40 @@ class BusWorker:
                 pass
             runtime.device = None
 
+    def _what_to_read(self, runtime: DeviceRuntime, device: Device) -> list[PointDef]:
+        """The points each poll reads, resolved once; keys the transport cannot read are reported once."""
+        if runtime.points is None:
+            points, runtime.status, skipped = poll_points(runtime.config, device)
+            runtime.skipped |= skipped
+            runtime.points = points
+        return runtime.points
+
     def _poll(self, runtime: DeviceRuntime) -> None:
         poller = self.poller
         config = runtime.config
         start = poller.clock()
+        probe = self._probing(runtime)
         status: Status | None = None
         values: dict[str, Value] = {}
         error: str | None = None
         online = True
+        wire: TransportCounters | None = None
         try:
             device = self._ensure_open(runtime)
-            caps = device.capabilities
-            if Capability.STATUS in caps:
-                status = device.status()
-                self.transactions += 1
-            keys = [k for k in config.measurements if Capability.READ_MEASUREMENTS in caps]
-            keys += [k for k in config.parameters if Capability.READ_PARAMETERS in caps]
-            for k in set(config.measurements + config.parameters) - set(keys) - runtime.skipped:
-                runtime.skipped.add(k)
-            if keys:
-                values = device.read(*keys)
-                self.transactions += 1
+            points = self._what_to_read(runtime, device)
+            transport = device.transport
+            timeout = poller.probing.timeout_for(runtime.slowest_request) if probe else None
+            policy = transport.probe_policy(timeout) if timeout is not None else contextlib.nullcontext()
+            before = self._counters(device)
+            try:
+                with policy:
+                    result = transport.poll(points, runtime.status)
+            finally:
+                wire = self._count(device, before, start)
+            status = result.status
+            if status is not None:
+                device.guard.note_status(status)  # a queued write's state rule need not read it again
+            values = {r.point.key: r.value(transport.name) for r in result.readings}
         except (TimeoutError, TransportError) as exc:
             online = False
             error = str(exc)
@@ -195,19 +246,30 @@ class BusWorker:
         except StarterbusError as exc:  # the device answered, but with an error or garbage
             error = str(exc)
             status, values = None, {}
+        now = poller.clock()
+        if probe:
+            runtime.probes += 1
+            self.stats.probes += 1
+            self.budget.spend(now - start, now)
         if error is not None:
             runtime.errors += 1
         runtime.polls += 1
         if online:
             runtime.failures_in_a_row = 0
-            runtime.next_due = start + config.period
+            # the next slot of the device's grid; a poll more than a period late starts a new grid
+            due = runtime.next_due + config.period
+            runtime.next_due = due if due > start else start + config.period
             if status is not None or values:
-                runtime.last_ok = poller.clock()
+                runtime.last_ok = now
+            if wire is not None and wire.requests and not probe:
+                runtime.slowest_request = max(runtime.slowest_request, (now - start) / wire.requests)
         else:
             runtime.failures_in_a_row += 1
-            backoff = min(config.period * (2 ** (runtime.failures_in_a_row - 1)), poller.config.max_backoff)
-            runtime.next_due = poller.clock() + backoff
+            runtime.next_due = now + backoff(
+                runtime.failures_in_a_row, config.period, poller.config.max_backoff, poller.rng
+            )
         runtime.online = online
+        self.stats.polls += 1
         sample = Sample(
             device=config.name,
             bus=config.bus,
@@ -219,6 +281,8 @@ class BusWorker:
             error=error,
             errors=runtime.errors,
             unreadable=tuple(sorted(runtime.skipped)),
+            wire=wire,
+            probe=probe,
         )
         runtime.last_sample = sample
         poller._emit(sample)
@@ -234,11 +298,15 @@ class FleetPoller:
         *,
         rounds: int | None = None,
         clock: Clock = time.monotonic,
+        probing: ProbeSettings | None = None,
+        rng: random.Random | None = None,
     ) -> None:
         self.config = config
         self.on_sample = on_sample
         self.rounds = rounds
         self.clock = clock
+        self.probing = probing or ProbeSettings()
+        self.rng = rng or random.Random()
         self.stopping = threading.Event()
         self.workers = [BusWorker(bus, self) for bus in config.buses]
         self._emit_lock = threading.Lock()
@@ -291,4 +359,13 @@ class FleetPoller:
         raise StarterbusError(f"no device named {device!r} in the fleet")
 
     def transactions(self) -> int:
+        """Transactions so far on every bus (a transaction: one request and its answer, retries apart)."""
         return sum(w.transactions for w in self.workers)
+
+    def line_stats(self) -> dict[str, LineStats]:
+        """Per bus: what went over its wire so far and how busy the line was (copies, safe to keep)."""
+        now = self.clock()
+        return {w.bus.name: w.stats.snapshot(now) for w in self.workers}
+
+
+__all__ = ["BusWorker", "DeviceRuntime", "FleetPoller", "Sample"]

@@ -14,7 +14,7 @@ size alone):
 N devices are dealt round-robin over the 8 lines; a DeviceNet bus takes at most 62, the rest go to the Modbus
 lines. A fleet file is generated from the simulators' URLs (as ``starterbus demo`` does), parsed with
 :func:`parse_fleet` and polled by one :class:`FleetPoller`. Modbus devices have a 1 ms period, so their bus
-workers run flat out (a poll = status word + phase currents, then the phase currents: 2 FC03 requests).
+workers run flat out (a poll = the poll plan of status word + phase currents: 1 FC03 request of 4 registers).
 A DeviceNet poll (status + L1 current) reads the scanner's latest input assembly, which the scanner refreshes
 every 20 ms by itself, so DeviceNet devices are polled at that period by default: with ``--devicenet-period
 0.001`` their bus workers re-read the same inputs tens of times per scan in a busy loop that takes most of the
@@ -63,8 +63,9 @@ from starterbus.fleet.poller import FleetPoller, Sample
 from starterbus.transports.devicenet.scanner import Scanner
 from starterbus.transports.devicenet.simulator import DeviceNetSimulator
 from starterbus.transports.devicenet.transport import DeviceNetTransport
-from starterbus.transports.modbus.client import ModbusRtuTransport, plan_reads
+from starterbus.transports.modbus.client import ModbusRtuTransport
 from starterbus.transports.modbus.line import RtuLine
+from starterbus.transports.modbus.poll_plan import PollPlans
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 from starterbus.transports.modbus.slave import max_read_registers
 from starterbus.transports.modbus.timing import char_time, silent_interval
@@ -275,18 +276,12 @@ def wire_transport_objects(poller: FleetPoller) -> tuple[dict[str, RtuLine], dic
 
 
 def modbus_poll_cost(model: str, baudrate: int) -> tuple[int, int]:
-    """(requests, characters on the wire) of one poll: FC03 status word + phase currents, FC03 phase currents."""
+    """(requests, characters on the wire) of one poll: the poll plan of the status and the phase currents."""
     profile = get_profile(model)
-    limit = max_read_registers(profile)
-    status = [profile.role("status_word"), *profile.phase_currents()]
-    currents = list(profile.phase_currents())
-    requests = chars = 0
-    for points in (status, currents):
-        addresses = [p.address_for("modbus") for p in points if p is not None]
-        for _, count in plan_reads([a for a in addresses if a is not None], limit):
-            requests += 1
-            chars += 8 + 5 + 2 * count  # request: unit fc addr(2) count(2) crc(2); answer: unit fc n data crc(2)
-    return requests, chars
+    plans = PollPlans(profile, max_read_registers(profile), baudrate, silent_interval(baudrate))
+    plan = plans.get(profile.phase_currents(), status=True)
+    # request: unit fc addr(2) count(2) crc(2); answer: unit fc n data crc(2)
+    return len(plan.requests), sum(8 + 5 + 2 * count for _, count in plan.requests)
 
 
 def can_frame_bits(n: int) -> int:

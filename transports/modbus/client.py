@@ -8,19 +8,35 @@ read of the status word and the phase currents. Commands write the control word 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import contextlib
+import dataclasses
+from collections.abc import Iterator, Sequence
 
-from starterbus.core.errors import ConfigurationError, RemoteDeviceError, UnsupportedOperationError
+from starterbus.core.errors import (
+    ConfigurationError,
+    RemoteDeviceError,
+    StarterbusError,
+    TimeoutError,
+    UnsupportedOperationError,
+)
 from starterbus.core.model import PointDef, Reading, Value
 from starterbus.core.profile import Profile
 from starterbus.core.sharing import SharedPool
 from starterbus.core.status import Command, ControlWordState, Status, decode_status_word
-from starterbus.core.transport import ALL_CAPABILITIES, Capability, Transport
+from starterbus.core.transport import (
+    ALL_CAPABILITIES,
+    Capability,
+    PlannedRequest,
+    PollResult,
+    Transport,
+    TransportCounters,
+)
 from starterbus.core.url import DeviceUrl
 from starterbus.transports.modbus.annotate import exception_meaning
 from starterbus.transports.modbus.config import ModbusRtuConfig
 from starterbus.transports.modbus.frames import (
     BROADCAST,
+    EXCEPTION_FRAME_LENGTH,
     ExceptionResponse,
     ReadRequest,
     ReadResponse,
@@ -29,6 +45,8 @@ from starterbus.transports.modbus.frames import (
     WriteRequest,
 )
 from starterbus.transports.modbus.line import Exchange, Link, RtuLine
+from starterbus.transports.modbus.poll_plan import PollPlans
+from starterbus.transports.modbus.poll_plan import run as run_poll_plan
 from starterbus.transports.modbus.slave import PROTOCOL, TRANSPORT, max_read_registers
 from starterbus.transports.modbus.timing import char_time
 
@@ -80,6 +98,8 @@ class ModbusRtuTransport(Transport):
         self._writes: dict[tuple[int, int], Exchange] = {}  # (address, value) -> the FC06 exchange
         #: addresses -> the requests that read them and where each value is in their answers
         self._plans: dict[tuple[int, ...], tuple[list[tuple[int, int]], tuple[int, ...]]] = {}
+        self.poll_plans = PollPlans(profile, self.max_read, self.config.serial.baudrate, self.config.serial.silence)
+        self._counters = TransportCounters()
 
     # -- lifecycle ------------------------------------------------------------------------------------------
 
@@ -143,10 +163,30 @@ class ModbusRtuTransport(Transport):
 
     def _run(self, exchange: Exchange) -> Response | None:
         line = self._line if self._line is not None else self.line  # the property raises "not open"
-        response = line.run(exchange)
+        retries = line.retries
+        try:
+            response = line.run(exchange)
+        except StarterbusError as exc:
+            self._tally(exchange, line.retries - retries, 0, isinstance(exc, TimeoutError))
+            raise
         if isinstance(response, ExceptionResponse):
+            self._tally(exchange, line.retries - retries, EXCEPTION_FRAME_LENGTH, False)
             raise self._remote_error(exchange.request, response)
+        self._tally(exchange, line.retries - retries, 0 if response is None else exchange.answer_length, False)
         return response
+
+    def _tally(self, exchange: Exchange, retries: int, received: int, timeout: bool) -> None:
+        """Count one transaction: its frames (``retries`` repeats; the line serialises, so the delta of its
+        retry counter is this transaction's), the bytes of the good answer, the wire time at the line's speed."""
+        c, sent = self._counters, 1 + retries
+        c.transactions += 1
+        c.requests += sent
+        c.retries += retries
+        c.timeouts += timeout
+        c.errors += received == 0 and not exchange.broadcast
+        c.bytes_sent += sent * len(exchange.frame)
+        c.bytes_received += received
+        c.wire_time += (sent * len(exchange.frame) + received) * self._char_time + 2 * sent * self.config.serial.silence
 
     def _prepare(self, cache: dict[tuple[int, int], Exchange], key: tuple[int, int], request: Request) -> Exchange:
         exchange = Exchange(request, self.config.policy, self._char_time)  # an invalid request raises here
@@ -204,6 +244,30 @@ class ModbusRtuTransport(Transport):
 
     def write_parameter(self, point: PointDef, raw: int) -> None:
         self.write_register(self._address(point), raw)
+
+    # -- fleet polling: one merged plan per (points, status), see poll_plan.py -----------------------------------
+
+    def poll(self, points: Sequence[PointDef], status: bool) -> PollResult:
+        self._no_broadcast_reads()
+        plan = self.poll_plans.get(points, status)
+        return run_poll_plan(self.read_registers, plan, points, self.profile, f"{TRANSPORT} {self.describe()}")
+
+    def plan(self, points: Sequence[PointDef], status: bool) -> list[PlannedRequest]:
+        return self.poll_plans.describe(self.poll_plans.get(points, status), self.unit)
+
+    def counters(self) -> TransportCounters:
+        return self._counters
+
+    @contextlib.contextmanager
+    def probe_policy(self, timeout: float) -> Iterator[None]:
+        """One attempt, at most ``timeout`` s: requests made inside use a policy of their own (fresh caches)."""
+        normal = self.config, self._reads, self._writes
+        policy = dataclasses.replace(self.config.policy, retries=0, timeout=min(timeout, self.config.policy.timeout))
+        self.config, self._reads, self._writes = dataclasses.replace(self.config, policy=policy), {}, {}
+        try:
+            yield
+        finally:
+            self.config, self._reads, self._writes = normal
 
     def read_status(self) -> Status:
         self._no_broadcast_reads()
