@@ -25,7 +25,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("fleet", metavar="FLEET.toml", help="fleet file (see examples/fleet.toml)")
     p.add_argument("--once", action="store_true", help="poll every device once, print, exit")
     p.add_argument("--json", action="store_true", help="stream one JSON object per sample")
-    p.add_argument("--csv", metavar="FILE", help="append every sample to a CSV log")
+    p.add_argument(
+        "--csv", metavar="FILE", help="append every sample to a CSV log (wide: a column per point, ISO 8601 times)"
+    )
+    p.add_argument("--csv-long", action="store_true", help="CSV in long format: one row per value")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("--refresh", type=float, default=0.5, help="table refresh period on a terminal, s")
     p.add_argument(
@@ -47,8 +50,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
 
 
+_WIDTHS: dict[int, list[int]] = {}  # per output stream: the widest columns so far, so a live view never jumps
+
+
 def render(poller: FleetPoller, out: TextIO, in_place: bool, banner: str = "") -> None:
-    from starterbus.fleet.output import TABLE_HEADERS, table_rows
+    from starterbus.fleet.output import TABLE_HEADERS, table_rows_styled
 
     if in_place:
         out.write("\x1b[H\x1b[J")
@@ -57,7 +63,10 @@ def render(poller: FleetPoller, out: TextIO, in_place: bool, banner: str = "") -
         f"starterbus poll  {time.strftime('%H:%M:%S')}  devices {len(poller.runtimes())}  "
         f"transactions {poller.transactions()}\n"
     )
-    table(TABLE_HEADERS, table_rows(poller.runtimes(), now), out)
+    styled = table_rows_styled(poller.runtimes(), now)
+    _WIDTHS[id(out)] = table(
+        TABLE_HEADERS, [r for r, _ in styled], out, widths=_WIDTHS.get(id(out)), styles=[s for _, s in styled]
+    )
     for bus, stats in poller.line_stats().items():
         wire = stats.wire
         if wire.bytes_sent:
@@ -86,6 +95,7 @@ def run_fleet(
     sinks: list[Callable[[Sample], None]] | None = None,
     banner: Callable[[], str] | None = None,
     probing: ProbeSettings | None = None,
+    csv_long: bool = False,
 ) -> int:
     """Poll a fleet and show it; shared by ``poll`` and ``demo``. Returns the exit code."""
     from starterbus.fleet.output import CsvLog, JsonLines
@@ -93,7 +103,7 @@ def run_fleet(
 
     out = out or sys.stdout
     sinks = list(sinks or [])
-    csv_log = CsvLog(csv_path) if csv_path else None
+    csv_log = CsvLog(csv_path, config, long=csv_long) if csv_path else None
     if csv_log is not None:
         sinks.append(csv_log)
     if json_out:
@@ -106,6 +116,7 @@ def run_fleet(
     poller = FleetPoller(config, on_sample, rounds=1 if once else None, probing=probing)
     in_place = out.isatty() and not json_out
     poller.start()
+    interrupted = False
     try:
         if during is not None:
             during(poller)
@@ -122,13 +133,15 @@ def run_fleet(
                 render(poller, out, False, banner() if banner else "")
                 out.write("\n")
     except KeyboardInterrupt:
-        pass
+        interrupted = True
     finally:
         poller.stop()
         if csv_log is not None:
             csv_log.close()
     if not json_out:
         render(poller, out, in_place)
+    if interrupted:
+        return 130  # Ctrl-C: after a clean shutdown, as every command
     bad = [r for r in poller.runtimes() if not r.online]
     return 1 if once and bad else 0
 
@@ -180,6 +193,7 @@ def cmd_poll(args: argparse.Namespace) -> int:
         once=args.once,
         json_out=args.json,
         csv_path=args.csv,
+        csv_long=args.csv_long,
         duration=args.duration,
         refresh=args.refresh,
         probing=probing,

@@ -240,13 +240,14 @@ def scenario(duration: float) -> list[Step]:
 def run_demo(duration: float = 20.0, json_out: bool = False, out: TextIO | None = None) -> int:
     """Start the demo fleet, poll it with the live table while the scenario runs, then print a summary."""
     from starterbus.cli.poll import run_fleet
+    from starterbus.fleet.output import display_state
 
     stream = out if out is not None else sys.stdout
     events: list[str] = []
     seen: dict[str, list[str]] = {}
 
     def track(sample: Sample) -> None:
-        state = "offline" if not sample.online else (sample.status.state.value if sample.status else "error")
+        state = "offline" if not sample.online else (display_state(sample.status) if sample.status else "error")
         states = seen.setdefault(sample.device, [])
         if not states or states[-1] != state:
             states.append(state)
@@ -275,7 +276,7 @@ def run_demo(duration: float = 20.0, json_out: bool = False, out: TextIO | None 
             sinks=[track],
             banner=lambda: f"last event: {events[-1].strip()}" if events else "",
         )
-    print_summary(stream, events, seen)
+    print_summary(sys.stderr if json_out else stream, events, seen)  # --json: stdout carries JSON only
     return code
 
 

@@ -1,16 +1,37 @@
-"""How a fleet is shown: the live table rows, JSON lines and the CSV log."""
+"""How a fleet is shown: the live table rows, JSON lines and the CSV log.
+
+One vocabulary for states whatever the transport: an idle motor is ``stopped`` (with ``ready`` in its own
+column: ``yes``, ``no``, or ``-`` where the path does not tell, as DeviceNet's assemblies). Device faults and
+communication errors have columns of their own; a long error is shortened at a word boundary, never mid-word.
+"""
 
 from __future__ import annotations
 
 import csv
+import datetime
 import json
+import textwrap
 import threading
 from pathlib import Path
-from typing import ClassVar, TextIO
+from typing import TextIO
 
+from starterbus.core.errors import ConfigurationError
+from starterbus.core.status import MotorState, Status
+from starterbus.fleet.config import FleetConfig
 from starterbus.fleet.poller import DeviceRuntime, Sample
 
-TABLE_HEADERS = ["device", "model", "bus", "state", "fault", "I A/B/C (A)", "bus ctl", "age", "errors"]
+TABLE_HEADERS = ["device", "model", "bus", "state", "ready", "fault", "I A/B/C (A)", "points", "bus ctl", "age",
+                 "errors", "communication"]  # fmt: skip
+ERROR_WIDTH = 48
+
+
+def display_state(status: Status) -> str:
+    state = status.state
+    return "stopped" if state in (MotorState.READY, MotorState.STOPPED) else state.value
+
+
+def _flag(value: bool | None) -> str:
+    return "-" if value is None else ("yes" if value else "no")
 
 
 def _currents(sample: Sample) -> str:
@@ -21,27 +42,46 @@ def _currents(sample: Sample) -> str:
     return "/".join(v.text().removesuffix(" A") for v in shown) or "-"
 
 
+def _points(sample: Sample) -> str:
+    """The configured points besides the phase currents (those have their own column)."""
+    return ", ".join(f"{k} {v.text()}" for k, v in sample.values.items() if not (v.unit == "A" and "phase" in k))
+
+
+def shorten(text: str, width: int = ERROR_WIDTH) -> str:
+    return textwrap.shorten(" ".join(text.split()), width=width, placeholder=" …") if text else ""
+
+
 def table_rows(runtimes: list[DeviceRuntime], now: float) -> list[list[str]]:
     """One row per device. An offline device shows "offline" and no values, never stale ones as fresh."""
-    rows = []
+    return [row for row, _ in table_rows_styled(runtimes, now)]
+
+
+def table_rows_styled(runtimes: list[DeviceRuntime], now: float) -> list[tuple[list[str], str | None]]:
+    """Rows with a style each (``fault``, ``offline``, ``warning`` or None) for colour on a terminal."""
+    rows: list[tuple[list[str], str | None]] = []
     for r in runtimes:
         c = r.config
         sample = r.last_sample
         age = "-" if r.last_ok is None else f"{now - r.last_ok:.1f}s"
+        head = [c.name, c.model, c.bus]
         if sample is None:
-            rows.append([c.name, c.model, c.bus, "waiting", "", "", "", age, str(r.errors)])
+            rows.append(([*head, "waiting", "", "", "", "", "", age, str(r.errors), ""], None))
             continue
         if not sample.online:
-            rows.append([c.name, c.model, c.bus, "OFFLINE", (sample.error or "")[:60], "-", "-", age, str(r.errors)])
+            comm = shorten(sample.error or "")
+            rows.append(([*head, "offline", "-", "", "-", "", "-", age, str(r.errors), comm], "offline"))
             continue
         status = sample.status
+        comm = shorten(sample.error or "")
         if status is None:
-            state, fault, bus = ("error" if sample.error else "?"), (sample.error or "")[:60], "-"
-        else:
-            state = status.state.value
-            fault = f"{status.fault_code}: {status.fault_text}" if status.fault else ""
-            bus = "-" if status.bus_control is None else ("yes" if status.bus_control else "no")
-        rows.append([c.name, c.model, c.bus, state, fault, _currents(sample), bus, age, str(r.errors)])
+            rows.append(([*head, "?", "-", "", _currents(sample), _points(sample), "-", age, str(r.errors), comm],
+                         "warning" if comm else None))  # fmt: skip
+            continue
+        fault = f"{status.fault_code}: {status.fault_text}" if status.fault else ""
+        style = "fault" if status.fault else ("warning" if status.warning or comm else None)
+        cells = [display_state(status), _flag(status.ready), fault, _currents(sample), _points(sample)]
+        cells += [_flag(status.bus_control), age, str(r.errors), comm]
+        rows.append(([*head, *cells], style))
     return rows
 
 
@@ -49,57 +89,80 @@ class JsonLines:
     def __init__(self, out: TextIO) -> None:
         self.out = out
         self.lock = threading.Lock()
+        self.closed = False  # the reader went away (`| head`): stop writing, quietly
 
     def __call__(self, sample: Sample) -> None:
         with self.lock:
-            self.out.write(json.dumps(sample.as_json(), ensure_ascii=False, default=str) + "\n")
-            self.out.flush()
+            if self.closed:
+                return
+            try:
+                self.out.write(json.dumps(sample.as_json(), ensure_ascii=False, default=str) + "\n")
+                self.out.flush()
+            except BrokenPipeError:
+                self.closed = True
+
+
+def iso_time(epoch: float) -> str:
+    """ISO 8601 with milliseconds and the local UTC offset: ``2026-11-23T21:04:05.123+01:00``."""
+    return datetime.datetime.fromtimestamp(epoch).astimezone().isoformat(timespec="milliseconds")
 
 
 class CsvLog:
-    """Long format: one row per value, plus one status row per sample (key ``status``)."""
+    """Wide format (default): one row per sample, one column per configured point (``key [unit]``).
 
-    FIELDS: ClassVar[list[str]] = [
-        "time",
-        "device",
-        "bus",
-        "model",
-        "online",
-        "state",
-        "fault_code",
-        "fault_text",
-        "key",
-        "value",
-        "unit",
-        "resolution",
-        "error",
-    ]
+    ``long=True``: one row per value plus one status row per sample (key ``status``). Times are ISO 8601.
+    Appending to a file whose header is another layout is refused, so columns never shift under a reader.
+    """
 
-    def __init__(self, path: str | Path) -> None:
+    BASE = ("time", "device", "bus", "model", "online", "state", "ready", "fault_code", "fault_text", "error")
+    LONG = (*BASE[:-1], "key", "value", "unit", "resolution", "error")
+
+    def __init__(self, path: str | Path, config: FleetConfig | None = None, *, long: bool = False) -> None:
         self.path = Path(path)
+        self.long = long or config is None
+        self.keys: list[str] = []
+        if not self.long and config is not None:
+            for device in config.devices:
+                for key in (*device.measurements, *device.parameters):
+                    if key not in self.keys:
+                        self.keys.append(key)
+        self.header = list(self.LONG) if self.long else [*self.BASE, *self.keys]
         new = not self.path.exists() or self.path.stat().st_size == 0
+        if not new:
+            with self.path.open(encoding="utf-8", newline="") as f:
+                existing = next(csv.reader(f), [])
+            if existing != self.header:
+                raise ConfigurationError(
+                    f"{self.path}: its header is another layout ({', '.join(existing[:6])}, ...); "
+                    "append to a log of the same fleet and format, or give a new file"
+                )
         self.file = self.path.open("a", newline="", encoding="utf-8")
         self.writer = csv.writer(self.file)
         self.lock = threading.Lock()
         if new:
-            self.writer.writerow(self.FIELDS)
+            self.writer.writerow(self.header)
 
     def __call__(self, sample: Sample) -> None:
         status = sample.status
         base = [
-            f"{sample.time:.3f}",
+            iso_time(sample.time),
             sample.device,
             sample.bus,
             sample.model,
             int(sample.online),
-            status.state.value if status else "",
+            display_state(status) if status else ("" if sample.online else "offline"),
+            "" if status is None or status.ready is None else int(status.ready),
             status.fault_code if status and status.fault else "",
             status.fault_text if status and status.fault else "",
         ]
         with self.lock:
-            self.writer.writerow([*base, "status", "", "", "", sample.error or ""])
-            for key, value in sample.values.items():
-                self.writer.writerow([*base, key, value.value, value.unit, value.resolution, ""])
+            if self.long:
+                self.writer.writerow([*base, "status", "", "", "", sample.error or ""])
+                for key, value in sample.values.items():
+                    self.writer.writerow([*base, key, value.value, value.unit, value.resolution, ""])
+            else:
+                values = [sample.values[k].value if k in sample.values else "" for k in self.keys]
+                self.writer.writerow([*base, sample.error or "", *values])
             self.file.flush()
 
     def close(self) -> None:

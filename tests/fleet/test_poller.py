@@ -43,7 +43,11 @@ def test_poll_once_json_gives_every_device(demo: DemoFleet, tmp_path: Path, caps
     assert by_device["pump-a"]["values"]["phase_a_current"]["resolution"] == pytest.approx(0.1)
     rows = csv_file.read_text(encoding="utf-8").splitlines()
     assert rows[0].startswith("time,device,bus,model,online,state")
-    assert sum(1 for r in rows if ",status," in r) == 7
+    assert len(rows) == 1 + 7  # wide format: one row per sample, a column per configured point
+    header = rows[0].split(",")
+    assert "current_limit" in header and "phase_a_current" in header
+    first = dict(zip(header, rows[1].split(","), strict=True))
+    assert first["time"][:4].isdigit() and first["time"][10] == "T"  # ISO 8601
 
 
 def test_device_removed_goes_offline_and_comes_back(demo: DemoFleet) -> None:
