@@ -21,6 +21,7 @@ from starterbus.core.profile_points import (
     build_point,
     enum_table,
     int_key,
+    key_text,
     label,
     provenance,
     shown,
@@ -311,7 +312,7 @@ def _control(data: Mapping[str, Any], points: Mapping[str, PointDef], source: st
 def _roles(data: Mapping[str, Any], points: Mapping[str, PointDef], source: str) -> dict[str, Any]:
     roles: dict[str, Any] = {}
     for role, ref in data.items():
-        where = f"roles.{role}"
+        where = f"roles.{key_text(role)}"
         if role not in _ROLE_NAMES:
             raise ProfileError(source, where, f"unknown role (known: {sorted(_ROLE_NAMES)})")
         if role == "phase_currents":
@@ -335,7 +336,7 @@ def _roles(data: Mapping[str, Any], points: Mapping[str, PointDef], source: str)
 def _transports(data: Mapping[str, Any], points: Mapping[str, PointDef], source: str) -> dict[str, Mapping[str, Any]]:
     transports: dict[str, Mapping[str, Any]] = {}
     for tname, settings in data.items():
-        where = f"transports.{tname}"
+        where = f"transports.{key_text(tname)}"
         if not isinstance(settings, Mapping):
             raise ProfileError(source, where, f"must be a table of settings, not {shown(settings)}")
         checked = dict(settings)
@@ -343,10 +344,10 @@ def _transports(data: Mapping[str, Any], points: Mapping[str, PointDef], source:
             if sub in checked:
                 entries = table(checked, sub, source, f"{where}.")
                 checked[sub] = {
-                    int_key(k, source, f"{where}.{sub}"): label(v, source, f"{where}.{sub}.{k}")[0]
+                    int_key(k, source, f"{where}.{sub}"): label(v, source, f"{where}.{sub}.{key_text(k)}")[0]
                     for k, v in entries.items()
                 }
-        _check_settings(str(tname), checked, source)
+        _check_settings(str(tname), checked, source, where)
         transports[str(tname)] = checked
     if not transports:
         raise ProfileError(source, "transports", "a profile must name at least one transport")
@@ -356,7 +357,7 @@ def _transports(data: Mapping[str, Any], points: Mapping[str, PointDef], source:
     return transports
 
 
-def _check_settings(name: str, settings: Mapping[str, Any], source: str) -> None:
+def _check_settings(name: str, settings: Mapping[str, Any], source: str, where: str) -> None:
     """Let the installed plugin of that name check its settings (a plugin not installed checks nothing)."""
     from starterbus.core.registry import transports  # late: the registry imports this module
 
@@ -367,4 +368,4 @@ def _check_settings(name: str, settings: Mapping[str, Any], source: str) -> None
     try:
         plugin.check_settings(settings)
     except StarterbusError as exc:
-        raise ProfileError(source, f"transports.{name}", str(exc)) from None
+        raise ProfileError(source, where, str(exc)) from None

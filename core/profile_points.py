@@ -7,6 +7,7 @@ them raise anything else. ``docs/profiles.md`` documents the schema.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from typing import Any
 
@@ -43,6 +44,12 @@ def shown(value: object) -> str:
     """A value for an error message, cut short."""
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
+
+
+def key_text(key: object) -> str:
+    """A key of the file as it goes into a dotted path: as is if plain, else quoted (keeps messages on one line)."""
+    text = str(key)
+    return text if re.fullmatch(r"[\w+-]+", text) else repr(text)
 
 
 def is_int(value: object) -> bool:
@@ -86,9 +93,9 @@ def int_key(key: object, source: str, where: str, lo: int = _WORD[0], hi: int = 
     try:
         value = int(text_key, 16) if text_key.lower().startswith("0x") else int(text_key, 10)
     except ValueError:
-        raise ProfileError(source, f"{where}.{key}", f"the key {shown(key)} is not an integer") from None
+        raise ProfileError(source, f"{where}.{key_text(key)}", f"the key {shown(key)} is not an integer") from None
     if not lo <= value <= hi:
-        raise ProfileError(source, f"{where}.{key}", f"{value} is outside {lo}..{hi}")
+        raise ProfileError(source, f"{where}.{key_text(key)}", f"{value} is outside {lo}..{hi}")
     return value
 
 
@@ -127,7 +134,7 @@ def enum_table(
     name: str, data: object, source: str, default: Provenance, where: str = "", lo: int = _WORD[0], hi: int = _WORD[1]
 ) -> EnumTable:
     """An ``[enums.NAME]`` table (or ``[faults]``): codes -> labels, a ``certainty`` for all, per-code overrides."""
-    where = where or f"enums.{name}"
+    where = where or f"enums.{key_text(name)}"
     if not isinstance(data, Mapping) or (not data and where != "faults"):
         raise ProfileError(source, where, "must be a non-empty table of raw value -> {en, zh}")
     base = provenance(data["certainty"], source, f"{where}.certainty") if "certainty" in data else default
@@ -138,8 +145,8 @@ def enum_table(
             continue
         code = int_key(key, source, where, lo, hi)
         if code in labels:
-            raise ProfileError(source, f"{where}.{key}", f"code {code} is given twice")
-        labels[code], own = label(value, source, f"{where}.{key}")
+            raise ProfileError(source, f"{where}.{key_text(key)}", f"code {code} is given twice")
+        labels[code], own = label(value, source, f"{where}.{key_text(key)}")
         sources[code] = own or base
     if not labels and not where.startswith("faults"):
         raise ProfileError(source, where, "has no codes")

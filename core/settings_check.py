@@ -6,6 +6,7 @@ Absent keys are fine: the plugin falls back to its defaults.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -24,7 +25,8 @@ def _shown(value: object) -> str:
 def known_keys(settings: Mapping[str, Any], known: Iterable[str]) -> None:
     allowed = set(known)
     for key in sorted(set(settings) - allowed):
-        raise ConfigurationError(f"{key}: unknown setting (known: {', '.join(sorted(allowed))})")
+        shown = key if re.fullmatch(r"[\w+-]+", key) else repr(key)
+        raise ConfigurationError(f"{shown}: unknown setting (known: {', '.join(sorted(allowed))})")
 
 
 def int_value(settings: Mapping[str, Any], key: str, lo: int, hi: int) -> None:

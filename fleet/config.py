@@ -154,7 +154,7 @@ def build_fleet(data: Mapping[str, Any], source: str = "<fleet>", lines: _Lines 
         raise fail("(document)", "must be a table")
     unknown = set(data) - {"poll", "bus"}
     if unknown:
-        raise fail(sorted(unknown)[0], "unknown table (expected [poll] and [[bus]])")
+        raise fail(_key(sorted(unknown)[0]), "unknown table (expected [poll] and [[bus]])")
     poll = data.get("poll", {})
     if not isinstance(poll, Mapping):
         raise fail("poll", "must be a table")
@@ -278,9 +278,13 @@ def _shown(value: object) -> str:
     return text if len(text) <= 60 else text[:57] + "..."
 
 
+def _key(key: str) -> str:
+    return key if re.fullmatch(r"[\w+-]+", key) else repr(key)
+
+
 def _check_fields(table: Mapping[str, Any], known: set[str], where: str, fail: Any) -> None:
     for key in sorted(set(table) - known):
-        raise fail(f"{where}.{key}", f"unknown setting (known: {', '.join(sorted(known))})")
+        raise fail(f"{where}.{_key(key)}", f"unknown setting (known: {', '.join(sorted(known))})")
 
 
 def _name(table: Mapping[str, Any], where: str, fail: Any) -> str:
