@@ -6,7 +6,7 @@ import argparse
 from typing import Any
 
 from starterbus.cli.output import emit_json, table
-from starterbus.core.model import PointDef
+from starterbus.core.model import PRINTED, Certainty, PointDef
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile, profiles, transports
 
@@ -64,29 +64,79 @@ def point_json(point: PointDef) -> dict[str, object]:
         "unit": point.unit,
         "access": point.access.value,
         "default": point.default,
+        "writable_values": sorted(point.writable_values) if point.writable_values is not None else None,
         "enum": (
             {
                 "name": point.enum.name,
-                "values": {str(k): {"en": v.en, "zh": v.zh} for k, v in point.enum.labels.items()},
+                "values": {
+                    str(k): {"en": v.en, "zh": v.zh, **point.enum.provenance(k).as_json()}
+                    for k, v in sorted(point.enum.labels.items())
+                },
             }
             if point.enum
             else None
         ),
+        "certainty": {
+            "address": point.address_source.as_json(),
+            "scale": point.scale_source.as_json(),
+            "default": point.default_source.as_json(),
+            "codes": _weakest(point).value,
+        },
         "scale_assumed": point.scale_assumed,
         "note": point.note,
     }
 
 
+_ORDER = (Certainty.PRINTED, Certainty.INFERRED, Certainty.ASSUMED)
+
+
+def _weakest(point: PointDef) -> Certainty:
+    """The least certain of the point's address, scale (non-enum) and codes in its range (enum)."""
+    found = [point.address_source.certainty]
+    if point.enum is not None:
+        found += [point.enum.provenance(k).certainty for k in point.enum.labels if point.raw_min <= k <= point.raw_max]
+    else:
+        found.append(point.scale_source.certainty)
+    return max(found, key=_ORDER.index)
+
+
 def _range_text(point: PointDef) -> str:
     if point.enum is not None:
-        return ", ".join(
-            f"{k}={v.en}" for k, v in sorted(point.enum.labels.items()) if point.raw_min <= k <= point.raw_max
-        )
+        parts = []
+        for k, v in sorted(point.enum.labels.items()):
+            if point.raw_min <= k <= point.raw_max:
+                source = point.enum.provenance(k)
+                parts.append(f"{k}={v.en}" + ("" if source.printed else f" ({source.certainty.value})"))
+        return ", ".join(parts)
     lo, hi = point.to_engineering(point.raw_min), point.to_engineering(point.raw_max)
     text = f"{lo}..{hi} {point.unit}".rstrip()
     if point.scale != 1:
-        text += f" (raw {point.raw_min}..{point.raw_max} x{point.scale:g}{', assumed' if point.scale_assumed else ''})"
+        assumed = "" if point.scale_source.printed else f", {point.scale_source.certainty.value}"
+        text += f" (raw {point.raw_min}..{point.raw_max} x{point.scale:g}{assumed})"
+    if point.writable_values is not None:
+        text += f"; writable: only {', '.join(map(str, sorted(point.writable_values)))}"
     return text
+
+
+def _footnotes(points: list[PointDef]) -> list[str]:
+    """One line per non-printed address, scale, code table or default, with the profile's reason."""
+    lines = []
+    for p in points:
+        if not p.address_source.printed:
+            lines.append(f"{p.address} {p.key}: address {p.address_source.text()}")
+        if p.enum is not None:
+            seen: dict[str, list[int]] = {}
+            for k in sorted(p.enum.labels):
+                source = p.enum.provenance(k)
+                if not source.printed and p.raw_min <= k <= p.raw_max:
+                    seen.setdefault(source.text(), []).append(k)
+            for text, codes in seen.items():
+                lines.append(
+                    f"{p.address} {p.key}: code{'s' if len(codes) > 1 else ''} {', '.join(map(str, codes))} {text}"
+                )
+        elif not p.scale_source.printed:
+            lines.append(f"{p.address} {p.key}: scale x{p.scale:g} {p.scale_source.text()}")
+    return lines
 
 
 def profile_json(profile: Profile) -> dict[str, object]:
@@ -95,7 +145,10 @@ def profile_json(profile: Profile) -> dict[str, object]:
         "display_name": profile.display_name,
         "vendor": profile.vendor,
         "transports": {k: _jsonable(v) for k, v in profile.transports.items()},
-        "faults": {str(k): {"en": v.en, "zh": v.zh} for k, v in profile.faults.labels.items()},
+        "faults": {
+            str(k): {"en": v.en, "zh": v.zh, **profile.fault_sources.get(k, PRINTED).as_json()}
+            for k, v in sorted(profile.faults.labels.items())
+        },
         "notes": list(profile.notes),
         "measurements": [point_json(p) for p in profile.measurements],
         "parameters": [point_json(p) for p in profile.parameters],
@@ -121,7 +174,7 @@ def cmd_params(args: argparse.Namespace) -> int:
     for title, points in (("measurements", profile.measurements), ("parameters", profile.parameters)):
         print(f"{profile.display_name} {title}")
         table(
-            ["address", "key", "name", "名称", *protos, "range", "access"],
+            ["address", "key", "name", "名称", *protos, "range", "access", "source"],
             [
                 [
                     p.address,
@@ -131,10 +184,19 @@ def cmd_params(args: argparse.Namespace) -> int:
                     *[f"0x{p.addresses[x]:04X}" if x in p.addresses else "" for x in protos],
                     _range_text(p),
                     p.access.value,
+                    _weakest(p).value,
                 ]
                 for p in points
             ],
         )
+        print()
+    uncertain = _footnotes(profile.measurements + profile.parameters)
+    if uncertain:
+        print(
+            "not printed in the manual (how the profile reads it; writing such a parameter needs an acknowledgement):"
+        )
+        for line in uncertain:
+            print(f"  - {line}")
         print()
     if profile.notes:
         print("notes:")

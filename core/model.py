@@ -9,9 +9,11 @@ from __future__ import annotations
 
 import enum
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from starterbus.core.entry import alternative_reading, convert_unit, split_quantity
 from starterbus.core.errors import ValidationError
 
 
@@ -29,34 +31,75 @@ class Access(str, enum.Enum):
         return self is Access.READ_WRITE
 
 
+class Certainty(str, enum.Enum):
+    """Where a code, scale, default or address comes from."""
+
+    PRINTED = "printed"  # printed in the manual
+    INFERRED = "inferred"  # deduced from what is printed (print order, a worked example)
+    ASSUMED = "assumed"  # chosen by the profile's author; the manual says nothing
+
+
+@dataclass(frozen=True, slots=True)
+class Provenance:
+    """A certainty and, unless printed, why: a phrase that reads after the certainty ("inferred from ...")."""
+
+    certainty: Certainty = Certainty.PRINTED
+    why: str = ""
+
+    @property
+    def printed(self) -> bool:
+        return self.certainty is Certainty.PRINTED
+
+    def text(self) -> str:
+        return f"{self.certainty.value} {self.why}".rstrip()
+
+    def as_json(self) -> dict[str, str]:
+        return {"certainty": self.certainty.value, "why": self.why}
+
+
+PRINTED = Provenance()
+
+
 @dataclass(frozen=True, slots=True)
 class Label:
-    """A text in English and in the manual's Chinese."""
+    """A text in English and in the manual's Chinese, and other spellings a user may type."""
 
     en: str
     zh: str = ""
+    aliases: tuple[str, ...] = ()
 
     def __str__(self) -> str:
         return self.en
 
+    def both(self) -> str:
+        return f"{self.en} / {self.zh}" if self.zh and self.zh != self.en else self.en
+
 
 @dataclass(frozen=True, slots=True)
 class EnumTable:
-    """A format code of the manual (F1, F2, ...): raw value -> label."""
+    """A format code of the manual (F1, F2, ...): raw value -> label, and where each code comes from."""
 
     name: str
     labels: Mapping[int, Label]
+    sources: Mapping[int, Provenance] = field(default_factory=dict)  # code -> provenance (absent: printed)
 
     def label(self, raw: int) -> Label | None:
         return self.labels.get(raw)
 
+    def provenance(self, raw: int) -> Provenance:
+        return self.sources.get(raw, PRINTED)
+
     def lookup(self, text: str) -> int | None:
-        """Raw value for a label given in either language (case-insensitive), or None."""
+        """Raw value for a label given in either language or as an alias (case-insensitive), or None."""
         wanted = text.strip().casefold()
         for raw, label in self.labels.items():
-            if wanted in (label.en.casefold(), label.zh.casefold()):
+            if wanted in (label.en.casefold(), label.zh.casefold(), *(a.casefold() for a in label.aliases)):
                 return raw
         return None
+
+    def choices(self, lo: int = -0x8000, hi: int = 0xFFFF) -> str:
+        """``0 = current limit / 限流, 1 = voltage ramp / 电压`` (codes within lo..hi)."""
+        return ", ".join(f"{k} = {v.both()}" for k, v in sorted(self.labels.items()) if lo <= k <= hi)
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,22 +119,47 @@ class PointDef:
     access: Access = Access.READ
     default: int | None = None
     bits: bool = False
-    scale_assumed: bool = False
     addresses: Mapping[str, int] = field(default_factory=dict)  # protocol -> address (modbus, profibus, devicenet)
     note: str = ""
+    scale_source: Provenance = PRINTED
+    default_source: Provenance = Provenance(Certainty.ASSUMED)
+    address_source: Provenance = PRINTED
+    #: only these raw values are documented as writable (None: any value in range / in the enum)
+    writable_values: frozenset[int] | None = None
+    writable_why: str = ""
 
     @property
     def writable(self) -> bool:
         return self.kind is Kind.PARAMETER and self.access.writable
 
-    def uncertainty(self, raw: int) -> str | None:
-        """Why writing ``raw`` rests on an unprinted code or scale, or None when the manual prints both."""
-        if self.scale_assumed:
-            return f"{self.address} {self.key}: the scale {self.scale:g} is assumed, not printed in the manual"
-        return None
+    @property
+    def scale_assumed(self) -> bool:
+        return not self.scale_source.printed
 
     def address_for(self, protocol: str) -> int | None:
         return self.addresses.get(protocol)
+
+    def uncertainty(self, raw: int) -> str | None:
+        """None when the address, the scale and (for enum points) the code ``raw`` are printed in the manual.
+
+        Otherwise one line naming the key, the raw code and why, e.g. "p15 motor_overload_class: code 1
+        (class 20) is inferred from print order, not printed in the manual".
+        """
+        reasons = []
+        if not self.address_source.printed:
+            reasons.append(f"its address {self.address} is {self.address_source.text()}")
+        if self.enum is not None:
+            label = self.enum.label(raw)
+            if label is None:
+                reasons.append(f"code {raw} is not in the manual's table {self.enum.name}")
+            elif not (source := self.enum.provenance(raw)).printed:
+                reasons.append(f"code {raw} ({label.en}) is {source.text()}")
+        elif not self.scale_source.printed:
+            step = f"x{self.scale:g} {self.unit}".rstrip()
+            reasons.append(f"the scale {step} (raw {raw} = {self._shown(raw)}) is {self.scale_source.text()}")
+        if not reasons:
+            return None
+        return f"{self.address} {self.key}: {'; '.join(reasons)}, not printed in the manual"
 
     # -- conversion ---------------------------------------------------------------------------------------
 
@@ -103,62 +171,99 @@ class PointDef:
         decimals = max(0, round(-math.log10(factor))) if 0 < factor < 1 else 0
         return round(raw * factor, decimals)
 
+    def _shown(self, raw: int) -> str:
+        return f"{self.to_engineering(raw)} {self.unit}".rstrip()
+
     def to_raw(self, value: float | int | str) -> int:
-        """Engineering value or enum label -> raw word, validated against range and resolution.
+        """Engineering value, value with its unit ("350%", "30s") or enum label -> raw word, validated.
 
         Raises :class:`ValidationError` naming the key and the value; nothing is rounded silently.
         """
         if isinstance(value, str):
             raw = self._parse_text(value)
         else:
-            if isinstance(value, bool) or not math.isfinite(float(value)):
+            number = _finite(value)
+            if number is None:
                 raise ValidationError(f"{self.key}: {value!r} is not a number")
-            exact = float(value) / self.scale
-            raw = round(exact)
-            if abs(exact - raw) > 1e-6 * max(1.0, abs(exact)):
-                step = f"{self.scale:g} {self.unit}".rstrip()
-                raise ValidationError(f"{self.key}: {value} {self.unit} is not a multiple of the resolution {step}")
+            raw = self._from_engineering(number, f"{value} {self.unit}".rstrip(), bare=True)
         self.check_raw(raw)
         return raw
 
-    def check_raw(self, raw: int) -> None:
+    def check_range(self, raw: int) -> None:
         """Raise :class:`ValidationError` if a raw value is outside the range or the enum."""
         if not self.raw_min <= raw <= self.raw_max:
             lo, hi = self.to_engineering(self.raw_min), self.to_engineering(self.raw_max)
-            shown = self.to_engineering(raw)
             raise ValidationError(
-                f"{self.key} ({self.address}): {shown} {self.unit} is out of range {lo}..{hi} {self.unit}".replace(
-                    "  ", " "
-                ).rstrip()
+                f"{self.key} ({self.address}): {self._shown(raw)} is out of range {lo}..{hi} {self.unit}".rstrip()
             )
         if self.enum is not None and raw not in self.enum.labels:
-            allowed = ", ".join(f"{k}={v.en}" for k, v in sorted(self.enum.labels.items()))
-            raise ValidationError(f"{self.key} ({self.address}): {raw} is not one of {allowed}")
+            raise ValidationError(
+                f"{self.key} ({self.address}): {raw} is not one of {self.enum.choices(self.raw_min, self.raw_max)}"
+            )
+
+    def check_raw(self, raw: int) -> None:
+        """:meth:`check_range`, and for a write: only the values the manual documents as writable."""
+        self.check_range(raw)
+        if self.writable_values is not None and raw not in self.writable_values:
+            allowed = ", ".join(str(v) for v in sorted(self.writable_values))
+            why = f" ({self.writable_why})" if self.writable_why else ""
+            raise ValidationError(
+                f"{self.key} ({self.address}): only {allowed} is documented as writable{why}; {raw} is refused"
+            )
+
+    def _from_engineering(self, number: float, shown: str, bare: bool = False) -> int:
+        exact = number / self.scale
+        if not math.isfinite(exact) or abs(exact) > 1e12:
+            raise ValidationError(f"{self.key} ({self.address}): {shown} is far out of range")
+        if bare and not self.raw_min <= exact <= self.raw_max:
+            self._hint_other_unit(number, shown)
+        raw = round(exact)
+        if abs(exact - raw) > 1e-6 * max(1.0, abs(exact)):
+            step = f"{self.scale:g} {self.unit}".rstrip()
+            raise ValidationError(f"{self.key}: {shown} is not a multiple of the resolution {step}")
+        return raw
+
+    def _hint_other_unit(self, number: float, shown: str) -> None:
+        """A bare number out of range that fits when read as % (or as x): say so instead of "out of range"."""
+        other = alternative_reading(number, self.unit)
+        if other is not None and self.raw_min <= other[0] / self.scale <= self.raw_max:
+            lo, hi = self.to_engineering(self.raw_min), self.to_engineering(self.raw_max)
+            raise ValidationError(
+                f"{self.key} ({self.address}): {shown} is out of range {lo}..{hi} {self.unit}; "
+                f"did you mean {number:g}{other[1]} (= {other[0]:g} {self.unit})?"
+            )
 
     def _parse_text(self, text: str) -> int:
+        what = f"{self.key} ({self.address})"
         if self.enum is not None:
             raw = self.enum.lookup(text)
             if raw is not None:
                 return raw
-        cleaned = text.strip()
-        if self.unit and cleaned.endswith(self.unit):
-            cleaned = cleaned[: -len(self.unit)].strip()
-        try:
-            number = float(int(cleaned, 0)) if cleaned.lower().startswith("0x") else float(cleaned)
-        except ValueError:
-            choices = ""
-            if self.enum is not None:
-                choices = "; one of " + ", ".join(f"{v.en!r}" for v in self.enum.labels.values())
-            raise ValidationError(f"{self.key}: cannot read {text!r} as a value{choices}") from None
-        if self.enum is not None:
-            if number != int(number):
-                raise ValidationError(f"{self.key}: {text!r} is not an enum value")
-            return int(number)
-        exact = number / self.scale
-        raw = round(exact)
-        if abs(exact - raw) > 1e-6 * max(1.0, abs(exact)):
-            raise ValidationError(f"{self.key}: {text} is not a multiple of the resolution {self.scale:g}")
-        return raw
+            code = text.strip()
+            if re.fullmatch(r"[+-]?\d+|0[xX][0-9a-fA-F]+", code):
+                return int(code, 0) if code.lower().startswith("0x") else int(code)
+            raise ValidationError(
+                f"{what}: {text!r} is not a choice; choose one of {self.enum.choices(self.raw_min, self.raw_max)}"
+            )
+        quantity = split_quantity(text)
+        if quantity is None:
+            unit = f" (a number, optionally with its unit {self.unit!r})" if self.unit else " (a number)"
+            raise ValidationError(f"{what}: cannot read {text!r} as a value{unit}")
+        number, unit = quantity
+        if not math.isfinite(number):
+            raise ValidationError(f"{what}: {text!r} is not a number")
+        converted = convert_unit(number, unit, self.unit, what)
+        return self._from_engineering(converted, text.strip(), bare=not unit)
+
+
+def _finite(value: object) -> float | None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:
+        return None
+    return number if math.isfinite(number) else None
 
 
 @dataclass(frozen=True, slots=True)

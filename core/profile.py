@@ -13,8 +13,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from starterbus.core.errors import ProfileError, UnknownPointError
-from starterbus.core.model import Access, EnumTable, Kind, Label, PointDef
+from starterbus.core.entry import nearest
+from starterbus.core.errors import ProfileError, StarterbusError, UnknownPointError
+from starterbus.core.model import Certainty, EnumTable, Kind, PointDef, Provenance
+from starterbus.core.profile_points import (
+    POINT_FIELDS,
+    build_point,
+    enum_table,
+    int_key,
+    key_text,
+    label,
+    provenance,
+    shown,
+    table,
+    text,
+    text_list,
+)
 from starterbus.core.status import FaultTable
 
 if sys.version_info >= (3, 11):
@@ -23,25 +37,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 SCHEMA_VERSION = 1
-PROTOCOL_FIELDS = ("modbus", "profibus", "devicenet")
 _KEY_RE = re.compile(r"^[a-z][a-z0-9_]*$")
-_POINT_FIELDS = {
-    "key",
-    "address",
-    "name_zh",
-    "name_en",
-    "min",
-    "max",
-    "scale",
-    "unit",
-    "enum",
-    "default",
-    "access",
-    "format",
-    "scale_assumed",
-    "note",
-    *PROTOCOL_FIELDS,
-}
 _ROLE_NAMES = {
     "control_word",
     "status_word",
@@ -85,6 +81,7 @@ class Profile:
     manuals: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     source: str = ""
+    fault_sources: Mapping[int, Provenance] = field(default_factory=dict)  # fault code -> where it comes from
     _by_address: Mapping[tuple[Kind | None, str], str] = field(default_factory=dict, repr=False)
 
     # -- lookup ---------------------------------------------------------------------------------------------
@@ -98,21 +95,26 @@ class Profile:
         return [p for p in self.points.values() if p.kind is Kind.MEASUREMENT]
 
     def point(self, key_or_address: str) -> PointDef:
-        """A point by snake_case key or by the manual's own address ("0x0103", "p7", "m3")."""
-        text = key_or_address.strip()
-        found = self.points.get(text) or self.points.get(text.lower())
+        """A point by snake_case key or by the manual's own address ("0x0103", "p7", "m3").
+
+        JJR8000-style addresses read as the manual prints them: parameter indexes (appendix 3) in decimal,
+        measurement addresses (appendix 2) in hex, so ``m10`` is 0x10 (last fault code), ``p10`` index 10.
+        """
+        text_in = str(key_or_address).strip()
+        found = self.points.get(text_in) or self.points.get(text_in.lower())
         if found is not None:
             return found
-        norm = _normalise_address(text, self.address_style)
+        norm = normalise_address(text_in, self.address_style)
         if norm is not None:
             key = self._by_address.get(norm) or self._by_address.get((None, norm[1]))
             if key is not None:
                 return self.points[key]
+        close = nearest(text_in, self.points)
+        hint = f"did you mean {', '.join(close)}? " if close else ""
+        example = " like 0x0100" if self.address_style == "register" else " like p7 or m3"
         raise UnknownPointError(
-            f"{self.name}: no parameter or measurement {key_or_address!r} "
-            f"(use a key such as {next(iter(self.points))!r} or a manual address"
-            f"{' like 0x0100' if self.address_style == 'register' else ' like p7 or m3'}; "
-            f"`starterbus params {self.name}` lists them)"
+            f"{self.name}: no parameter or measurement {shown(key_or_address)} ({hint}use a key or a manual "
+            f"address{example}; `starterbus params {self.name}` lists them)"
         )
 
     def role(self, name: str) -> PointDef | None:
@@ -135,14 +137,24 @@ class Profile:
         return None
 
 
-def _normalise_address(text: str, style: str) -> tuple[Kind | None, str] | None:
+def normalise_address(text: str, style: str) -> tuple[Kind | None, str] | None:
+    """A manual address as (kind or None, number as text), or None if ``text`` is not one.
+
+    "index" style: ``p<N>`` decimal (appendix 3 counts 0-118), ``m<N>`` hex as appendix 2 prints it
+    (``m0a``, ``m10`` = 0x10); a ``0x`` prefix is hex for both. "register" style: ``0x0103``, ``0103``, ``103h``.
+    """
     t = text.strip().lower()
     if style == "index":
-        m = re.fullmatch(r"([pm])\s*(0x[0-9a-f]+|\d+)", t)
+        m = re.fullmatch(r"([pm])\s*(0x[0-9a-f]{1,8}|[0-9a-f]{1,8})", t)
         if m is None:
             return None
-        kind = Kind.PARAMETER if m.group(1) == "p" else Kind.MEASUREMENT
-        return kind, str(int(m.group(2), 0))
+        number = m.group(2)
+        if m.group(1) == "p":
+            if not (number.startswith("0x") or number.isdigit()):
+                return None
+            value = int(number, 16) if number.startswith("0x") else int(number, 10)
+            return Kind.PARAMETER, str(value)
+        return Kind.MEASUREMENT, str(int(number, 16))
     m = re.fullmatch(r"(?:0x)?([0-9a-f]{1,4})h?", t)
     if m is None or not (t.startswith("0x") or t.endswith("h") or len(m.group(1)) == 4):
         return None
@@ -170,224 +182,190 @@ def load_profile_text(text: str, source: str = "<profile>") -> Profile:
 
 
 def build_profile(data: Mapping[str, Any], source: str) -> Profile:
+    """A profile from parsed TOML data; any problem raises :class:`ProfileError` naming file, key and value."""
+
     def fail(key: str, message: str) -> ProfileError:
         return ProfileError(source, key, message)
 
-    if data.get("schema") != SCHEMA_VERSION:
-        raise fail("schema", f"expected schema = {SCHEMA_VERSION}, got {data.get('schema')!r}")
-    model = _table(data, "model", source)
-    name = _str(model, "name", source, "model.")
+    if not isinstance(data, Mapping):
+        raise fail("(document)", "must be a table")
+    if data.get("schema") != SCHEMA_VERSION or isinstance(data.get("schema"), bool):
+        raise fail("schema", f"expected schema = {SCHEMA_VERSION}, got {shown(data.get('schema'))}")
+    model = table(data, "model", source)
+    name = text(model, "name", source, "model.")
     if not _KEY_RE.fullmatch(name):
         raise fail("model.name", f"{name!r} must be lowercase letters, digits and underscores")
     style = model.get("address_style", "register")
     if style not in ("register", "index"):
-        raise fail("model.address_style", f"{style!r} is not 'register' or 'index'")
+        raise fail("model.address_style", f"{shown(style)} is not 'register' or 'index'")
+    codes = _model_certainty(model, "certainty", source)
+    defaults = _model_certainty(model, "default_certainty", source)
 
-    enums: dict[str, EnumTable] = {}
-    for enum_name, table in _table(data, "enums", source, required=False).items():
-        if not isinstance(table, Mapping) or not table:
-            raise fail(f"enums.{enum_name}", "must be a non-empty table of raw value -> {en, zh}")
-        enums[enum_name] = EnumTable(
-            enum_name,
-            {
-                _int_key(k, source, f"enums.{enum_name}"): _label(v, source, f"enums.{enum_name}.{k}")
-                for k, v in table.items()
-            },
-        )
+    enums = {
+        str(n): enum_table(str(n), t, source, codes) for n, t in table(data, "enums", source, required=False).items()
+    }
+    fault_table = enum_table("faults", table(data, "faults", source, required=False), source, codes, "faults", 0, 63)
+    faults = FaultTable(fault_table.labels)
+    points, by_address = _points(data, style, enums, source, (codes, defaults))
+    control = _control(table(data, "control", source, required=False), points, source)
+    roles = _roles(table(data, "roles", source), points, source)
+    transports = _transports(table(data, "transports", source), points, source)
 
-    faults = FaultTable(
-        {
-            _int_key(k, source, "faults"): _label(v, source, f"faults.{k}")
-            for k, v in _table(data, "faults", source, required=False).items()
-        }
+    return Profile(
+        name=name,
+        vendor=text(model, "vendor", source, "model.", ""),
+        display_name=text(model, "display_name", source, "model.", name.upper()),
+        address_style=style,
+        points=points,
+        enums=enums,
+        faults=faults,
+        fault_sources=fault_table.sources,
+        control=control,
+        roles=roles,
+        transports=transports,
+        manuals=text_list(model, "manuals", source, "model."),
+        notes=text_list(model, "notes", source, "model."),
+        source=source,
+        _by_address=by_address,
     )
-    for code in faults.labels:
-        if not 0 <= code <= 63:
-            raise fail(f"faults.{code}", "fault codes are 6 bits (0-63)")
 
+
+def _model_certainty(model: Mapping[str, Any], key: str, source: str) -> Provenance:
+    """The profile-wide default; absent means "assumed" (printed only where the author verified the manual)."""
+    if key not in model:
+        return Provenance(Certainty.ASSUMED)
+    return provenance(model[key], source, f"model.{key}", need_why=False)
+
+
+def _points(
+    data: Mapping[str, Any],
+    style: str,
+    enums: Mapping[str, EnumTable],
+    source: str,
+    defaults: tuple[Provenance, Provenance],
+) -> tuple[dict[str, PointDef], dict[tuple[Kind | None, str], str]]:
     points: dict[str, PointDef] = {}
     used: dict[tuple[str, Kind, int], str] = {}
     by_address: dict[tuple[Kind | None, str], str] = {}
     for kind, section in ((Kind.MEASUREMENT, "measurements"), (Kind.PARAMETER, "parameters")):
         entries = data.get(section, [])
         if not isinstance(entries, list):
-            raise fail(section, "must be an array of tables ([[...]])")
+            raise ProfileError(source, section, f"must be an array of tables ([[...]]), not {shown(entries)}")
         for i, entry in enumerate(entries):
             where = f"{section}[{i}]"
             if not isinstance(entry, Mapping):
-                raise fail(where, "must be a table")
+                raise ProfileError(source, where, f"must be a table, not {shown(entry)}")
             key = entry.get("key")
             if not isinstance(key, str) or not _KEY_RE.fullmatch(key):
-                raise fail(f"{where}.key", f"{key!r} is not a snake_case key")
+                raise ProfileError(source, f"{where}.key", f"{shown(key)} is not a snake_case key")
             where = f"{section}.{key}"
-            unknown = set(entry) - _POINT_FIELDS
+            unknown = set(entry) - POINT_FIELDS
             if unknown:
-                raise fail(where, f"unknown field(s) {sorted(unknown)}")
+                raise ProfileError(source, where, f"unknown field(s) {sorted(unknown)}")
             if key in points:
-                raise fail(where, "duplicate key")
-            point = _build_point(entry, kind, key, enums, source, where)
+                raise ProfileError(source, where, "duplicate key")
+            point = build_point(entry, kind, key, enums, source, where, defaults)
             for proto, addr in point.addresses.items():
                 slot = (proto, kind, addr)
                 if slot in used:
-                    raise fail(where, f"{proto} address {addr:#06x} overlaps {used[slot]}")
+                    raise ProfileError(source, where, f"{proto} address {addr:#06x} overlaps {used[slot]}")
                 used[slot] = key
-            norm = _normalise_address(point.address, style)
-            if norm is None:
-                raise fail(f"{where}.address", f"{point.address!r} is not a {style}-style manual address")
+            norm = normalise_address(point.address, style)
+            if norm is None or norm[0] not in (None, kind):
+                raise ProfileError(
+                    source,
+                    f"{where}.address",
+                    f"{point.address!r} is not a {style}-style manual address of a {kind.value}",
+                )
             slot_key: tuple[Kind | None, str] = (kind, norm[1]) if style == "index" else (None, norm[1])
             if slot_key in by_address:
-                raise fail(f"{where}.address", f"{point.address!r} is also the address of {by_address[slot_key]}")
+                raise ProfileError(
+                    source, f"{where}.address", f"{point.address!r} is also the address of {by_address[slot_key]}"
+                )
             by_address[slot_key] = key
             points[key] = point
+    return points, by_address
 
-    control_table = _table(data, "control", source, required=False)
+
+def _control(data: Mapping[str, Any], points: Mapping[str, PointDef], source: str) -> ControlTraits:
+    def flag(key: str) -> bool:
+        value = data.get(key, False)
+        if not isinstance(value, bool):
+            raise ProfileError(source, f"control.{key}", f"{shown(value)} is not true or false")
+        return value
+
+    bit12 = text(data, "status_bit12", source, "control.", "")
+    if bit12 not in ("", "mains_voltage"):
+        raise ProfileError(source, "control.status_bit12", f"{bit12!r} is not '' or 'mains_voltage'")
     control = ControlTraits(
-        bus_control_required=bool(control_table.get("bus_control_required", False)),
-        bit12_is_mains_voltage=control_table.get("status_bit12", "") == "mains_voltage",
-        write_protect_key=str(control_table.get("write_protect_key", "")),
-        locked_while_running=frozenset(control_table.get("locked_while_running", [])),
+        bus_control_required=flag("bus_control_required"),
+        bit12_is_mains_voltage=bit12 == "mains_voltage",
+        write_protect_key=text(data, "write_protect_key", source, "control.", ""),
+        locked_while_running=frozenset(text_list(data, "locked_while_running", source, "control.")),
     )
-    for ref in [control.write_protect_key, *control.locked_while_running]:
+    for ref in [control.write_protect_key, *sorted(control.locked_while_running)]:
         if ref and (ref not in points or points[ref].kind is not Kind.PARAMETER):
-            raise fail("control", f"{ref!r} is not a parameter of this profile")
+            raise ProfileError(source, "control", f"{ref!r} is not a parameter of this profile")
+    return control
 
-    roles = dict(_table(data, "roles", source))
-    for role, ref in roles.items():
+
+def _roles(data: Mapping[str, Any], points: Mapping[str, PointDef], source: str) -> dict[str, Any]:
+    roles: dict[str, Any] = {}
+    for role, ref in data.items():
+        where = f"roles.{key_text(role)}"
         if role not in _ROLE_NAMES:
-            raise fail(f"roles.{role}", f"unknown role (known: {sorted(_ROLE_NAMES)})")
-        refs = ref if isinstance(ref, list) else [ref]
+            raise ProfileError(source, where, f"unknown role (known: {sorted(_ROLE_NAMES)})")
+        if role == "phase_currents":
+            if not isinstance(ref, list) or not ref or not all(isinstance(r, str) for r in ref):
+                raise ProfileError(source, where, f"{shown(ref)} is not a non-empty list of point keys")
+            refs = list(ref)
+        elif isinstance(ref, str):
+            refs = [ref]
+        else:
+            raise ProfileError(source, where, f"{shown(ref)} is not a point key")
         for r in refs:
             if r not in points:
-                raise fail(f"roles.{role}", f"{r!r} names no point of this profile")
+                raise ProfileError(source, where, f"{r!r} names no point of this profile")
+        roles[role] = ref
     for role in _REQUIRED_ROLES:
         if role not in roles:
-            raise fail(f"roles.{role}", "required role missing")
+            raise ProfileError(source, f"roles.{role}", "required role missing")
+    return roles
 
-    transports = {str(k): dict(v) for k, v in _table(data, "transports", source).items()}
+
+def _transports(data: Mapping[str, Any], points: Mapping[str, PointDef], source: str) -> dict[str, Mapping[str, Any]]:
+    transports: dict[str, Mapping[str, Any]] = {}
+    for tname, settings in data.items():
+        where = f"transports.{key_text(tname)}"
+        if not isinstance(settings, Mapping):
+            raise ProfileError(source, where, f"must be a table of settings, not {shown(settings)}")
+        checked = dict(settings)
+        for sub in ("exceptions", "errors"):
+            if sub in checked:
+                entries = table(checked, sub, source, f"{where}.")
+                checked[sub] = {
+                    int_key(k, source, f"{where}.{sub}"): label(v, source, f"{where}.{sub}.{key_text(k)}")[0]
+                    for k, v in entries.items()
+                }
+        _check_settings(str(tname), checked, source, where)
+        transports[str(tname)] = checked
     if not transports:
-        raise fail("transports", "a profile must name at least one transport")
+        raise ProfileError(source, "transports", "a profile must name at least one transport")
     for proto, proto_key in (("modbus-rtu", "modbus"), ("profibus-pkw", "profibus")):
         if proto in transports and not any(proto_key in p.addresses for p in points.values()):
-            raise fail(f"transports.{proto}", f"no point has a {proto_key} address")
-    for tname, settings in transports.items():
-        for table in ("exceptions", "errors"):
-            if table in settings:
-                settings[table] = {
-                    _int_key(k, source, f"transports.{tname}.{table}"): _label(
-                        v, source, f"transports.{tname}.{table}.{k}"
-                    )
-                    for k, v in settings[table].items()
-                }
-
-    return Profile(
-        name=name,
-        vendor=str(model.get("vendor", "")),
-        display_name=str(model.get("display_name", name.upper())),
-        address_style=style,
-        points=points,
-        enums=enums,
-        faults=faults,
-        control=control,
-        roles=roles,
-        transports=transports,
-        manuals=tuple(model.get("manuals", ())),
-        notes=tuple(model.get("notes", ())),
-        source=source,
-        _by_address=by_address,
-    )
+            raise ProfileError(source, f"transports.{proto}", f"no point has a {proto_key} address")
+    return transports
 
 
-def _build_point(
-    entry: Mapping[str, Any], kind: Kind, key: str, enums: Mapping[str, EnumTable], source: str, where: str
-) -> PointDef:
-    def fail(field_name: str, message: str) -> ProfileError:
-        return ProfileError(source, f"{where}.{field_name}" if field_name else where, message)
+def _check_settings(name: str, settings: Mapping[str, Any], source: str, where: str) -> None:
+    """Let the installed plugin of that name check its settings (a plugin not installed checks nothing)."""
+    from starterbus.core.registry import transports  # late: the registry imports this module
 
-    raw_min, raw_max = entry.get("min"), entry.get("max")
-    if not isinstance(raw_min, int) or not isinstance(raw_max, int):
-        raise fail("min", "min and max must be integers (raw values)")
-    if raw_min > raw_max:
-        raise fail("min", f"inverted range {raw_min} > {raw_max}")
-    if raw_min < -0x8000 or raw_max > 0xFFFF:
-        raise fail("max", f"range {raw_min}..{raw_max} does not fit a 16-bit word")
-    scale = entry.get("scale", 1)
-    if not isinstance(scale, (int, float)) or scale <= 0:
-        raise fail("scale", f"{scale!r} must be a positive number")
-    enum_table = None
-    if "enum" in entry:
-        enum_table = enums.get(entry["enum"])
-        if enum_table is None:
-            raise fail("enum", f"unknown enum {entry['enum']!r} (defined: {sorted(enums)})")
-        if not any(raw_min <= v <= raw_max for v in enum_table.labels):
-            raise fail("enum", f"no value of {entry['enum']} lies in {raw_min}..{raw_max}")
-    access_text = entry.get("access", "rw" if kind is Kind.PARAMETER else "r")
     try:
-        access = Access(access_text)
-    except ValueError:
-        raise fail("access", f"{access_text!r} is not 'r' or 'rw'") from None
-    if kind is Kind.MEASUREMENT and access is not Access.READ:
-        raise fail("access", "measurements are read-only")
-    default = entry.get("default")
-    if default is not None and (not isinstance(default, int) or not raw_min <= default <= raw_max):
-        raise fail("default", f"{default!r} is outside {raw_min}..{raw_max}")
-    addresses: dict[str, int] = {}
-    for proto in PROTOCOL_FIELDS:
-        if proto in entry:
-            addr = entry[proto]
-            if not isinstance(addr, int) or not 0 <= addr <= 0xFFFF:
-                raise fail(proto, f"{addr!r} is not an address")
-            addresses[proto] = addr
-    for text_field in ("address", "name_en"):
-        if not isinstance(entry.get(text_field), str) or not entry[text_field]:
-            raise fail(text_field, "required text")
-    return PointDef(
-        key=key,
-        kind=kind,
-        address=entry["address"],
-        name_zh=str(entry.get("name_zh", "")),
-        name_en=entry["name_en"],
-        raw_min=raw_min,
-        raw_max=raw_max,
-        scale=float(scale),
-        unit=str(entry.get("unit", "")),
-        enum=enum_table,
-        access=access,
-        default=default,
-        bits=entry.get("format") == "bits",
-        scale_assumed=bool(entry.get("scale_assumed", False)),
-        addresses=addresses,
-        note=str(entry.get("note", "")),
-    )
-
-
-def _table(data: Mapping[str, Any], name: str, source: str, required: bool = True) -> Mapping[str, Any]:
-    value = data.get(name)
-    if value is None:
-        if required:
-            raise ProfileError(source, name, "required table missing")
-        return {}
-    if not isinstance(value, Mapping):
-        raise ProfileError(source, name, "must be a table")
-    return value
-
-
-def _str(table: Mapping[str, Any], key: str, source: str, prefix: str) -> str:
-    value = table.get(key)
-    if not isinstance(value, str) or not value:
-        raise ProfileError(source, prefix + key, "required text")
-    return value
-
-
-def _int_key(key: object, source: str, where: str) -> int:
+        plugin = transports.get(name)
+    except StarterbusError:
+        return
     try:
-        return int(str(key), 0)
-    except ValueError:
-        raise ProfileError(source, f"{where}.{key}", "keys must be integers") from None
-
-
-def _label(value: object, source: str, where: str) -> Label:
-    if isinstance(value, str):
-        return Label(value)
-    if isinstance(value, Mapping) and isinstance(value.get("en"), str):
-        return Label(value["en"], str(value.get("zh", "")))
-    raise ProfileError(source, where, "must be a text or a table {en = ..., zh = ...}")
+        plugin.check_settings(settings)
+    except StarterbusError as exc:
+        raise ProfileError(source, where, str(exc)) from None

@@ -14,9 +14,10 @@ import contextlib
 import dataclasses
 import enum
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import TracebackType
+from typing import Any
 
 from starterbus.core.errors import UnsupportedOperationError
 from starterbus.core.model import PointDef, Reading
@@ -263,6 +264,13 @@ class TransportPlugin(ABC):
     @abstractmethod
     def open(self, url: DeviceUrl, profile: Profile) -> Transport:
         """Build a transport (not yet opened) for one device. Validate the URL here: bad URL, clear error."""
+
+    def check_settings(self, settings: Mapping[str, Any]) -> None:
+        """Check this transport's table of a profile (``[transports.NAME]``) when the profile loads.
+
+        Raise :class:`~starterbus.core.errors.ConfigurationError` naming the key and the value; the loader adds
+        the file. The default accepts anything.
+        """
 
     # -- optional hooks for the CLI ---------------------------------------------------------------------------
 

@@ -31,13 +31,19 @@ class DeviceUrl:
             raise ConfigurationError(
                 f"{text!r} is not a device URL (expected SCHEME://..., e.g. modbus-rtu:///dev/ttyUSB0?unit=2)"
             )
-        parts = urlsplit(text)
-        scheme = parts.scheme.lower()
-        transport, _, variant = scheme.partition("+")
+        try:
+            parts = urlsplit(text)
+            host = parts.hostname or ""
+        except ValueError as exc:  # bad IPv6 brackets, characters that NFKC-normalise into URL syntax
+            raise ConfigurationError(f"{text!r}: invalid host: {exc}") from None
         try:
             port = parts.port
         except ValueError:
-            raise ConfigurationError(f"{text}: invalid port") from None
+            raise ConfigurationError(f"{text!r}: invalid port (0-65535)") from None
+        scheme = parts.scheme.lower()
+        if not scheme:
+            raise ConfigurationError(f"{text!r}: no scheme before :// (e.g. modbus-rtu:///dev/ttyUSB0?unit=2)")
+        transport, _, variant = scheme.partition("+")
         pairs = parse_qsl(parts.query, keep_blank_values=True, strict_parsing=False)
         query: dict[str, str] = {}
         for key, value in pairs:
@@ -49,7 +55,7 @@ class DeviceUrl:
             scheme=scheme,
             transport=transport,
             variant=variant,
-            host=parts.hostname or "",
+            host=host,
             port=port,
             path=unquote(parts.path),
             query=query,

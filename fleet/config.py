@@ -25,6 +25,7 @@ delay = 0.005               # extra pause between two transactions on this bus (
 
 from __future__ import annotations
 
+import math
 import re
 import sys
 from collections.abc import Mapping
@@ -157,23 +158,28 @@ def load_fleet(path: str | Path) -> FleetConfig:
 
 
 def parse_fleet(text: str, source: str = "<fleet>") -> FleetConfig:
-    lines = _Lines(text)
-
-    def fail(where: str, message: str) -> ConfigurationError:
-        line = lines.line(where)
-        at = f"line {line}: " if line else ""
-        return ConfigurationError(f"{source}: {at}{where}: {message}")
-
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigurationError(f"{source}: {exc}") from exc
+    return build_fleet(data, source, _Lines(text))
 
+
+def build_fleet(data: Mapping[str, Any], source: str = "<fleet>", lines: _Lines | None = None) -> FleetConfig:
+    """A fleet from parsed TOML data; any problem raises :class:`ConfigurationError` naming file, line and key."""
+
+    def fail(where: str, message: str) -> ConfigurationError:
+        line = lines.line(where) if lines is not None else None
+        at = f"line {line}: " if line else ""
+        return ConfigurationError(f"{source}: {at}{where}: {message}")
+
+    if not isinstance(data, Mapping):
+        raise fail("(document)", "must be a table")
     unknown = set(data) - {"poll", "bus"}
     if unknown:
-        raise fail(sorted(unknown)[0], "unknown table (expected [poll] and [[bus]])")
+        raise fail(_key(sorted(unknown)[0]), "unknown table (expected [poll] and [[bus]])")
     poll = data.get("poll", {})
-    if not isinstance(poll, dict):
+    if not isinstance(poll, Mapping):
         raise fail("poll", "must be a table")
     _check_fields(poll, _POLL_FIELDS, "poll", fail)
     period = _positive(poll.get("period", 1.0), "poll.period", fail)
@@ -188,6 +194,8 @@ def parse_fleet(text: str, source: str = "<fleet>") -> FleetConfig:
     bus_targets: dict[str, str] = {}
     for bi, bus in enumerate(buses_data):
         where = f"bus[{bi}]"
+        if not isinstance(bus, Mapping):
+            raise fail(where, f"{_shown(bus)} is not a table: write each bus as [[bus]] with name, url and devices")
         _check_fields(bus, _BUS_FIELDS, where, fail)
         name = _name(bus, where, fail)
         if name in bus_names:
@@ -212,6 +220,8 @@ def parse_fleet(text: str, source: str = "<fleet>") -> FleetConfig:
         bus_devices = []
         for di, dev in enumerate(dev_list):
             dwhere = f"{where}.device[{di}]"
+            if not isinstance(dev, Mapping):
+                raise fail(dwhere, f"{_shown(dev)} is not a table: write each device as [[bus.device]]")
             _check_fields(dev, _DEVICE_FIELDS, dwhere, fail)
             dname = _name(dev, dwhere, fail)
             if dname in devices:
@@ -233,7 +243,7 @@ def parse_fleet(text: str, source: str = "<fleet>") -> FleetConfig:
                     raise fail(f"{dwhere}.address", f"address {address} is used twice on bus {name!r}")
                 addresses.add(address)
             options = dev.get("options", {})
-            if not isinstance(options, dict):
+            if not isinstance(options, Mapping):
                 raise fail(f"{dwhere}.options", "must be a table of URL parameters")
             dev_url = _device_url(url, address, options)
             if "url" in dev:
@@ -310,9 +320,18 @@ def _remote(table: object, profile: Profile, where: str, fail: Any) -> RemotePol
     return RemotePolicy(frozenset(_REMOTE_COMMANDS[c] for c in commands), frozenset(writable))
 
 
+def _shown(value: object) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _key(key: str) -> str:
+    return key if re.fullmatch(r"[\w+-]+", key) else repr(key)
+
+
 def _check_fields(table: Mapping[str, Any], known: set[str], where: str, fail: Any) -> None:
     for key in sorted(set(table) - known):
-        raise fail(f"{where}.{key}", f"unknown setting (known: {', '.join(sorted(known))})")
+        raise fail(f"{where}.{_key(key)}", f"unknown setting (known: {', '.join(sorted(known))})")
 
 
 def _name(table: Mapping[str, Any], where: str, fail: Any) -> str:
@@ -323,12 +342,12 @@ def _name(table: Mapping[str, Any], where: str, fail: Any) -> str:
 
 
 def _positive(value: object, where: str, fail: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or value <= 0:
-        raise fail(where, f"{value!r} must be a positive number of seconds")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < math.inf:
+        raise fail(where, f"{_shown(value)} must be a positive number of seconds")
     return float(value)
 
 
 def _non_negative(value: object, where: str, fail: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or value < 0:
-        raise fail(where, f"{value!r} must be zero or a positive number of seconds")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < math.inf:
+        raise fail(where, f"{_shown(value)} must be zero or a positive number of seconds")
     return float(value)

@@ -180,9 +180,8 @@ def test_a_profile_can_state_its_refusal_answers(profiles: dict[str, Profile]) -
     assert answers[Refusal.OUT_OF_RANGE] == PkwAnswer(ResponseCode.CANNOT_EXECUTE, 7)
     assert answers[UNSUPPORTED_TASK] == PkwAnswer(ResponseCode.CANNOT_EXECUTE, 9)
     assert answers[Refusal.READ_ONLY] == PkwAnswer(ResponseCode.NO_WRITE_PERMISSION)
-    bad = _custom(profiles["jjr8000"], "custom8000c", extra="refusals = { sometimes = 1 }\n")
-    with pytest.raises(ConfigurationError, match="unknown refusal"):
-        refusal_answers(bad)
-    bad = _custom(profiles["jjr8000"], "custom8000d", extra='refusals = { read_only = "maybe" }\n')
-    with pytest.raises(ConfigurationError, match="not an error number"):
-        refusal_answers(bad)
+    # a bad refusal table fails when the profile loads (the plugin's check_settings), naming the key
+    with pytest.raises(ConfigurationError, match="refusals.sometimes: unknown refusal"):
+        _custom(profiles["jjr8000"], "custom8000c", extra="refusals = { sometimes = 1 }\n")
+    with pytest.raises(ConfigurationError, match="refusals.read_only: 'maybe' is not an error number"):
+        _custom(profiles["jjr8000"], "custom8000d", extra='refusals = { read_only = "maybe" }\n')

@@ -6,8 +6,10 @@ Heavy modules (python-can, the scanner, the simulator) are imported only when a 
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
+from starterbus.core import settings_check as check
 from starterbus.core.errors import ConfigurationError
 from starterbus.core.profile import Profile
 from starterbus.core.transport import Annotation, Capability, RunningSimulator, Transport, TransportPlugin
@@ -29,6 +31,27 @@ class DeviceNetPlugin(TransportPlugin):
         from starterbus.transports.devicenet.transport import DeviceNetTransport
 
         return DeviceNetTransport(url, profile)
+
+    def check_settings(self, settings: Mapping[str, Any]) -> None:
+        """The keys this transport reads from ``[transports.devicenet]``."""
+        check.known_keys(settings, ("mac_ids", "input_assemblies", "output_assemblies", "bitrates", "identity"))
+        check.int_range(settings, "mac_ids", 0, 63)
+        check.int_list(settings, "input_assemblies", 1, 0xFFFF)
+        check.int_list(settings, "output_assemblies", 1, 0xFFFF)
+        check.int_list(settings, "bitrates", 1, 1_000_000, choices=(125000, 250000, 500000))
+        identity = {f"identity.{k}": v for k, v in check.sub_table(settings, "identity").items()}
+        for name in ("vendor_id", "device_type", "product_code", "status"):
+            check.int_value(identity, f"identity.{name}", 0, 0xFFFF)
+        check.int_value(identity, "identity.serial_number", 0, 0xFFFFFFFF)
+        revision = identity.get("identity.revision", [0, 0])
+        if not isinstance(revision, list) or len(revision) != 2:
+            raise ConfigurationError(f"identity.revision: {revision!r} is not [major, minor]")
+        for part in revision:
+            check.int_value({"identity.revision": part}, "identity.revision", 0, 0xFF)
+        for name in ("product_name", "product_code_text", "revision_text"):
+            value = identity.get(f"identity.{name}", "")
+            if not isinstance(value, str) or (name == "product_name" and len(value.encode("ascii", "replace")) > 32):
+                raise ConfigurationError(f"identity.{name}: {value!r} is not a text (product_name: 32 characters)")
 
     # -- simulate ----------------------------------------------------------------------------------------------
 

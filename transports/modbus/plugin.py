@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
+from starterbus.core import settings_check as check
 from starterbus.core.errors import ConfigurationError
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
@@ -36,6 +38,14 @@ class ModbusRtuPlugin(TransportPlugin):
 
     def open(self, url: DeviceUrl, profile: Profile) -> Transport:
         return ModbusRtuTransport(url, profile, ModbusRtuConfig.from_url(url, profile))
+
+    def check_settings(self, settings: Mapping[str, Any]) -> None:
+        """The keys this transport reads from ``[transports.modbus-rtu]`` (``exceptions`` is parsed by the loader)."""
+        check.known_keys(settings, ("max_read_registers", "unit_ids", "baudrates", "default_baudrate", "exceptions"))
+        check.int_value(settings, "max_read_registers", 1, 125)
+        check.int_range(settings, "unit_ids", 0, 247)
+        check.int_list(settings, "baudrates", 1, 10_000_000)
+        check.int_value(settings, "default_baudrate", 1, 10_000_000)
 
     # -- simulator ----------------------------------------------------------------------------------------------
 

@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
-from starterbus.core.errors import ConfigurationError
+from starterbus.core import settings_check as check
+from starterbus.core.errors import ConfigurationError, Refusal
 from starterbus.core.model import Kind
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.transport import Annotation, Capability, RunningSimulator, Transport, TransportPlugin
 from starterbus.core.url import DeviceUrl
 from starterbus.transports.profibus_pkw.decoder import annotate_hex
+from starterbus.transports.profibus_pkw.slave import UNSUPPORTED_TASK
 from starterbus.transports.profibus_pkw.telegram import PROTOCOL, Direction, Part, Ppo
 from starterbus.transports.profibus_pkw.transport import LinkSettings, ProfibusPkwTransport
 
@@ -36,6 +39,20 @@ class ProfibusPkwPlugin(TransportPlugin):
 
     def open(self, url: DeviceUrl, profile: Profile) -> Transport:
         return ProfibusPkwTransport(url, profile, LinkSettings.from_url(url, profile))
+
+    def check_settings(self, settings: Mapping[str, Any]) -> None:
+        """The keys this transport reads from ``[transports.profibus-pkw]`` (``errors`` is parsed by the loader)."""
+        check.known_keys(settings, ("ppo", "stations", "errors", "refusals"))
+        check.int_list(settings, "ppo", 1, 3, choices=(1, 3))
+        check.int_range(settings, "stations", 0, 127)
+        names = {r.name.lower() for r in Refusal} | {UNSUPPORTED_TASK}
+        for name, value in check.sub_table(settings, "refusals").items():
+            if name not in names:
+                raise ConfigurationError(f"refusals.{name}: unknown refusal (known: {', '.join(sorted(names))})")
+            if value != "response 2" and (
+                isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFFFF
+            ):
+                raise ConfigurationError(f"refusals.{name}: {value!r} is not an error number or 'response 2'")
 
     # -- simulator ---------------------------------------------------------------------------------------
 
