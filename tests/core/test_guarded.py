@@ -155,17 +155,17 @@ def test_confirmation_hook_sees_raw_codes_and_frames_and_can_refuse(line: Line, 
     assert [e["result"] for e in entries(log)] == ["not confirmed", "not confirmed"]
 
 
-def test_an_uncertain_code_needs_an_acknowledgement(jjr5000: Profile, line: Line) -> None:
-    with open_device(line.url(2), "jjr5000") as dev:
-        uncertain = [(p, raw) for p in dev.profile.parameters if p.writable
-                     for raw in range(p.raw_min, min(p.raw_max, p.raw_min + 3) + 1) if p.uncertainty(raw)]  # fmt: skip
-        if not uncertain:
-            pytest.skip("this profile prints every code")
-        point, raw = uncertain[0]
+def test_an_uncertain_code_needs_an_acknowledgement(line: Line, tmp_path: Path) -> None:
+    """JJR8000 p15: the manual prints the overload classes without codes; code 1 (class 20) is inferred."""
+    log = tmp_path / "a.jsonl"
+    with open_device(line.url(3), "jjr8000", audit=AuditLog(log)) as dev:
         line.functions.clear()
-        with pytest.raises(UncertainValueError, match="accept_uncertain"):
-            dev.write(point.key, point.to_engineering(raw) if point.enum is None else raw)
-        assert 6 not in line.functions
+        with pytest.raises(UncertainValueError, match=r"code 1 \(class 20\) is inferred.*accept_uncertain"):
+            dev.write("motor_overload_class", "class 20")
+        assert 6 not in line.functions and not log.exists()
+        outcome = dev.write("motor_overload_class", "class 20", accept_uncertain=True)
+    assert outcome.ok and line.starters[3].params["motor_overload_class"] == 1
+    assert "inferred" in str(entries(log)[-1]["acknowledged"])
 
 
 def test_commands_report_the_state_reached(line: Line, tmp_path: Path) -> None:
@@ -207,3 +207,18 @@ def test_validation_errors_send_nothing(line: Line) -> None:
         with pytest.raises(ValidationError):
             dev.write_many({"ramp_time": 20, "current_limit": 1000})
     assert line.functions == []
+
+
+def test_cli_needs_accept_uncertain_and_shows_the_raw_code(line: Line, capsys: pytest.CaptureFixture[str]) -> None:
+    from starterbus.cli.main import main
+
+    url = line.url(3)
+    assert main(["write", url, "--model", "jjr8000", "p15=class 20", "--yes"]) == 1
+    err = capsys.readouterr().err
+    assert "inferred" in err and "--accept-uncertain" in err and len(err.strip().splitlines()) == 1
+    assert main(["write", url, "--model", "jjr8000", "p15=class 20", "--dry-run", "--json"]) == 1
+    capsys.readouterr()
+    assert main(["write", url, "--model", "jjr8000", "p15=class 20", "--accept-uncertain", "--dry-run", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["would_send"][0]["raw"] == 1
+    assert main(["write", url, "--model", "jjr8000", "p15=class 20", "--accept-uncertain", "--yes"]) == 0
+    assert line.starters[3].params["motor_overload_class"] == 1
