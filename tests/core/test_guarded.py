@@ -23,7 +23,6 @@ from starterbus.core.guarded import (
     UncertainValueError,
 )
 from starterbus.core.model import PointDef
-from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.core.status import Command
