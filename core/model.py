@@ -12,6 +12,7 @@ import math
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 from starterbus.core.entry import alternative_reading, convert_unit, split_quantity
 from starterbus.core.errors import ValidationError
@@ -119,7 +120,8 @@ class PointDef:
     access: Access = Access.READ
     default: int | None = None
     bits: bool = False
-    addresses: Mapping[str, int] = field(default_factory=dict)  # protocol -> address (modbus, profibus, devicenet)
+    #: transport plugin name -> this point's address on it, in the shape that plugin parsed
+    addresses: Mapping[str, Any] = field(default_factory=dict)
     note: str = ""
     scale_source: Provenance = PRINTED
     default_source: Provenance = Provenance(Certainty.ASSUMED)
@@ -136,8 +138,9 @@ class PointDef:
     def scale_assumed(self) -> bool:
         return not self.scale_source.printed
 
-    def address_for(self, protocol: str) -> int | None:
-        return self.addresses.get(protocol)
+    def address_for(self, transport: str) -> Any:
+        """This point's address on a transport (the plugin's name), or None."""
+        return self.addresses.get(transport)
 
     def uncertainty(self, raw: int) -> str | None:
         """None when the address, the scale and (for enum points) the code ``raw`` are printed in the manual.

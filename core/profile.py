@@ -11,13 +11,14 @@ import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from starterbus.core.entry import nearest
 from starterbus.core.errors import ProfileError, StarterbusError, UnknownPointError
 from starterbus.core.model import Certainty, EnumTable, Kind, PointDef, Provenance
 from starterbus.core.profile_points import (
     POINT_FIELDS,
+    AddressParser,
     build_point,
     enum_table,
     int_key,
@@ -30,6 +31,9 @@ from starterbus.core.profile_points import (
     text_list,
 )
 from starterbus.core.status import FaultTable
+
+if TYPE_CHECKING:
+    from starterbus.core.transport import TransportPlugin
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -130,9 +134,9 @@ class Profile:
     def transport_settings(self, transport: str) -> Mapping[str, Any]:
         return self.transports.get(transport, {})
 
-    def by_protocol_address(self, protocol: str, kind: Kind, address: int) -> PointDef | None:
+    def by_protocol_address(self, transport: str, kind: Kind, address: object) -> PointDef | None:
         for point in self.points.values():
-            if point.kind is kind and point.addresses.get(protocol) == address:
+            if point.kind is kind and point.addresses.get(transport) == address:
                 return point
         return None
 
@@ -206,7 +210,7 @@ def build_profile(data: Mapping[str, Any], source: str) -> Profile:
     }
     fault_table = enum_table("faults", table(data, "faults", source, required=False), source, codes, "faults", 0, 63)
     faults = FaultTable(fault_table.labels)
-    points, by_address = _points(data, style, enums, source, (codes, defaults))
+    points, by_address = _points(data, style, enums, source, (codes, defaults), _address_fields(data, source))
     control = _control(table(data, "control", source, required=False), points, source)
     roles = _roles(table(data, "roles", source), points, source)
     transports = _transports(table(data, "transports", source), points, source)
@@ -243,9 +247,10 @@ def _points(
     enums: Mapping[str, EnumTable],
     source: str,
     defaults: tuple[Provenance, Provenance],
+    address_fields: Mapping[str, AddressParser],
 ) -> tuple[dict[str, PointDef], dict[tuple[Kind | None, str], str]]:
     points: dict[str, PointDef] = {}
-    used: dict[tuple[str, Kind, int], str] = {}
+    used: dict[tuple[str, Kind, object], str] = {}
     by_address: dict[tuple[Kind | None, str], str] = {}
     for kind, section in ((Kind.MEASUREMENT, "measurements"), (Kind.PARAMETER, "parameters")):
         entries = data.get(section, [])
@@ -259,16 +264,28 @@ def _points(
             if not isinstance(key, str) or not _KEY_RE.fullmatch(key):
                 raise ProfileError(source, f"{where}.key", f"{shown(key)} is not a snake_case key")
             where = f"{section}.{key}"
-            unknown = set(entry) - POINT_FIELDS
+            unknown = set(entry) - POINT_FIELDS - set(address_fields)
             if unknown:
-                raise ProfileError(source, where, f"unknown field(s) {sorted(unknown)}")
+                raise ProfileError(
+                    source,
+                    where,
+                    f"unknown field(s) {sorted(unknown)} (addresses go in a field named after a transport "
+                    f"of [transports]: {', '.join(sorted(address_fields)) or 'none named'})",
+                )
             if key in points:
                 raise ProfileError(source, where, "duplicate key")
-            point = build_point(entry, kind, key, enums, source, where, defaults)
+            point = build_point(entry, kind, key, enums, source, where, defaults, address_fields)
             for proto, addr in point.addresses.items():
                 slot = (proto, kind, addr)
+                try:
+                    hash(slot)
+                except TypeError:
+                    raise ProfileError(
+                        source, f"{where}.{key_text(proto)}", f"{shown(addr)} is not a usable address (unhashable)"
+                    ) from None
                 if slot in used:
-                    raise ProfileError(source, where, f"{proto} address {addr:#06x} overlaps {used[slot]}")
+                    shown_addr = f"{addr:#06x}" if isinstance(addr, int) else repr(addr)
+                    raise ProfileError(source, where, f"{proto} address {shown_addr} overlaps {used[slot]}")
                 used[slot] = key
             norm = normalise_address(point.address, style)
             if norm is None or norm[0] not in (None, kind):
@@ -351,19 +368,52 @@ def _transports(data: Mapping[str, Any], points: Mapping[str, PointDef], source:
         transports[str(tname)] = checked
     if not transports:
         raise ProfileError(source, "transports", "a profile must name at least one transport")
-    for proto, proto_key in (("modbus-rtu", "modbus"), ("profibus-pkw", "profibus")):
-        if proto in transports and not any(proto_key in p.addresses for p in points.values()):
-            raise ProfileError(source, f"transports.{proto}", f"no point has a {proto_key} address")
+    for name in transports:
+        plugin = _plugin(name)
+        if (
+            plugin is not None
+            and plugin.requires_point_addresses
+            and not any(name in p.addresses for p in points.values())
+        ):
+            raise ProfileError(source, f"transports.{key_text(name)}", f"no point has a {name} address")
     return transports
+
+
+def _plugin(name: str) -> TransportPlugin | None:
+    """The installed plugin of that name, or None (a profile may name a transport that is not installed)."""
+    from starterbus.core.registry import transports  # late: the registry imports this module
+
+    try:
+        return transports.get(name)
+    except StarterbusError:
+        return None
+
+
+def _address_fields(data: Mapping[str, Any], source: str) -> dict[str, AddressParser]:
+    """Each transport the profile names -> the parser of its point addresses (the plugin's, when installed)."""
+    names = data.get("transports")
+    if not isinstance(names, Mapping):
+        return {}  # reported, with the file and the key, when the transports table is read
+    fields: dict[str, AddressParser] = {}
+    for name in names:
+        plugin = _plugin(str(name))
+        fields[str(name)] = plugin.parse_address if plugin is not None else _unchecked
+    return fields
+
+
+def _unchecked(value: object) -> object:
+    """The plugin is not installed: keep its address as written (lists as tuples, so it can be looked up)."""
+    if isinstance(value, list):
+        return tuple(_unchecked(v) for v in value)
+    if isinstance(value, Mapping):
+        return tuple(sorted((str(k), _unchecked(v)) for k, v in value.items()))
+    return value
 
 
 def _check_settings(name: str, settings: Mapping[str, Any], source: str, where: str) -> None:
     """Let the installed plugin of that name check its settings (a plugin not installed checks nothing)."""
-    from starterbus.core.registry import transports  # late: the registry imports this module
-
-    try:
-        plugin = transports.get(name)
-    except StarterbusError:
+    plugin = _plugin(name)
+    if plugin is None:
         return
     try:
         plugin.check_settings(settings)

@@ -8,13 +8,14 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any
 
-from starterbus.core.errors import ProfileError
+from starterbus.core.errors import ProfileError, StarterbusError
 from starterbus.core.model import Access, Certainty, EnumTable, Kind, Label, PointDef, Provenance
 
-PROTOCOL_FIELDS = ("modbus", "profibus", "devicenet")
+#: a point's address on a transport sits in a field named after the transport plugin (``NAME = ...``), parsed
+#: by that plugin's ``parse_address``; the fields below are the model's own
 POINT_FIELDS = {
     "key",
     "address",
@@ -34,8 +35,8 @@ POINT_FIELDS = {
     "address_certainty",
     "writable_values",
     "writable_why",
-    *PROTOCOL_FIELDS,
 }
+AddressParser = Callable[[object], Any]
 _LABEL_FIELDS = {"en", "zh", "aliases", "certainty"}
 _WORD = (-0x8000, 0xFFFF)
 
@@ -161,10 +162,12 @@ def build_point(
     source: str,
     where: str,
     defaults: tuple[Provenance, Provenance],
+    address_fields: Mapping[str, AddressParser] | None = None,
 ) -> PointDef:
     """One ``[[parameters]]`` / ``[[measurements]]`` entry.
 
-    ``defaults``: the model's certainty of codes and scales, and of defaults.
+    ``defaults``: the model's certainty of codes and scales, and of defaults. ``address_fields``: transport name
+    -> the parser of that transport's addresses (its plugin's ``parse_address``).
     """
 
     def fail(field_name: str, message: str) -> ProfileError:
@@ -203,13 +206,13 @@ def build_point(
     fmt = entry.get("format")
     if fmt is not None and fmt != "bits":
         raise fail("format", f"{shown(fmt)} is not 'bits'")
-    addresses: dict[str, int] = {}
-    for proto in PROTOCOL_FIELDS:
-        if proto in entry:
-            addr = entry[proto]
-            if not is_int(addr) or not 0 <= addr <= 0xFFFF:
-                raise fail(proto, f"{shown(addr)} is not an address (0..0xFFFF)")
-            addresses[proto] = addr
+    addresses: dict[str, Any] = {}
+    for transport, parse in (address_fields or {}).items():
+        if transport in entry:
+            try:
+                addresses[transport] = parse(entry[transport])
+            except StarterbusError as exc:
+                raise fail(key_text(transport), str(exc)) from None
     for field_name in ("address", "name_en"):
         if not isinstance(entry.get(field_name), str) or not entry[field_name]:
             raise fail(field_name, f"required text, not {shown(entry.get(field_name))}")

@@ -114,17 +114,19 @@ class SimulatedStarter:
         self.last_fault_current = 0.0
         self._stop_from_current = 0.0
         self._last_tick = self.phase_since
-        self._addr: dict[tuple[str, Kind, int], PointDef] = {
+        self._addr: dict[tuple[str, Kind, object], PointDef] = {
             (proto, p.kind, addr): p for p in profile.points.values() for proto, addr in p.addresses.items()
         }
         self.events: list[tuple[float, str]] = []  # (time, what happened) for demos and tests
 
     # -- addressing ---------------------------------------------------------------------------------------
 
-    def point_at(self, protocol: str, kind: Kind, address: int) -> PointDef:
-        point = self._addr.get((protocol, kind, address))
+    def point_at(self, transport: str, kind: Kind, address: object) -> PointDef:
+        """The point at ``address`` on a transport (the plugin's name, as in the profile's address fields)."""
+        point = self._addr.get((transport, kind, address))
         if point is None:
-            raise SimulatorRefusal(Refusal.NOT_AVAILABLE, f"no {kind.value} at {protocol} address {address:#06x}")
+            shown = f"{address:#06x}" if isinstance(address, int) else repr(address)
+            raise SimulatorRefusal(Refusal.NOT_AVAILABLE, f"no {kind.value} at {transport} address {shown}")
         return point
 
     # -- engineering helpers --------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 from types import TracebackType
 from typing import Any
 
-from starterbus.core.errors import UnsupportedOperationError
+from starterbus.core.errors import ConfigurationError, UnsupportedOperationError
 from starterbus.core.model import PointDef, Reading
 from starterbus.core.profile import Profile
 from starterbus.core.status import Command, Status
@@ -264,6 +264,21 @@ class TransportPlugin(ABC):
     @abstractmethod
     def open(self, url: DeviceUrl, profile: Profile) -> Transport:
         """Build a transport (not yet opened) for one device. Validate the URL here: bad URL, clear error."""
+
+    #: True when a profile naming this transport must give some of its points an address on it
+    requires_point_addresses: bool = False
+    #: the URL query parameter a fleet file's ``address`` of a device on this transport fills (None: it takes none)
+    address_parameter: str | None = None
+
+    def parse_address(self, value: object) -> Any:
+        """A point's address on this transport, from the profile field named after the plugin (``NAME = ...``).
+
+        Any shape the transport needs (an integer, ``(index, subindex)``, text); raise
+        :class:`~starterbus.core.errors.ConfigurationError` naming the value. The default: an integer 0..0xFFFF.
+        """
+        if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value <= 0xFFFF:
+            raise ConfigurationError(f"{value!r} is not an address (an integer 0..0xFFFF)")
+        return value
 
     def check_settings(self, settings: Mapping[str, Any]) -> None:
         """Check this transport's table of a profile (``[transports.NAME]``) when the profile loads.

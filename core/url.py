@@ -29,7 +29,8 @@ class DeviceUrl:
     def parse(cls, text: str) -> DeviceUrl:
         if "://" not in text:
             raise ConfigurationError(
-                f"{text!r} is not a device URL (expected SCHEME://..., e.g. modbus-rtu:///dev/ttyUSB0?unit=2)"
+                f"{text!r} is not a device URL (expected TRANSPORT://WHERE?PARAM=VALUE; "
+                "`starterbus transports` lists the transports and their URL forms)"
             )
         try:
             parts = urlsplit(text)
@@ -42,7 +43,7 @@ class DeviceUrl:
             raise ConfigurationError(f"{text!r}: invalid port (0-65535)") from None
         scheme = parts.scheme.lower()
         if not scheme:
-            raise ConfigurationError(f"{text!r}: no scheme before :// (e.g. modbus-rtu:///dev/ttyUSB0?unit=2)")
+            raise ConfigurationError(f"{text!r}: no transport before :// (`starterbus transports` lists them)")
         transport, _, variant = scheme.partition("+")
         pairs = parse_qsl(parts.query, keep_blank_values=True, strict_parsing=False)
         query: dict[str, str] = {}

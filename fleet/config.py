@@ -45,9 +45,6 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-#: which URL query parameter carries a device's address on a shared bus, per transport
-ADDRESS_PARAMETER = {"modbus-rtu": "unit", "devicenet": "mac"}
-
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 _BUS_FIELDS = {"name", "url", "delay", "device"}
 _DEVICE_FIELDS = {"name", "model", "address", "period", "measurements", "parameters", "options", "url", "remote"}
@@ -245,7 +242,18 @@ def build_fleet(data: Mapping[str, Any], source: str = "<fleet>", lines: _Lines 
             options = dev.get("options", {})
             if not isinstance(options, Mapping):
                 raise fail(f"{dwhere}.options", "must be a table of URL parameters")
-            dev_url = _device_url(url, address, options)
+            try:
+                param = _address_parameter(url.transport)
+            except StarterbusError as exc:
+                raise fail(f"{where}.url", str(exc)) from None
+            if address is not None and param is None:
+                raise fail(
+                    f"{dwhere}.address",
+                    f"the {url.transport} transport takes no device address (give its URL parameters in options)",
+                )
+            if param is not None and param in options:
+                raise fail(f"{dwhere}.options.{param}", f"give the device's {param} as address = ..., not as an option")
+            dev_url = _device_url(url, param, address, options)
             if "url" in dev:
                 raise fail(f"{dwhere}.url", "give address/options; the URL comes from the bus")
             points: dict[str, tuple[str, ...]] = {}
@@ -287,11 +295,17 @@ def build_fleet(data: Mapping[str, Any], source: str = "<fleet>", lines: _Lines 
     return FleetConfig(tuple(buses), period, max_backoff, source, devices)
 
 
-def _device_url(bus: DeviceUrl, address: int | None, options: Mapping[str, Any]) -> str:
+def _address_parameter(transport: str) -> str | None:
+    """The URL parameter a device's ``address`` fills, as the transport's plugin declares it."""
+    from starterbus.core.registry import get_transport
+
+    return get_transport(transport).address_parameter
+
+
+def _device_url(bus: DeviceUrl, param: str | None, address: int | None, options: Mapping[str, Any]) -> str:
     query = dict(bus.query)
     for key, value in options.items():
         query[str(key)] = str(value).lower() if isinstance(value, bool) else str(value)
-    param = ADDRESS_PARAMETER.get(bus.transport)
     if address is not None and param is not None:
         query[param] = str(address)
     base = bus.text.split("?", 1)[0]

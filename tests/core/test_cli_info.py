@@ -47,7 +47,7 @@ def test_params_jjr5000_current_limit(capsys: pytest.CaptureFixture[str]) -> Non
     limit = _point(run_json(capsys, "params", "jjr5000"), "0x0103")
     assert (limit["key"], limit["min"], limit["max"], limit["unit"]) == ("current_limit", 150, 500, "%")
     assert limit["name_zh"]
-    assert limit["addresses"] == {"modbus": "0x0103", "profibus": "0x0003"}
+    assert limit["addresses"] == {"modbus-rtu": "0x0103", "profibus-pkw": "0x0003"}
 
 
 def test_params_jjr8000_p7_scaling(capsys: pytest.CaptureFixture[str]) -> None:
@@ -58,8 +58,8 @@ def test_params_jjr8000_p7_scaling(capsys: pytest.CaptureFixture[str]) -> None:
     assert p7["max"] == pytest.approx(5.0)
     addresses = p7["addresses"]
     assert isinstance(addresses, dict)
-    assert addresses["modbus"] == "0x0107"
-    assert addresses["profibus"] == "0x0007"
+    assert addresses["modbus-rtu"] == "0x0107"
+    assert addresses["profibus-pkw"] == "0x0007"
 
 
 def test_params_ssd1_parameter_modify(capsys: pytest.CaptureFixture[str]) -> None:

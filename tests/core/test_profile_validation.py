@@ -29,14 +29,14 @@ address = "0x0000"
 name_en = "control word"
 min = 0
 max = 65535
-modbus = 0x0000
+modbus-rtu = 0x0000
 [[measurements]]
 key = "status_word"
 address = "0x0001"
 name_en = "status word"
 min = 0
 max = 65535
-modbus = 0x0001
+modbus-rtu = 0x0001
 [[measurements]]
 key = "phase_a_current"
 address = "0x0002"
@@ -45,7 +45,7 @@ min = 0
 max = 65535
 scale = 0.1
 unit = "A"
-modbus = 0x0002
+modbus-rtu = 0x0002
 [[parameters]]
 key = "rated"
 address = "0x0100"
@@ -53,7 +53,7 @@ name_en = "rated current"
 min = 1
 max = 1500
 unit = "A"
-modbus = 0x0100
+modbus-rtu = 0x0100
 [[parameters]]
 key = "limit"
 address = "0x0103"
@@ -61,7 +61,7 @@ name_en = "current limit"
 min = 150
 max = 500
 unit = "%"
-modbus = 0x0103
+modbus-rtu = 0x0103
 """
 
 
@@ -79,7 +79,7 @@ def test_base_loads_and_resolves_manual_addresses() -> None:
     ("mutation", "key", "message"),
     [
         (('key = "limit"', 'key = "rated"'), "parameters.rated", "duplicate key"),
-        (("modbus = 0x0103", "modbus = 0x0100"), "parameters.limit", "overlaps rated"),
+        (("modbus-rtu = 0x0103", "modbus-rtu = 0x0100"), "parameters.limit", "overlaps rated"),
         (("min = 150\nmax = 500", "min = 500\nmax = 150"), "parameters.limit.min", "inverted range"),
         (('unit = "%"', 'unit = "%"\nenum = "F9"'), "parameters.limit.enum", "unknown enum 'F9'"),
         (('current_limit = "limit"', 'current_limit = "nope"'), "roles.current_limit", "names no point"),

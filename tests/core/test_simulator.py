@@ -138,9 +138,9 @@ def test_point_at_unknown_address(jjr5000: Profile, clock: ManualClock) -> None:
     sim = starter_for(jjr5000, clock)
     from starterbus.core.model import Kind
 
-    assert sim.point_at("modbus", Kind.PARAMETER, 0x0103).key == "current_limit"
+    assert sim.point_at("modbus-rtu", Kind.PARAMETER, 0x0103).key == "current_limit"
     with pytest.raises(SimulatorRefusal) as info:
-        sim.point_at("modbus", Kind.PARAMETER, 0x0107)
+        sim.point_at("modbus-rtu", Kind.PARAMETER, 0x0107)
     assert info.value.reason is Refusal.NOT_AVAILABLE
 
 

@@ -49,7 +49,7 @@ def test_reads_every_point_as_the_starter_holds_it(model: str, medium: dict[str,
     starter = sim.starters[2]
     profile = starter.profile
     with open_device(sim.url(2, timeout=0.5), model) as device:
-        keys = [p.key for p in profile.points.values() if "modbus" in p.addresses]
+        keys = [p.key for p in profile.points.values() if "modbus-rtu" in p.addresses]
         values = device.read(*keys)
         assert list(values) == keys
         for key, value in values.items():
@@ -104,7 +104,7 @@ def test_device_refusals_become_remote_errors(model: str, make_sim: SimFactory) 
     profile = starter.profile
     rated = profile.role("rated_current")
     assert rated is not None
-    address = rated.addresses["modbus"]
+    address = rated.addresses["modbus-rtu"]
     with open_device(sim.url(2), model) as device:
         raw = transport(device)
         with pytest.raises(RemoteDeviceError) as out_of_range:  # bypasses Device validation on purpose
@@ -118,7 +118,7 @@ def test_device_refusals_become_remote_errors(model: str, make_sim: SimFactory) 
             raw.read_registers(0x0000, limit + 1)
         assert too_many.value.code == 3
         with pytest.raises(RemoteDeviceError) as read_only:
-            raw.write_register(profile.points["status_word"].addresses["modbus"], 0)
+            raw.write_register(profile.points["status_word"].addresses["modbus-rtu"], 0)
         assert read_only.value.code == 3
         if profile.control.write_protect_key:
             device.write(profile.control.write_protect_key, 0)

@@ -123,8 +123,8 @@ def test_engineering_values(golden: Vector) -> None:
     """What a client shows for the manual's examples: 390 A, 380 %, 23.5 A, 3.50 x In, decoded status."""
     for model in golden.models:
         profile = get_profile(model)
-        point = profile.by_protocol_address("modbus", Kind.MEASUREMENT, golden.register) or (
-            profile.by_protocol_address("modbus", Kind.PARAMETER, golden.register)
+        point = profile.by_protocol_address("modbus-rtu", Kind.MEASUREMENT, golden.register) or (
+            profile.by_protocol_address("modbus-rtu", Kind.PARAMETER, golden.register)
         )
         assert point is not None, f"{model} has no register {golden.register:#06x}"
         if isinstance(golden.response, ReadResponse):

@@ -72,7 +72,7 @@ def test_after_a_timed_out_read_the_next_task_gets_its_own_answer(jjr8000: Profi
         with pytest.raises(TimeoutError):
             link.pkw(READ_P3)
         slave.latency = 0  # from now on prompt; the old read's answer (12) still shows first
-        p3 = starter.point_at("profibus", PointKind.PARAMETER, 3)
+        p3 = starter.point_at("profibus-pkw", PointKind.PARAMETER, 3)
         starter.write(p3, 15)
         job = link.pkw(task)
         assert job.response is not None
@@ -132,7 +132,7 @@ def test_a_jittering_gateway_within_the_margin(jjr8000: Profile) -> None:
         Limits(max_cycles=40, timeout=100, stale_cycles=2),
         wrap=lambda c: StaleInputChannel(c, lambda k: lags[k % len(lags)]),
     )
-    p3 = starter.point_at("profibus", PointKind.PARAMETER, 3)
+    p3 = starter.point_at("profibus-pkw", PointKind.PARAMETER, 3)
     try:
         for value in range(13, 33):
             starter.write(p3, value)  # every read must see the value of its own moment

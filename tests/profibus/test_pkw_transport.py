@@ -165,8 +165,8 @@ def test_ppo3_refuses_parameters_in_the_device_and_in_the_transport(model: str, 
 
 def test_points_without_a_usable_profibus_address(jjr5000: Profile) -> None:
     transport = PLUGIN.open(DeviceUrl.parse("profibus-pkw+sim://?cycle=0"), jjr5000)
-    nowhere = PointDef("extra", Kind.PARAMETER, "0x0199", "", "extra", 0, 1, addresses={"modbus": 0x199})
-    too_far = PointDef("far", Kind.PARAMETER, "0x0299", "", "far", 0, 1, addresses={"profibus": 0x199})
+    nowhere = PointDef("extra", Kind.PARAMETER, "0x0199", "", "extra", 0, 1, addresses={"modbus-rtu": 0x199})
+    too_far = PointDef("far", Kind.PARAMETER, "0x0299", "", "far", 0, 1, addresses={"profibus-pkw": 0x199})
     with pytest.raises(UnsupportedOperationError, match="no Profibus"):
         transport.read_points([nowhere])
     with pytest.raises(ConfigurationError, match="does not fit INDL"):

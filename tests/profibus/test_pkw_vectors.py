@@ -90,7 +90,7 @@ def test_meaning_with_the_model(golden: Vector, profiles: dict[str, Profile]) ->
             kind = Kind.MEASUREMENT if golden.key.startswith("phase") else Kind.PARAMETER
             if isinstance(telegram, PkwRequest):
                 kind = Kind.MEASUREMENT if telegram.task == TaskCode.READ_MEASUREMENT else Kind.PARAMETER
-            point = profile.by_protocol_address("profibus", kind, golden.indl)
+            point = profile.by_protocol_address("profibus-pkw", kind, golden.indl)
             assert point is not None and point.key == golden.key
             if golden.value is not None:
                 assert Value.from_raw(point, telegram.pwe).value == golden.value

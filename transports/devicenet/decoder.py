@@ -337,7 +337,7 @@ class FrameAnnotator:
 
     def _measurement_name(self, address: int) -> str:
         if self.profile is not None:
-            point = self.profile.by_protocol_address("devicenet", Kind.MEASUREMENT, address)
+            point = self.profile.by_protocol_address(cip.PROTOCOL, Kind.MEASUREMENT, address)
             if point is not None:
                 return f"0x{address:02X} {point.key} ({point.address})"
             return f"0x{address:02X} (not defined for {self.profile.name})"
@@ -349,7 +349,7 @@ class FrameAnnotator:
         if address is None:
             return f"selected status parameter = {value} (address unknown: no poll command seen)"
         if self.profile is not None:
-            point = self.profile.by_protocol_address("devicenet", Kind.MEASUREMENT, address)
+            point = self.profile.by_protocol_address(cip.PROTOCOL, Kind.MEASUREMENT, address)
             if point is not None:
                 shown = point.to_engineering(value)
                 return f"{point.key} = {shown} {point.unit}".rstrip() + f" (raw {value}, address 0x{address:02X})"

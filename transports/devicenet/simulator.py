@@ -39,6 +39,7 @@ from starterbus.transports.devicenet.assemblies import (
     decode_output,
 )
 from starterbus.transports.devicenet.canbus import open_bus, shutdown
+from starterbus.transports.devicenet.cip import PROTOCOL
 from starterbus.transports.devicenet.dupmac import DEFAULT_WAIT
 from starterbus.transports.devicenet.frames import CanFrame
 from starterbus.transports.devicenet.identity import Identity
@@ -132,7 +133,7 @@ class StarterApplication:
         address = self.selected_address
         if address not in self._points:
             try:
-                self._points[address] = self.starter.point_at("devicenet", Kind.MEASUREMENT, address)
+                self._points[address] = self.starter.point_at(PROTOCOL, Kind.MEASUREMENT, address)
             except SimulatorRefusal as exc:
                 if exc.reason is not Refusal.NOT_AVAILABLE:
                     raise

@@ -68,8 +68,8 @@ class Annotator:
     def point(self, address: int) -> PointDef | None:
         if self.profile is None:
             return None
-        return self.profile.by_protocol_address("modbus", Kind.MEASUREMENT, address) or (
-            self.profile.by_protocol_address("modbus", Kind.PARAMETER, address)
+        return self.profile.by_protocol_address(TRANSPORT, Kind.MEASUREMENT, address) or (
+            self.profile.by_protocol_address(TRANSPORT, Kind.PARAMETER, address)
         )
 
     def register_text(self, address: int) -> str:

@@ -221,7 +221,7 @@ class ModbusRtuTransport(Transport):
     # -- Transport operations ----------------------------------------------------------------------------------
 
     def _address(self, point: PointDef) -> int:
-        address = point.address_for(PROTOCOL)
+        address: int | None = point.address_for(PROTOCOL)
         if address is None:
             raise UnsupportedOperationError(f"{self.profile.display_name} {point.key} has no Modbus register")
         return address

@@ -29,6 +29,8 @@ def _add_option(group: argparse._ActionsContainer, names: Sequence[str], **kwarg
 
 class ModbusRtuPlugin(TransportPlugin):
     name = TRANSPORT
+    requires_point_addresses = True
+    address_parameter = "unit"
     summary = "Modbus RTU (FC03/FC06) on a serial port, or RTU frames over TCP through a serial device server"
     capabilities = ALL_CAPABILITIES
     url_forms = (

@@ -36,8 +36,8 @@ from starterbus.transports.modbus.frames import (
     WriteResponse,
 )
 
-PROTOCOL = "modbus"
 TRANSPORT = "modbus-rtu"
+PROTOCOL = TRANSPORT  # the profile field of a point's register: ``modbus-rtu = 0x0103``
 
 
 def max_read_registers(profile: Profile) -> int:

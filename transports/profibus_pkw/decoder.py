@@ -60,7 +60,7 @@ def _value_text(point: PointDef, raw: int) -> str:
 def _candidates(profile: Profile | None, kinds: Sequence[Kind], index: int) -> list[tuple[Kind, PointDef | None]]:
     if profile is None:
         return [(k, None) for k in kinds]
-    return [(k, profile.by_protocol_address("profibus", k, index)) for k in kinds]
+    return [(k, profile.by_protocol_address(PROTOCOL, k, index)) for k in kinds]
 
 
 def _indl_text(profile: Profile | None, kinds: Sequence[Kind], index: int) -> str:

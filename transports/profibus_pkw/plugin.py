@@ -28,6 +28,8 @@ def _host_port(text: str) -> tuple[str, int]:
 
 class ProfibusPkwPlugin(TransportPlugin):
     name = PROTOCOL
+    requires_point_addresses = True
+    address_parameter = "station"
     summary = (
         "Profibus DP vendor PKW (parameters) + PZD (control/status), PPO1/PPO3, via simulation or Modbus TCP gateway"
     )

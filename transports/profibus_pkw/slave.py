@@ -199,7 +199,7 @@ class SimulatedDpSlave:
             return self._refused(UNSUPPORTED_TASK, index)
         kind = Kind.MEASUREMENT if task == TaskCode.READ_MEASUREMENT else Kind.PARAMETER
         try:
-            point = self.starter.point_at("profibus", kind, index)
+            point = self.starter.point_at(PROTOCOL, kind, index)
             if task == TaskCode.WRITE_PARAMETER:
                 self.starter.write(point, request.pwe)
                 value = request.pwe

@@ -222,7 +222,7 @@ class ProfibusPkwTransport(Transport):
             raise self.unsupported(what, "PPO3 carries no PKW area (use ppo=1 for parameters and measurements)")
 
     def _index(self, point: PointDef) -> int:
-        index = point.addresses.get("profibus")
+        index: int | None = point.addresses.get(PROTOCOL)
         if index is None:
             raise self.unsupported(f"reach {point.key}", f"{point.key} has no Profibus (INDL) address")
         if not 0 <= index <= 0xFF:
