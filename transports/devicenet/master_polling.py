@@ -1,0 +1,174 @@
+"""Scan scheduling of the DeviceNet master (sans-IO; a base of :class:`~.master_node.MasterNode`).
+
+Each established slave is polled at its own interval, or at once while a reader or a command waits
+(``urgent``), with at most ``WINDOW`` poll commands in flight. An answer is published only when no second
+answer to the same poll came within ``ANSWER_GUARD``; the next poll of that slave waits for that, so every
+answer can be told apart from the next poll's. Two answers to one poll mark the link with a
+:class:`DuplicateResponderError` and withdraw its inputs until ``CLEAR_POLLS`` polls in a row got one answer.
+Timers: a FIFO of answer deadlines and confirmations (both a constant delay after the event, so in order)
+and a heap of next poll times; no pass over every link per frame.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections import deque
+
+from starterbus.transports.devicenet.frames import CanFrame
+from starterbus.transports.devicenet.ids import poll_command_id
+from starterbus.transports.devicenet.master_connection import ExplicitMessaging
+from starterbus.transports.devicenet.master_link import DuplicateResponderError, InputSample, MasterLink
+
+WINDOW = 8  # poll commands in flight at once
+POLL_RESPONSE_TIMEOUT = 0.05  # seconds a poll command waits for its answer
+ANSWER_GUARD = 0.002  # seconds an answer waits for a second one before it is published
+CLEAR_POLLS = 20  # polls in a row with one answer each that clear a duplicate responder
+
+
+class PollScheduler(ExplicitMessaging):
+    """Polls, answers, confirmations and duplicate responders."""
+
+    deadline: float
+    cycles: int
+    polls_sent: int
+    _slow_at: float
+    _ready: deque[MasterLink]
+    _in_flight: int
+    _confirming: deque[MasterLink]
+    _deadlines: deque[tuple[float, MasterLink]]
+    _due: list[tuple[float, int, MasterLink]]
+    _sequence: int
+
+    def _wake(self, at: float) -> None:
+        """Something the slow pass (explicit messaging, keep-alive, watchdogs, retries) must see at ``at``."""
+        self._slow_at = min(self._slow_at, at)
+        self.deadline = min(self.deadline, at)
+
+    def _wake_fast(self, at: float) -> None:
+        self.deadline = min(self.deadline, at)
+
+    def _fast(self, now: float) -> None:
+        """Confirm answers, count missed polls, queue the polls due."""
+        confirming = self._confirming
+        while confirming and confirming[0].confirm_at <= now:
+            self._confirm(confirming.popleft(), now)
+        deadlines = self._deadlines
+        while deadlines and deadlines[0][0] <= now:
+            at, link = deadlines.popleft()
+            if link.awaiting and link.poll_deadline == at:
+                link.awaiting = False
+                link.misses += 1
+                self._in_flight -= 1
+                self._schedule(link, now)
+        due = self._due
+        while due and due[0][0] <= now:
+            _, _, link = heapq.heappop(due)
+            if link.next_poll_at <= now:
+                self._make_ready(link)
+
+    # -- polling --------------------------------------------------------------------------------------------
+
+    def _established(self, link: MasterLink, now: float) -> None:
+        link.next_poll_at = now
+        self._make_ready(link)
+        self._wake(now)
+
+    @staticmethod
+    def _idle(link: MasterLink) -> bool:
+        return link.established and not link.awaiting and not link.queued and link.pending is None
+
+    def _make_ready(self, link: MasterLink) -> None:
+        if self._idle(link):
+            link.queued = True
+            self._ready.append(link)
+
+    def _schedule(self, link: MasterLink, now: float) -> None:
+        """A poll of ``link`` finished (answered or missed): queue the next one now or at its time."""
+        if link.urgent or link.interval <= 0 or link.next_poll_at <= now:
+            link.next_poll_at = min(link.next_poll_at, now)
+            self._make_ready(link)
+        elif self._idle(link):
+            self._sequence += 1
+            heapq.heappush(self._due, (link.next_poll_at, self._sequence, link))
+            self._wake_fast(link.next_poll_at)
+
+    def _send_ready(self, now: float) -> None:
+        ready = self._ready
+        while ready and self._in_flight < WINDOW:
+            link = ready.popleft()
+            link.queued = False
+            if not link.established or link.awaiting or link.pending is not None:
+                continue
+            seq = link.output_seq
+            if seq != link.built_seq:
+                output = link.output()
+                link.poll_data = output.encode()
+                link.built_seq = seq
+                link.built_select = output.address
+            link.sent_seq = link.built_seq
+            link.sent_select = link.built_select
+            link.awaiting = True
+            link.answers = 0
+            link.poll_deadline = deadline = now + POLL_RESPONSE_TIMEOUT
+            link.next_poll_at = now + link.interval
+            self._deadlines.append((deadline, link))
+            self._wake_fast(deadline)
+            self._in_flight += 1
+            self.polls_sent += 1
+            self._out.append(CanFrame(poll_command_id(link.mac), link.poll_data))
+
+    def _on_poll_response(self, link: MasterLink, data: bytes, now: float) -> None:
+        link.answers += 1
+        if link.answers > 1:
+            self._duplicate_answer(link, data, now)
+            return
+        if not link.awaiting:
+            link.answers = 0  # late (after the poll's deadline) or unsolicited: no value
+            return
+        link.awaiting = False
+        self._in_flight -= 1
+        link.last_response_at = now
+        previous = link.sample
+        select = link.sent_select
+        count = previous.select_count + 1 if previous is not None and previous.select == select else 1
+        link.pending = InputSample(data, now, 0.0, select, count, link.sent_seq)
+        link.confirm_at = now + ANSWER_GUARD
+        self._confirming.append(link)
+        self._wake_fast(link.confirm_at)
+        self._send_ready(now)
+
+    def _confirm(self, link: MasterLink, now: float) -> None:
+        sample = link.pending
+        link.pending = None
+        if sample is not None and link.established:
+            self._publish(link, sample)
+        self._schedule(link, now)
+
+    def _publish(self, link: MasterLink, sample: InputSample) -> None:
+        link.responses += 1
+        self.cycles += 1
+        if link.duplicate is not None:
+            link.clean_polls += 1
+            if link.clean_polls < CLEAR_POLLS:
+                return
+            link.duplicate = None
+            link.note(sample.at, f"{CLEAR_POLLS} polls in a row with one answer: duplicate responder cleared")
+        link.sample = sample
+        link.acked_seq = sample.seq
+        if link.urgent:
+            link.urgent -= 1
+
+    def _duplicate_answer(self, link: MasterLink, data: bytes, now: float) -> None:
+        first = link.pending.data if link.pending is not None else (link.sample.data if link.sample else b"")
+        link.duplicates += 1
+        link.clean_polls = 0
+        link.pending = None  # still in the confirmation queue: _confirm schedules the next poll
+        link.sample = None
+        error = DuplicateResponderError(
+            f"{link.describe()}: two answers to one poll command ({first.hex(' ').upper()} and "
+            f"{data.hex(' ').upper()}): another node answers polls for MAC {link.mac} (misconfigured or rogue); "
+            "its inputs are withheld"
+        )
+        if link.duplicate is None:
+            link.note(now, str(error))
+        link.duplicate = error
