@@ -325,24 +325,25 @@ def test_fragmented_request_from_the_master(channel: str, sniffer: object, two_s
 
 
 def test_node_added_to_a_running_simulator(channel: str, sniffer: object, jjr8000: Profile, until: Until) -> None:
-    with DeviceNetSimulator(("virtual", channel), dup_mac_wait=0.2) as sim:
+    with DeviceNetSimulator(("virtual", channel), dup_mac_wait=60.0) as sim:
         node = sim.add_node(SimulatedStarter(jjr8000), 17)
         texts: Callable[[], list[str]] = sniffer.texts  # type: ignore[attr-defined]
-        assert until(lambda: len(texts()) >= 1, 0.1)  # its first check request goes out at once, not after 0.2 s
-        assert texts()[0].startswith("48F#00330311")
-        assert sim.wait_online(2) and node.state is NodeState.ONLINE
+        assert until(lambda: len(texts()) >= 1, 10.0)  # its first check request goes out at once, not after 60 s
+        assert len(texts()) == 1 and texts()[0].startswith("48F#00330311")  # the second one waits 60 s
+        assert node.state is NodeState.CHECKING
 
 
-def test_explicit_connection_is_kept_alive(channel: str, jjr8000: Profile) -> None:
+def test_explicit_connection_is_kept_alive(channel: str, jjr8000: Profile, until: Until) -> None:
     """A slave whose explicit connection times out after 4 x 60 ms: the scanner reads its EPR and keeps it alive."""
-    import time
-
     simulator = DeviceNetSlaveSimulator(
         SimulatedStarter(jjr8000), ("virtual", channel), 5, dup_mac_wait=0.05, explicit_epr_ms=60
     )
     with simulator, open_device(url(channel, 5), "jjr8000") as device:
         link = transport(device).link
         assert link is not None and link.explicit_epr_ms == 60 and link.keepalive == pytest.approx(0.08)
-        time.sleep(0.6)
+        counters = simulator.slave.counters
+        seen = counters.explicit_requests
+        # eight keep-alive reads, 80 ms apart: well past the 240 ms the connection would last without them
+        assert until(lambda: counters.explicit_requests >= seen + 8 or simulator.slave.allocation == 0, 5.0)
         assert simulator.slave.allocation == 0x03  # still allocated: the keep-alive reads arrived in time
         assert transport(device).identify()["product_name"] == "JJR8000"

@@ -89,12 +89,15 @@ class MasterNode(PollScheduler):
 
     def start(self, now: float) -> list[CanFrame]:
         """Begin (or restart, after a fault) the duplicate MAC ID check."""
+        self._begin_check(now)
+        return self.take()
+
+    def _begin_check(self, now: float) -> None:
         self.state = ScannerState.CHECKING
         self._out.append(self._dup_mac_frame(False))
         self._check_step = 1
         self._check_deadline = now + self.config.dup_mac_wait
         self._wake(self._check_deadline)
-        return self.take()
 
     def close(self) -> None:
         self.state = ScannerState.CLOSED
@@ -329,7 +332,7 @@ class MasterNode(PollScheduler):
                 self._wake(self._check_deadline)
         elif self.state is ScannerState.FAULT and self.config.auto_reset:
             if now >= self.reset_at:
-                self.start(now)
+                self._begin_check(now)
             else:
                 self._wake(self.reset_at)
         if self.state is ScannerState.ONLINE:

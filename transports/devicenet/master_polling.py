@@ -155,7 +155,7 @@ class PollScheduler(ExplicitMessaging):
             link.note(sample.at, f"{CLEAR_POLLS} polls in a row with one answer: duplicate responder cleared")
         link.sample = sample
         link.acked_seq = sample.seq
-        if link.urgent:
+        if link.urgent and sample.seq == link.output_seq:  # an answer to the latest outputs
             link.urgent -= 1
 
     def _duplicate_answer(self, link: MasterLink, data: bytes, now: float) -> None:
