@@ -20,7 +20,8 @@ from starterbus.transports.devicenet.dupmac import DEFAULT_WAIT
 from starterbus.transports.devicenet.explicit import ExplicitRequest, ExplicitResponse
 from starterbus.transports.devicenet.fragmentation import Fragmenter, Reassembler
 
-KEEPALIVE = 1.0  # longest time between explicit keep-alive reads (the default inactivity timeout is 10 s)
+ANSWER_GUARD = 0.002  # seconds an answer waits for a second one (a duplicate responder) before it is published
+KEEPALIVE = 2.5  # longest time between explicit keep-alive reads (the default inactivity timeout is 10 s)
 
 
 class CommunicationFaultError(TransportError):
@@ -60,6 +61,7 @@ class ScannerConfig:
     dup_mac_wait: float = DEFAULT_WAIT
     timeout: float = 1.0
     auto_reset: bool = True  # leave the communication fault by itself (with backoff)
+    answer_guard: float = ANSWER_GUARD  # 0: publish answers at once (a rogue's first answer may get through)
 
     def conflicts(self, other: ScannerConfig) -> list[str]:
         names = ("master_mac", "bitrate", "dup_mac_wait")
@@ -137,6 +139,10 @@ class MasterLink:
         self.awaiting = False  # a poll command is out, no answer yet
         self.queued = False  # due, waiting for a free slot in the window
         self.answers = 0  # answers to the latest poll command
+        self.missed = 0  # polls in a row without an answer in time (their answers may still come, late)
+        self.tolerate = 0  # this poll follows missed ones: that many extra (late) answers are no duplicate
+        self.late = 0  # late answers recognised
+        self.quarantine_until = 0.0  # no poll before this (a missed poll's answer may still come)
         self.pending: InputSample | None = None  # first answer, published once no second one came
         self.confirm_at = 0.0
         self.clean_polls = 0  # consecutive polls with exactly one answer (to clear ``duplicate``)
@@ -154,7 +160,7 @@ class MasterLink:
 
     @property
     def keepalive(self) -> float:
-        """Seconds between keep-alive reads: a third of the explicit connection's inactivity timeout, at most 1 s."""
+        """Seconds between keep-alive reads: a third of the explicit connection's inactivity timeout, at most 2.5 s."""
         timeout = inactivity_timeout(self.explicit_epr_ms)
         return KEEPALIVE if timeout is None else min(KEEPALIVE, timeout / 3)
 

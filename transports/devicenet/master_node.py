@@ -44,7 +44,7 @@ from starterbus.transports.devicenet.master_polling import PollScheduler
 
 RESET_BACKOFF = (1.0, 60.0)  # first and longest wait before leaving the communication fault
 STABLE_ONLINE = 600.0  # seconds on line after which the backoff starts over
-IDLE_TICK = 0.25  # longest time between two ticks
+IDLE_TICK = 1.0  # longest time between two passes over the links (every timer is also woken exactly)
 MASTER_VENDOR_ID = 0  # the scanner is no registered product; vendor 0 in its duplicate MAC ID messages
 
 
@@ -312,8 +312,11 @@ class MasterNode(PollScheduler):
             self._send_ready(now)
             if self._confirming:
                 self._wake_fast(self._confirming[0].confirm_at)
-            if self._deadlines:
-                self._wake_fast(self._deadlines[0][0])
+            deadlines = self._deadlines
+            while deadlines and not deadlines[0][1].awaiting:  # answered: no timer needed
+                deadlines.popleft()
+            if deadlines:
+                self._wake_fast(deadlines[0][0])
             if self._due:
                 self._wake_fast(self._due[0][0])
         return self.take()

@@ -2,9 +2,13 @@
 
 Each established slave is polled at its own interval, or at once while a reader or a command waits
 (``urgent``), with at most ``WINDOW`` poll commands in flight. An answer is published only when no second
-answer to the same poll came within ``ANSWER_GUARD``; the next poll of that slave waits for that, so every
-answer can be told apart from the next poll's. Two answers to one poll mark the link with a
-:class:`DuplicateResponderError` and withdraw its inputs until ``CLEAR_POLLS`` polls in a row got one answer.
+answer to the same poll came within the answer guard (``ScannerConfig.answer_guard``, 2 ms); the next poll
+of that slave waits for that, so every answer can be told apart from the next poll's. Two answers to one poll
+mark the link with a :class:`DuplicateResponderError` and withdraw its inputs until ``CLEAR_POLLS`` polls in
+a row got one answer.
+A poll without an answer by its deadline is missed; its answer may still come (frames queue in the host
+under load), so the slave is not polled again until that answer came (it is taken as the missed poll's: no
+other poll went out) or ``LATE_LIMIT`` passed; the next poll then tolerates one extra, earlier answer.
 Timers: a FIFO of answer deadlines and confirmations (both a constant delay after the event, so in order)
 and a heap of next poll times; no pass over every link per frame.
 """
@@ -21,7 +25,7 @@ from starterbus.transports.devicenet.master_link import DuplicateResponderError,
 
 WINDOW = 8  # poll commands in flight at once
 POLL_RESPONSE_TIMEOUT = 0.05  # seconds a poll command waits for its answer
-ANSWER_GUARD = 0.002  # seconds an answer waits for a second one before it is published
+LATE_LIMIT = 0.5  # seconds after a missed poll's deadline its answer may still arrive (then the next poll goes)
 CLEAR_POLLS = 20  # polls in a row with one answer each that clear a duplicate responder
 
 
@@ -58,17 +62,21 @@ class PollScheduler(ExplicitMessaging):
             if link.awaiting and link.poll_deadline == at:
                 link.awaiting = False
                 link.misses += 1
+                link.missed += 1
+                link.quarantine_until = at + LATE_LIMIT  # its answer may still come: no next poll before
                 self._in_flight -= 1
                 self._schedule(link, now)
         due = self._due
         while due and due[0][0] <= now:
             _, _, link = heapq.heappop(due)
-            if link.next_poll_at <= now:
+            if link.next_poll_at <= now and link.quarantine_until <= now:
                 self._make_ready(link)
 
     # -- polling --------------------------------------------------------------------------------------------
 
     def _established(self, link: MasterLink, now: float) -> None:
+        link.missed = link.tolerate = link.answers = 0
+        link.quarantine_until = 0.0
         link.next_poll_at = now
         self._make_ready(link)
         self._wake(now)
@@ -84,7 +92,12 @@ class PollScheduler(ExplicitMessaging):
 
     def _schedule(self, link: MasterLink, now: float) -> None:
         """A poll of ``link`` finished (answered or missed): queue the next one now or at its time."""
-        if link.urgent or link.interval <= 0 or link.next_poll_at <= now:
+        if now < link.quarantine_until:
+            if self._idle(link):
+                self._sequence += 1
+                heapq.heappush(self._due, (link.quarantine_until, self._sequence, link))
+                self._wake_fast(link.quarantine_until)
+        elif link.urgent or link.interval <= 0 or link.next_poll_at <= now:
             link.next_poll_at = min(link.next_poll_at, now)
             self._make_ready(link)
         elif self._idle(link):
@@ -99,6 +112,9 @@ class PollScheduler(ExplicitMessaging):
             link.queued = False
             if not link.established or link.awaiting or link.pending is not None:
                 continue
+            if now < link.quarantine_until:
+                self._schedule(link, now)
+                continue
             seq = link.output_seq
             if seq != link.built_seq:
                 output = link.output()
@@ -109,6 +125,7 @@ class PollScheduler(ExplicitMessaging):
             link.sent_select = link.built_select
             link.awaiting = True
             link.answers = 0
+            link.tolerate, link.missed = link.missed, 0
             link.poll_deadline = deadline = now + POLL_RESPONSE_TIMEOUT
             link.next_poll_at = now + link.interval
             self._deadlines.append((deadline, link))
@@ -120,21 +137,34 @@ class PollScheduler(ExplicitMessaging):
     def _on_poll_response(self, link: MasterLink, data: bytes, now: float) -> None:
         link.answers += 1
         if link.answers > 1:
-            self._duplicate_answer(link, data, now)
+            if link.tolerate:
+                self._late_answer_first(link, data, now)
+            else:
+                self._duplicate_answer(link, data, now)
             return
-        if not link.awaiting:
-            link.answers = 0  # late (after the poll's deadline) or unsolicited: no value
+        if link.awaiting:
+            link.awaiting = False
+            self._in_flight -= 1
+        elif link.missed and link.pending is None:
+            # the missed poll's answer, late (host buffers under load); no poll went out since: it is its answer
+            link.missed = 0
+            link.quarantine_until = 0.0
+            link.late += 1
+        else:
+            link.answers = 0  # unsolicited (before the first poll): no value
             return
-        link.awaiting = False
-        self._in_flight -= 1
         link.last_response_at = now
         previous = link.sample
         select = link.sent_select
         count = previous.select_count + 1 if previous is not None and previous.select == select else 1
         link.pending = InputSample(data, now, 0.0, select, count, link.sent_seq)
-        link.confirm_at = now + ANSWER_GUARD
-        self._confirming.append(link)
-        self._wake_fast(link.confirm_at)
+        guard = self.config.answer_guard
+        if guard <= 0:
+            self._confirm(link, now)
+        else:
+            link.confirm_at = now + guard
+            self._confirming.append(link)
+            self._wake_fast(link.confirm_at)
         self._send_ready(now)
 
     def _confirm(self, link: MasterLink, now: float) -> None:
@@ -157,6 +187,16 @@ class PollScheduler(ExplicitMessaging):
         link.acked_seq = sample.seq
         if link.urgent and sample.seq == link.output_seq:  # an answer to the latest outputs
             link.urgent -= 1
+
+    def _late_answer_first(self, link: MasterLink, data: bytes, now: float) -> None:
+        """The poll after a quarantine that ran out got one more answer: the earlier one was the missed poll's
+        very late answer (frames stay in order), this one answers the current poll and replaces it."""
+        link.tolerate -= 1
+        link.late += 1
+        if link.pending is not None:
+            link.pending = link.pending._replace(data=data, at=now)
+        elif link.sample is not None and link.sample.seq == link.sent_seq:
+            link.sample = link.sample._replace(data=data, at=now)
 
     def _duplicate_answer(self, link: MasterLink, data: bytes, now: float) -> None:
         first = link.pending.data if link.pending is not None else (link.sample.data if link.sample else b"")

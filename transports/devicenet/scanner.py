@@ -51,7 +51,8 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 SlaveLink = MasterLink
-MAX_WAIT = 0.05  # longest receive wait (user threads send their own frames; this only bounds timer latency)
+MAX_WAIT = 0.25  # longest receive wait: bounds the latency of timers a user thread set meanwhile
+MESSAGE_CACHE = 512  # python-can messages kept for frames sent again (poll commands)
 #: every identifier the master listens to, as three mask filters: poll responses (group 1 id 15), explicit
 #: responses (group 2 id 3) and duplicate MAC ID checks (group 2 id 7); exact matching follows in software
 CAN_FILTERS: list[can.typechecking.CanFilter] = [
@@ -84,6 +85,7 @@ class Scanner:
         self.received = 0
         self.dropped = 0
         self.io_cpu = 0.0
+        self._messages: dict[CanFrame, can.Message] = {}  # poll commands repeat: built once
         self.errors: collections.deque[str] = collections.deque(maxlen=100)
         self.started = time.monotonic()
         self._wall_offset = time.time() - clock()
@@ -255,9 +257,16 @@ class Scanner:
     # -- the I/O thread -----------------------------------------------------------------------------------------
 
     def _send(self, frames: list[CanFrame]) -> None:
+        messages = self._messages
         for frame in frames:
+            message = messages.get(frame)
+            if message is None:
+                message = can.Message(arbitration_id=frame.can_id, data=frame.data, is_extended_id=False)
+                if len(messages) >= MESSAGE_CACHE:
+                    messages.clear()
+                messages[frame] = message
             try:
-                self.bus.send(can.Message(arbitration_id=frame.can_id, data=frame.data, is_extended_id=False))
+                self.bus.send(message)
             except can.CanError as exc:
                 log.warning("DeviceNet send %s failed: %s", frame.text(), exc)
 
