@@ -16,6 +16,7 @@ and a heap of next poll times; no pass over every link per frame.
 from __future__ import annotations
 
 import heapq
+import math
 from collections import deque
 
 from starterbus.transports.devicenet.frames import CanFrame
@@ -127,7 +128,9 @@ class PollScheduler(ExplicitMessaging):
             link.answers = 0
             link.tolerate, link.missed = link.missed, 0
             link.poll_deadline = deadline = now + POLL_RESPONSE_TIMEOUT
-            link.next_poll_at = now + link.interval
+            interval = link.interval
+            # on the grid of its interval: the slaves with one interval are due together (one wake-up for all)
+            link.next_poll_at = (math.floor(now / interval) + 1) * interval if interval > 0 else now
             self._deadlines.append((deadline, link))
             self._wake_fast(deadline)
             self._in_flight += 1

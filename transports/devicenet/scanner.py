@@ -288,9 +288,12 @@ class Scanner:
                 if can_id not in machine.wanted or message.is_extended_id or message.is_remote_frame:
                     self.dropped += 1
                     continue
-                frame = CanFrame(can_id, bytes(message.data))
+                data = bytes(message.data)
+                if len(data) > 8:  # CAN FD: not DeviceNet
+                    self.dropped += 1
+                    continue
                 with lock:
-                    self._call(machine.handle(frame, clock()))
+                    self._call(machine.receive(can_id, data, clock()))
             except StarterbusError as exc:  # a malformed frame; never stop the master
                 self.errors.append(str(exc))
             except Exception as exc:  # a bug must not stop the master either; keep it visible
