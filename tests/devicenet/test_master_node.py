@@ -93,6 +93,45 @@ def test_online_rules_transcript(garbage: list[CanFrame]) -> None:
     assert state(node) is ScannerState.ONLINE and node.fault is None
 
 
+# MAC 5 attached at 2.0 s (EPR 100 ms, scanned every 10 ms): the connection sequence (transaction ids toggle),
+# the first poll, and a second answer to it.
+CONNECTION = """
+> 42B#40CB00                  # allocated (XID 1)
+< 42C#000E050109              # Get the explicit connection's expected packet rate
+> 42B#008EC409                # 2500 ms
+< 42C#400E050207              # Get the polled connection's produced size
+> 42B#408E0600                # 6 bytes
+< 42C#000E050208              # consumed size
+> 42B#008E0200                # 2 bytes: extended assemblies 101/102
+< 42C#40100502096400          # Set the expected packet rate: 100 ms
+> 42B#40906400                # 100 ms used: established
+@ 2.05
+< 42D#0001                    # first poll: stop, report status parameter 1
+> 3C5#200000000060            # the slave's answer
+> 3C5#EEEEEEEEEEEE            # a second answer to the same poll: another node answers for MAC 5
+@ 2.06
+< 42D#0001                    # still polled (the rogue may go away), its inputs withheld
+> 3C5#200000000060
+@ 2.07
+< 42D#0001
+"""
+
+
+@pytest.mark.parametrize("garbage", [[], GARBAGE[:1] + GARBAGE[3:]], ids=["clean", "with-garbage"])
+def test_connection_and_rogue_transcript(garbage: list[CanFrame]) -> None:
+    node = master()
+    node.start(0.0)
+    replay(node, parse_transcript("@ 1.0\n@ 2.0"))
+    link = node.attach(LinkConfig(5, epr_ms=100, interval=0.01), 2.0)
+    assert [f.text() for f in node.tick(2.0)] == ["42E#404B03010300"]  # Allocate explicit + polled
+    steps = parse_transcript(CONNECTION)
+    sent = replay(node, steps, garbage, start=2.0)
+    assert [f.text() for f in sent] == [f.text() for f in expected(steps)]
+    error = node.link_error(link)
+    assert isinstance(error, DuplicateResponderError) and "20 00 00 00 00 60 and EE EE EE EE EE EE" in str(error)
+    assert link.sample is None and link.duplicates == 1
+
+
 def test_fault_names_the_cause_and_every_call_fails_at_once() -> None:
     node = master()
     node.start(0.0)

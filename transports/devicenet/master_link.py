@@ -143,6 +143,7 @@ class MasterLink:
         self.tolerate = 0  # this poll follows missed ones: that many extra (late) answers are no duplicate
         self.late = 0  # late answers recognised
         self.quarantine_until = 0.0  # no poll before this (a missed poll's answer may still come)
+        self.last_answer = b""  # data of the latest answer taken (named when a second one comes)
         self.pending: InputSample | None = None  # first answer, published once no second one came
         self.confirm_at = 0.0
         self.clean_polls = 0  # consecutive polls with exactly one answer (to clear ``duplicate``)

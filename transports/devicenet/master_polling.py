@@ -130,7 +130,7 @@ class PollScheduler(ExplicitMessaging):
             link.poll_deadline = deadline = now + POLL_RESPONSE_TIMEOUT
             interval = link.interval
             # on the grid of its interval: the slaves with one interval are due together (one wake-up for all)
-            link.next_poll_at = (math.floor(now / interval) + 1) * interval if interval > 0 else now
+            link.next_poll_at = round((math.floor(now / interval + 1e-9) + 1) * interval, 9) if interval > 0 else now
             self._deadlines.append((deadline, link))
             self._wake_fast(deadline)
             self._in_flight += 1
@@ -161,6 +161,7 @@ class PollScheduler(ExplicitMessaging):
         select = link.sent_select
         count = previous.select_count + 1 if previous is not None and previous.select == select else 1
         link.pending = InputSample(data, now, 0.0, select, count, link.sent_seq)
+        link.last_answer = data
         guard = self.config.answer_guard
         if guard <= 0:
             self._confirm(link, now)
@@ -196,13 +197,14 @@ class PollScheduler(ExplicitMessaging):
         very late answer (frames stay in order), this one answers the current poll and replaces it."""
         link.tolerate -= 1
         link.late += 1
+        link.last_answer = data
         if link.pending is not None:
             link.pending = link.pending._replace(data=data, at=now)
         elif link.sample is not None and link.sample.seq == link.sent_seq:
             link.sample = link.sample._replace(data=data, at=now)
 
     def _duplicate_answer(self, link: MasterLink, data: bytes, now: float) -> None:
-        first = link.pending.data if link.pending is not None else (link.sample.data if link.sample else b"")
+        first = link.last_answer
         link.duplicates += 1
         link.clean_polls = 0
         link.pending = None  # still in the confirmation queue: _confirm schedules the next poll
