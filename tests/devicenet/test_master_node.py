@@ -7,6 +7,8 @@ from __future__ import annotations
 import itertools
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
@@ -130,6 +132,36 @@ def test_connection_and_rogue_transcript(garbage: list[CanFrame]) -> None:
     error = node.link_error(link)
     assert isinstance(error, DuplicateResponderError) and "20 00 00 00 00 60 and EE EE EE EE EE EE" in str(error)
     assert link.sample is None and link.duplicates == 1
+
+
+frames_strategy = st.lists(
+    st.tuples(
+        st.sampled_from([0x3C5, 0x42B, 0x407, 0x42F, 0x3C6, 0x433]) | st.integers(0, 0x7FF),
+        st.binary(max_size=8),
+        st.floats(0.0, 0.05),
+    ),
+    max_size=40,
+)
+
+
+@settings(max_examples=150, deadline=None)
+@given(frames_strategy)
+def test_any_frames_never_break_the_master(frames: list[tuple[int, bytes, float]]) -> None:
+    node = master()
+    node.start(0.0)
+    replay(node, parse_transcript("@ 1.0\n@ 2.0"))
+    link = node.attach(LinkConfig(5, epr_ms=100, interval=0.01), 2.0)
+    node.tick(2.0)
+    replay(node, parse_transcript(CONNECTION.partition("@ 2.05")[0]), start=2.0)
+    assert link.established
+    now = 2.0
+    for can_id, data, step in frames:
+        now += step
+        for frame in node.handle(CanFrame(can_id, data), now) + node.tick(now):
+            assert frame.can_id in (0x407, 0x42C, 0x42D, 0x42E)  # only its own identifiers
+    assert node._in_flight >= 0 and node.state in (ScannerState.ONLINE, ScannerState.FAULT)
+    error = node.link_error(link)
+    assert error is None or isinstance(error, (CommunicationFaultError, DuplicateResponderError))
 
 
 def test_fault_names_the_cause_and_every_call_fails_at_once() -> None:
