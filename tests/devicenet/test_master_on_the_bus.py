@@ -124,3 +124,19 @@ def test_period_sets_interval_and_expected_packet_rate(channel: str, simulated: 
         assert link is not None and link.interval == 1.0 and link.epr_ms == 2000
         assert device.status().state is MotorState.STOPPED
         assert "phase_b_current" in device.read("m3")  # the read polls at once (2 settling polls, not 2 s)
+
+
+def test_a_bug_in_the_machine_does_not_stop_the_driver(
+    channel: str, simulated: object, until: Until, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    with open_device(f"devicenet://virtual/{channel}?mac=5&{FAST}", "jjr8000") as device:
+        scanner = transport(device).scanner
+        assert scanner is not None
+
+        def broken(*args: object) -> None:
+            raise RuntimeError("injected")
+
+        monkeypatch.setattr(scanner.machine, "_on_duplicate_mac", broken)
+        send(channel, [(0x407, "00341278563412")])
+        assert until(lambda: any("injected" in text for text in scanner.errors))
+        assert device.status().state is MotorState.STOPPED  # the thread goes on

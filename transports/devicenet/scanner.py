@@ -52,6 +52,7 @@ log = logging.getLogger(__name__)
 
 SlaveLink = MasterLink
 MAX_WAIT = 0.25  # longest receive wait: bounds the latency of timers a user thread set meanwhile
+BUG_BACKOFF = 0.01  # seconds before timers run again after an unexpected exception
 MESSAGE_CACHE = 512  # python-can messages kept for frames sent again (poll commands)
 #: every identifier the master listens to, as three mask filters: poll responses (group 1 id 15), explicit
 #: responses (group 2 id 3) and duplicate MAC ID checks (group 2 id 7); exact matching follows in software
@@ -301,4 +302,6 @@ class Scanner:
                     break
                 log.exception("DeviceNet scanner on %s", self.where)
                 self.errors.append(f"{type(exc).__name__}: {exc}")
+                with lock:  # a timer that failed must not be retried in a tight loop
+                    machine.deadline = max(machine.deadline, clock() + BUG_BACKOFF)
         self.io_cpu = time.thread_time() - cpu0
