@@ -61,7 +61,11 @@ def transport(device: Device) -> DeviceNetTransport:
 
 
 def test_startup_of_two_slaves_and_one_master(
-    channel: str, sniffer: object, two_slaves: list[DeviceNetSlaveSimulator], starters: dict[int, SimulatedStarter]
+    channel: str,
+    sniffer: object,
+    two_slaves: list[DeviceNetSlaveSimulator],
+    starters: dict[int, SimulatedStarter],
+    until: Until,
 ) -> None:
     with open_device(url(channel, 5), "jjr8000") as d5, open_device(url(channel, 6), "jjr8000") as d6:
         assert SCANNERS.users(("virtual", channel)) == 2  # one scanner for both devices
@@ -71,6 +75,8 @@ def test_startup_of_two_slaves_and_one_master(
         assert d5.status().state is MotorState.STARTING
         assert d6.status().state is MotorState.STOPPED
         assert starters[5].phase is Phase.STARTING and starters[6].phase is Phase.STOPPED
+    released = ["42B#00CC", "433#00CC"]  # the last frames: wait until the listening bus has them
+    assert until(lambda: all(frame in sniffer.texts() for frame in released))  # type: ignore[attr-defined]
     texts = sniffer.texts()  # type: ignore[attr-defined]
     # duplicate MAC ID checks: each node twice, the master (MAC 0, vendor 0) twice
     assert sum(t.startswith("42F#0033030501") for t in texts) == 2
@@ -100,7 +106,7 @@ def test_startup_of_two_slaves_and_one_master(
         assert sim.slave.allocation == 0
 
 
-def test_identity_with_fragmented_product_name(channel: str, sniffer: object, two_slaves: object) -> None:
+def test_identity_with_fragmented_product_name(channel: str, sniffer: object, two_slaves: object, until: Until) -> None:
     with open_device(url(channel, 6), "jjr8000") as device:
         identity = transport(device).identify()
     assert identity == {
@@ -116,6 +122,7 @@ def test_identity_with_fragmented_product_name(channel: str, sniffer: object, tw
         "output_assembly": 102,
         "expected_packet_rate_ms": 50,
     }
+    assert until(lambda: "434#80C100" in sniffer.texts())  # type: ignore[attr-defined]
     texts = sniffer.texts()  # type: ignore[attr-defined]
     first = texts.index("433#80008E074A4A5238")  # first fragment of the product name
     rest = texts[first + 1 :]
@@ -203,6 +210,7 @@ def test_watchdog_and_master_restart_with_the_old_allocation(
         # the master comes back with the same MAC: "already allocated" -> release -> allocate
         with open_device(url(channel, 5), "jjr8000") as device:
             assert device.status().state is MotorState.STOPPING
+            assert until(lambda: sniffer.texts().count("42E#004B03010300") == 3)  # type: ignore[attr-defined]
             texts = sniffer.texts()  # type: ignore[attr-defined]
             assert "42B#00940B02" in texts  # already in requested mode: our own old allocation
             assert texts.count("42E#004C030103") == 1  # one release, then the second master's second Allocate
@@ -308,7 +316,7 @@ def test_scanner_state_after_close(channel: str, two_slaves: object) -> None:
         device.status()
 
 
-def test_fragmented_request_from_the_master(channel: str, sniffer: object, two_slaves: object) -> None:
+def test_fragmented_request_from_the_master(channel: str, sniffer: object, two_slaves: object, until: Until) -> None:
     """Master -> slave fragmentation over the bus: a 17-byte Set_Attribute_Single in three acknowledged fragments."""
     with open_device(url(channel, 5), "jjr8000") as device:
         scanner, link = transport(device).scanner, transport(device).link
@@ -317,6 +325,7 @@ def test_fragmented_request_from_the_master(channel: str, sniffer: object, two_s
         with pytest.raises(RemoteDeviceError) as info:
             scanner.request(link, request)
         assert info.value.code == 0x0E  # reassembled by the slave, then refused: not settable
+    assert until(lambda: "42B#00940EFF" in sniffer.texts())  # type: ignore[attr-defined]
     texts = sniffer.texts()  # type: ignore[attr-defined]
     first = texts.index("42C#8000100101070B4A")  # service, class, instance, attribute 7, length, "J"
     rest = texts[first:]
