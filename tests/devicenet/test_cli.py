@@ -8,11 +8,13 @@ import re
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
+import types
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
+from starterbus.cli import simulate as simulate_command
 from starterbus.cli.main import main
 from starterbus.core.device import open_device
 from starterbus.core.profile import Profile
@@ -85,9 +87,23 @@ def test_decode_command(capsys: pytest.CaptureFixture[str]) -> None:
     assert "without a first fragment" in capsys.readouterr().out
 
 
-def test_simulate_command_in_process(channel: str, capsys: pytest.CaptureFixture[str]) -> None:
+def test_simulate_command_in_process(
+    channel: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, until: Callable[..., bool]
+) -> None:
+    """The command runs until its stop event is set (as SIGTERM does), so a cold start cannot outlive it."""
+    stops: list[threading.Event] = []
+
+    class RecordedEvent(threading.Event):
+        def __init__(self) -> None:
+            super().__init__()
+            stops.append(self)
+
+    fake_threading = types.SimpleNamespace(
+        Event=RecordedEvent, current_thread=threading.current_thread, main_thread=threading.main_thread
+    )
+    monkeypatch.setattr(simulate_command, "threading", fake_threading)
     args = ["simulate", "--model", "jjr8000", "--unit", "1", "--unit", "2", "--mac", "5", "--mac", "6",
-            "--devicenet", f"virtual:{channel}", "--devicenet-dup-mac-wait", "0.05", "--duration", "1.2"]  # fmt: skip
+            "--devicenet", f"virtual:{channel}", "--devicenet-dup-mac-wait", "0.05", "--duration", "60"]  # fmt: skip
     result: list[int] = []
     runner = threading.Thread(target=lambda: result.append(main(args)))
     runner.start()
@@ -95,6 +111,8 @@ def test_simulate_command_in_process(channel: str, capsys: pytest.CaptureFixture
         with open_device(f"devicenet://virtual/{channel}?mac=6&{FAST}&timeout=1", "jjr8000") as device:
             assert device.status().source == "devicenet"
     finally:
+        assert until(lambda: bool(stops), 30.0), "the simulate command did not start"
+        stops[0].set()
         runner.join()
     assert result == [0]
     out = capsys.readouterr().out

@@ -115,6 +115,16 @@ def test_response_decoding_errors() -> None:
     assert info.value.data == bytes.fromhex("00 B3 01")
 
 
+@pytest.mark.parametrize("text", ["00 94 0C 01 00", "00 94 08 FF 12 34", "40 94 16 FF FF FF FF FF"])
+def test_error_response_with_extra_bytes_is_malformed(text: str) -> None:
+    message = bytes.fromhex(text)
+    with pytest.raises(cip.FrameTooLongError) as info:
+        decode_response(message)
+    extra = message[4:].hex(" ").upper()
+    assert extra in str(info.value)  # names the offending bytes
+    assert info.value.data == message and info.value.field == "additional_status"
+
+
 def test_check_response_maps_errors() -> None:
     request = ExplicitRequest(0, Service.ALLOCATE, 3, 1, None, b"\x03\x00")
     with pytest.raises(RemoteDeviceError) as info:

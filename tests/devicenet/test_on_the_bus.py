@@ -61,7 +61,11 @@ def transport(device: Device) -> DeviceNetTransport:
 
 
 def test_startup_of_two_slaves_and_one_master(
-    channel: str, sniffer: object, two_slaves: list[DeviceNetSlaveSimulator], starters: dict[int, SimulatedStarter]
+    channel: str,
+    sniffer: object,
+    two_slaves: list[DeviceNetSlaveSimulator],
+    starters: dict[int, SimulatedStarter],
+    until: Until,
 ) -> None:
     with open_device(url(channel, 5), "jjr8000") as d5, open_device(url(channel, 6), "jjr8000") as d6:
         assert SCANNERS.users(("virtual", channel)) == 2  # one scanner for both devices
@@ -71,6 +75,8 @@ def test_startup_of_two_slaves_and_one_master(
         assert d5.status().state is MotorState.STARTING
         assert d6.status().state is MotorState.STOPPED
         assert starters[5].phase is Phase.STARTING and starters[6].phase is Phase.STOPPED
+    released = ["42B#00CC", "433#00CC"]  # the last frames: wait until the listening bus has them
+    assert until(lambda: all(frame in sniffer.texts() for frame in released))  # type: ignore[attr-defined]
     texts = sniffer.texts()  # type: ignore[attr-defined]
     # duplicate MAC ID checks: each node twice, the master (MAC 0, vendor 0) twice
     assert sum(t.startswith("42F#0033030501") for t in texts) == 2
@@ -100,7 +106,7 @@ def test_startup_of_two_slaves_and_one_master(
         assert sim.slave.allocation == 0
 
 
-def test_identity_with_fragmented_product_name(channel: str, sniffer: object, two_slaves: object) -> None:
+def test_identity_with_fragmented_product_name(channel: str, sniffer: object, two_slaves: object, until: Until) -> None:
     with open_device(url(channel, 6), "jjr8000") as device:
         identity = transport(device).identify()
     assert identity == {
@@ -116,6 +122,7 @@ def test_identity_with_fragmented_product_name(channel: str, sniffer: object, tw
         "output_assembly": 102,
         "expected_packet_rate_ms": 50,
     }
+    assert until(lambda: "434#80C100" in sniffer.texts())  # type: ignore[attr-defined]
     texts = sniffer.texts()  # type: ignore[attr-defined]
     first = texts.index("433#80008E074A4A5238")  # first fragment of the product name
     rest = texts[first + 1 :]
@@ -203,6 +210,7 @@ def test_watchdog_and_master_restart_with_the_old_allocation(
         # the master comes back with the same MAC: "already allocated" -> release -> allocate
         with open_device(url(channel, 5), "jjr8000") as device:
             assert device.status().state is MotorState.STOPPING
+            assert until(lambda: sniffer.texts().count("42E#004B03010300") == 3)  # type: ignore[attr-defined]
             texts = sniffer.texts()  # type: ignore[attr-defined]
             assert "42B#00940B02" in texts  # already in requested mode: our own old allocation
             assert texts.count("42E#004C030103") == 1  # one release, then the second master's second Allocate
@@ -308,7 +316,7 @@ def test_scanner_state_after_close(channel: str, two_slaves: object) -> None:
         device.status()
 
 
-def test_fragmented_request_from_the_master(channel: str, sniffer: object, two_slaves: object) -> None:
+def test_fragmented_request_from_the_master(channel: str, sniffer: object, two_slaves: object, until: Until) -> None:
     """Master -> slave fragmentation over the bus: a 17-byte Set_Attribute_Single in three acknowledged fragments."""
     with open_device(url(channel, 5), "jjr8000") as device:
         scanner, link = transport(device).scanner, transport(device).link
@@ -317,6 +325,7 @@ def test_fragmented_request_from_the_master(channel: str, sniffer: object, two_s
         with pytest.raises(RemoteDeviceError) as info:
             scanner.request(link, request)
         assert info.value.code == 0x0E  # reassembled by the slave, then refused: not settable
+    assert until(lambda: "42B#00940EFF" in sniffer.texts())  # type: ignore[attr-defined]
     texts = sniffer.texts()  # type: ignore[attr-defined]
     first = texts.index("42C#8000100101070B4A")  # service, class, instance, attribute 7, length, "J"
     rest = texts[first:]
@@ -325,24 +334,25 @@ def test_fragmented_request_from_the_master(channel: str, sniffer: object, two_s
 
 
 def test_node_added_to_a_running_simulator(channel: str, sniffer: object, jjr8000: Profile, until: Until) -> None:
-    with DeviceNetSimulator(("virtual", channel), dup_mac_wait=0.2) as sim:
+    with DeviceNetSimulator(("virtual", channel), dup_mac_wait=60.0) as sim:
         node = sim.add_node(SimulatedStarter(jjr8000), 17)
         texts: Callable[[], list[str]] = sniffer.texts  # type: ignore[attr-defined]
-        assert until(lambda: len(texts()) >= 1, 0.1)  # its first check request goes out at once, not after 0.2 s
-        assert texts()[0].startswith("48F#00330311")
-        assert sim.wait_online(2) and node.state is NodeState.ONLINE
+        assert until(lambda: len(texts()) >= 1, 10.0)  # its first check request goes out at once, not after 60 s
+        assert len(texts()) == 1 and texts()[0].startswith("48F#00330311")  # the second one waits 60 s
+        assert node.state is NodeState.CHECKING
 
 
-def test_explicit_connection_is_kept_alive(channel: str, jjr8000: Profile) -> None:
+def test_explicit_connection_is_kept_alive(channel: str, jjr8000: Profile, until: Until) -> None:
     """A slave whose explicit connection times out after 4 x 60 ms: the scanner reads its EPR and keeps it alive."""
-    import time
-
     simulator = DeviceNetSlaveSimulator(
         SimulatedStarter(jjr8000), ("virtual", channel), 5, dup_mac_wait=0.05, explicit_epr_ms=60
     )
     with simulator, open_device(url(channel, 5), "jjr8000") as device:
         link = transport(device).link
         assert link is not None and link.explicit_epr_ms == 60 and link.keepalive == pytest.approx(0.08)
-        time.sleep(0.6)
+        counters = simulator.slave.counters
+        seen = counters.explicit_requests
+        # eight keep-alive reads, 80 ms apart: well past the 240 ms the connection would last without them
+        assert until(lambda: counters.explicit_requests >= seen + 8 or simulator.slave.allocation == 0, 5.0)
         assert simulator.slave.allocation == 0x03  # still allocated: the keep-alive reads arrived in time
         assert transport(device).identify()["product_name"] == "JJR8000"

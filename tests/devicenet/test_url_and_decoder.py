@@ -22,14 +22,39 @@ def test_url_defaults(jjr8000: Profile) -> None:
         500000,
     )
     assert (scanner.poll_period, scanner.dup_mac_wait, scanner.timeout) == (0.02, 1.0, 1.0)
-    assert (link.mac, link.assemblies, link.epr_ms, link.settle) == (5, "auto", 100, 2)
+    assert (link.mac, link.assemblies, link.epr_ms, link.settle, link.interval) == (5, "auto", 100, 2, 0.02)
+    assert link.product == "JJR8000"  # from the profile, for messages
     scanner, _ = parse_url(DeviceUrl.parse("devicenet://remote/127.0.0.1:54701?mac=5"), jjr8000)
     assert (scanner.interface, scanner.channel) == ("remote", "127.0.0.1:54701")
 
 
 @pytest.mark.parametrize(
+    ("query", "interval", "epr"),
+    [
+        ("period=1", 1.0, 2000),  # a fleet polling every second: one poll a second, watchdog 8 s
+        ("period=0.2", 0.2, 400),
+        ("period=0.02", 0.02, 100),  # the floor of the expected packet rate
+        ("period=0", 0.005, 100),  # the floor of the interval
+        ("period=60", 1.0, 2000),  # the ceiling protects the watchdog: a slave never waits long for a poll
+        ("period=1&epr=5000", 1.0, 5000),  # an explicit epr wins
+        ("poll=50&epr=200", 0.05, 200),
+    ],
+)
+def test_period_sets_interval_and_expected_packet_rate(jjr8000: Profile, query: str, interval: float, epr: int) -> None:
+    _, link = parse_url(DeviceUrl.parse(f"devicenet://virtual/bus0?mac=5&{query}"), jjr8000)
+    assert (link.interval, link.epr_ms) == (interval, epr)
+    assert link.interval is not None and link.interval * 1000 <= link.epr_ms
+
+
+def test_transport_declares_its_run_command_needs_the_connection() -> None:
+    assert DeviceNetTransport.run_needs_connection is True
+
+
+@pytest.mark.parametrize(
     ("text", "message"),
     [
+        ("devicenet://virtual/bus0?mac=5&period=1&poll=20", "period .* or poll"),
+        ("devicenet://virtual/bus0?mac=5&period=1&epr=500", "exceeds the expected packet rate"),
         ("devicenet://virtual/bus0", "mac: required"),
         ("devicenet://virtual/bus0?mac=0", "outside 1..63"),
         ("devicenet://virtual/bus0?mac=64", "outside 1..63"),

@@ -21,6 +21,7 @@ from starterbus.transports.devicenet.cip import (
     ATTRIBUTE_SERVICES,
     NO_ADDITIONAL,
     CipStatus,
+    FrameTooLongError,
     FrameTooShortError,
     Service,
     UnexpectedFrameError,
@@ -188,6 +189,13 @@ def decode_response(message: bytes) -> Response:
     if message[1] == ERROR_SERVICE:
         if len(message) < 3:
             raise FrameTooShortError("error response without a general status", message, "general_status")
+        if len(message) > 4:
+            raise FrameTooLongError(
+                f"error response with {len(message) - 4} byte(s) after the additional code: "
+                f"{message[4:].hex(' ').upper()} (it is [header][94][general status][additional code])",
+                message,
+                "additional_status",
+            )
         additional = message[3] if len(message) > 3 else NO_ADDITIONAL
         return ErrorResponse(header.mac, CipStatus(message[2], additional), header.xid)
     service = message[1] & 0x7F

@@ -24,6 +24,7 @@ class DeviceNetPlugin(TransportPlugin):
     url_forms = (
         "devicenet://INTERFACE/CHANNEL?mac=5",
         "devicenet://virtual/bus0?mac=5&dup_mac_wait=0.1",
+        "devicenet://socketcan/can0?mac=5&period=1",
         "devicenet://socketcan/can0?mac=5&bitrate=500000&assemblies=extended",
         "devicenet://remote/127.0.0.1:54701?mac=5",
     )

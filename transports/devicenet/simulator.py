@@ -217,7 +217,7 @@ class DeviceNetSimulator(RunningSimulator):
         explicit_epr_ms: int | None = None,
     ) -> SlaveNode:
         if not 0 <= mac <= MAX_MAC:
-            raise ConfigurationError(f"DeviceNet MAC id {mac} is outside 0..63 (the JJR8000 allows 1..63)")
+            raise ConfigurationError(f"DeviceNet MAC id {mac} is outside 0..63 ({starter.profile.display_name}: 1..63)")
         if identity is None:
             identity = Identity.from_profile(starter.profile, serial_number=0x20110100 + mac)
         app = StarterApplication(starter, assemblies)

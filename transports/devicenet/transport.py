@@ -9,20 +9,24 @@ URL: ``devicenet://INTERFACE/CHANNEL?mac=5`` with any python-can interface (``vi
 ``bitrate``     500000    125000, 250000 or 500000 (software interfaces ignore it)
 ``assemblies``  auto      ``basic`` (1/2), ``extended`` (101/102) or ``auto`` (from the polled connection sizes)
 ``epr``         100       expected packet rate of the polled connection, ms (inactivity timeout = 4 x EPR)
-``poll``        20        scan period, ms (0: as fast as possible); at most ``epr``
+``period``      none      seconds between fresh inputs the caller needs (e.g. a fleet's poll period): the
+                          scan interval follows it (at least 0.005 s, at most 1 s) and so does the expected
+                          packet rate (2 x the interval, at least 100 ms); not with ``poll``
+``poll``        20        scan interval, ms (0: as fast as possible); at most ``epr``
 ``dup_mac_wait`` 1.0      seconds of each wait of the scanner's duplicate MAC ID check (the spec says 1 s)
 ``timeout``     1.0       seconds to wait for an explicit response, a command or fresh inputs
 ``settle``      2         poll responses after a new status parameter address before its value is used
 =============== ========= ================================================================================
 
-Scanner-wide parameters (``master_mac``, ``bitrate``, ``poll``, ``dup_mac_wait``) must agree between the
+Scanner-wide parameters (``master_mac``, ``bitrate``, ``dup_mac_wait``) must agree between the
 devices of one bus in one process. Parameters cannot be read or written (the manual: not supported).
 """
 
 from __future__ import annotations
 
+import math
+import threading
 from collections.abc import Sequence
-from typing import Any
 
 from starterbus.core.errors import ConfigurationError, DecodeError, TimeoutError
 from starterbus.core.model import Kind, PointDef, Reading
@@ -42,14 +46,45 @@ from starterbus.transports.devicenet.cip import ObjectClass, Service
 from starterbus.transports.devicenet.explicit import ExplicitRequest
 from starterbus.transports.devicenet.identity import ATTRIBUTE_NAMES, decode_identity
 from starterbus.transports.devicenet.ids import MAX_MAC, poll_command_id
-from starterbus.transports.devicenet.scanner import LinkConfig, LinkState, Scanner, ScannerConfig, SlaveLink
+from starterbus.transports.devicenet.master_polling import POLL_RESPONSE_TIMEOUT
+from starterbus.transports.devicenet.scanner import (
+    InputSample,
+    LinkConfig,
+    LinkState,
+    Scanner,
+    ScannerConfig,
+    SlaveLink,
+)
 
 NAME = "devicenet"
-URL_PARAMETERS = ("mac", "master_mac", "bitrate", "assemblies", "epr", "poll", "dup_mac_wait", "timeout", "settle")
+URL_PARAMETERS = (
+    "mac",
+    "master_mac",
+    "bitrate",
+    "assemblies",
+    "epr",
+    "period",
+    "poll",
+    "dup_mac_wait",
+    "timeout",
+    "settle",
+)
 DEFAULT_BITRATES = (125000, 250000, 500000)
+
+MIN_INTERVAL = 0.005  # s: the fastest scan a ``period`` asks for (bus load)
+MAX_INTERVAL = 1.0  # s: the slowest; with EPR = 2 x interval the slave's watchdog fires after 8 s of silence
+MIN_EPR_MS = 100  # the shortest expected packet rate a ``period`` sets (watchdog 400 ms: scheduling jitter)
+EPR_FACTOR = 2
 
 #: one scanner per (interface, channel) in this process
 SCANNERS: SharedPool[Scanner] = SharedPool()
+
+
+def timing_for_period(period: float) -> tuple[float, int]:
+    """Scan interval (s) and expected packet rate (ms) for a caller that needs fresh inputs every ``period`` s."""
+    interval = min(max(period, MIN_INTERVAL), MAX_INTERVAL)
+    epr_ms = max(MIN_EPR_MS, 10 * math.ceil(EPR_FACTOR * interval * 100 - 1e-9))
+    return interval, epr_ms
 
 
 def parse_url(url: DeviceUrl, profile: Profile) -> tuple[ScannerConfig, LinkConfig]:
@@ -73,8 +108,15 @@ def parse_url(url: DeviceUrl, profile: Profile) -> tuple[ScannerConfig, LinkConf
     if bitrate not in bitrates:
         raise ConfigurationError(f"{url.text}: bitrate {bitrate} is not one of {', '.join(map(str, bitrates))}")
     assemblies = url.get_str("assemblies", "auto", choices=("auto", "basic", "extended"))
-    epr = url.get_int("epr", 100, lo=0, hi=0xFFFF)
-    poll = url.get_float("poll", 20.0, lo=0.0, hi=60000.0)
+    if "period" in url.query:
+        if "poll" in url.query:
+            raise ConfigurationError(f"{url.text}: give period (seconds) or poll (ms), not both")
+        interval, derived_epr = timing_for_period(url.get_float("period", 1.0, lo=0.0, hi=86400.0))
+        poll = interval * 1000.0
+        epr = url.get_int("epr", derived_epr, lo=0, hi=0xFFFF)
+    else:
+        epr = url.get_int("epr", 100, lo=0, hi=0xFFFF)
+        poll = url.get_float("poll", 20.0, lo=0.0, hi=60000.0)
     if epr and poll > epr:
         raise ConfigurationError(
             f"{url.text}: poll period {poll:g} ms exceeds the expected packet rate {epr} ms "
@@ -89,19 +131,28 @@ def parse_url(url: DeviceUrl, profile: Profile) -> tuple[ScannerConfig, LinkConf
         dup_mac_wait=url.get_float("dup_mac_wait", 1.0, lo=0.0, hi=10.0),
         timeout=url.get_float("timeout", 1.0, lo=0.01, hi=60.0),
     )
-    link = LinkConfig(mac=mac, assemblies=assemblies, epr_ms=epr, settle=url.get_int("settle", 2, lo=1, hi=50))
+    link = LinkConfig(
+        mac=mac,
+        assemblies=assemblies,
+        epr_ms=epr,
+        settle=url.get_int("settle", 2, lo=1, hi=50),
+        interval=poll / 1000.0,
+        product=profile.display_name,
+    )
     return scanner, link
 
 
 class DeviceNetTransport(Transport):
     name = NAME
-    run_needs_connection = True  # polled I/O: the slave's watchdog soft-stops the motor when the connection ends
+    #: polled I/O: the slave's watchdog stops the motor when the master lets the connection go
+    run_needs_connection = True
 
     def __init__(self, url: DeviceUrl, profile: Profile) -> None:
         super().__init__(url, profile)
         self.scanner_config, self.link_config = parse_url(url, profile)
         self.scanner: Scanner | None = None
         self.link: SlaveLink | None = None
+        self._select_lock = threading.Lock()
         self._key = (self.scanner_config.interface, self.scanner_config.channel)
 
     # -- lifecycle ---------------------------------------------------------------------------------------------
@@ -175,20 +226,25 @@ class DeviceNetTransport(Transport):
 
     def stale_after(self, link: SlaveLink) -> float:
         """Age after which the latest input no longer counts as the device's status."""
-        epr = link.epr_ms / 1000.0
-        return max(3 * self.scanner_config.poll_period, 2 * epr if epr else 0.5, 0.05)
+        return max(2 * link.interval, 0.1) + POLL_RESPONSE_TIMEOUT
 
-    # -- status ---------------------------------------------------------------------------------------------------
-
-    def _fresh_sample(self, link: SlaveLink, scanner: Scanner) -> Any:
+    def _fresh_sample(self, link: SlaveLink, scanner: Scanner) -> InputSample:
         limit = self.stale_after(link)
 
         def fresh() -> bool:
             sample = link.sample
             return link.established and sample is not None and scanner.clock() - sample.at <= limit
 
-        if not fresh():
-            scanner.wait_for(fresh, self.timeout)
+        def settled() -> bool:
+            return fresh() or scanner.machine.link_error(link) is not None
+
+        error = scanner.link_error(link)
+        if error is None and not fresh():
+            scanner.expedite(link)  # a slow scan never fails a read: poll now
+            scanner.wait_for(settled, self.timeout)
+            error = scanner.link_error(link)
+        if error is not None:
+            raise error
         sample = link.sample
         if not fresh() or sample is None:
             age = "never" if sample is None else f"{scanner.clock() - sample.at:.3f} s ago"
@@ -203,7 +259,8 @@ class DeviceNetTransport(Transport):
         sample = self._fresh_sample(link, scanner)
         assemblies = link.assemblies or AssemblySet.EXTENDED
         inputs = decode_input(sample.data, assemblies.input_instance)
-        return inputs.to_status(self.profile, selected_address=sample.select, timestamp=sample.wall, source=NAME)
+        timestamp = scanner.wall_time(sample.at)
+        return inputs.to_status(self.profile, selected_address=sample.select, timestamp=timestamp, source=NAME)
 
     # -- commands --------------------------------------------------------------------------------------------------
 
@@ -219,11 +276,17 @@ class DeviceNetTransport(Transport):
     def send_command(self, command: Command) -> None:
         scanner, link = self._require()
         words = self._words(command, link.run)
+        error = scanner.link_error(link)
+        if error is not None:
+            raise error
         if not link.established:
             raise TimeoutError(f"{self.describe()}: connection {link.state.value}; command {command.value!r} not sent")
         for word in words:
             seq = scanner.set_outputs(link, run=bool(word & CW_START), reset=bool(word & CW_RESET))
             if not scanner.wait_acked(link, seq, self.timeout):
+                error = scanner.link_error(link)
+                if error is not None:
+                    raise error
                 raise TimeoutError(
                     f"{self.describe()}: command {command.value!r} was not confirmed by a poll response within "
                     f"{self.timeout:g} s (connection {link.state.value})"
@@ -242,20 +305,21 @@ class DeviceNetTransport(Transport):
             frames.append(f"{poll_command_id(self.link_config.mac):03X}#{output.encode().hex().upper()}")
         return frames
 
+    def _no_parameters(self) -> str:
+        return f"the {self.profile.display_name} does not support parameter access over DeviceNet"
+
     def preview_write(self, point: PointDef, raw: int) -> list[str]:
-        raise self.unsupported("write parameters", "the JJR8000 does not support parameter access over DeviceNet")
+        raise self.unsupported("write parameters", self._no_parameters())
 
     def write_parameter(self, point: PointDef, raw: int) -> None:
-        raise self.unsupported("write parameters", "the JJR8000 does not support parameter access over DeviceNet")
+        raise self.unsupported("write parameters", self._no_parameters())
 
     # -- measurements ------------------------------------------------------------------------------------------
 
     def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
         for point in points:
             if point.kind is Kind.PARAMETER:
-                raise self.unsupported(
-                    f"read the parameter {point.key}", "the JJR8000 does not support parameter access over DeviceNet"
-                )
+                raise self.unsupported(f"read the parameter {point.key}", self._no_parameters())
         scanner, link = self._require()
         return [self._read_measurement(scanner, link, point) for point in points]
 
@@ -274,23 +338,32 @@ class DeviceNetTransport(Transport):
         if address is None or not 0 <= address <= 0xFF:
             raise self.unsupported(f"read {point.key}", "it has no DeviceNet status parameter address")
         settle = self.link_config.settle
-        with link.select_lock:
-            scanner.set_outputs(link, select=address)
+        with self._select_lock:
+            error = scanner.link_error(link)
+            if error is not None:
+                raise error
+            scanner.set_outputs(link, select=address, polls=settle)
 
             def reported() -> bool:
                 sample = link.sample
                 return sample is not None and sample.select == address and sample.select_count >= settle
 
-            if not scanner.wait_for(lambda: reported() or not link.established, self.timeout) or not reported():
+            def settled() -> bool:
+                return reported() or not link.established or scanner.machine.link_error(link) is not None
+
+            if not scanner.wait_for(settled, self.timeout) or not reported():
+                error = scanner.link_error(link)
+                if error is not None:
+                    raise error
                 raise TimeoutError(
                     f"{self.describe()}: status parameter 0x{address:02X} ({point.key}) was not reported within "
                     f"{self.timeout:g} s (connection {link.state.value})"
                 )
-            sample = link.sample
-            assert sample is not None
-            inputs = decode_input(sample.data, 101)
+            current = link.sample
+            assert current is not None
+            inputs = decode_input(current.data, 101)
             if inputs.selected_value is None:
-                raise DecodeError("input assembly 101 without bytes 4-5", sample.data, "selected_value")
+                raise DecodeError("input assembly 101 without bytes 4-5", current.data, "selected_value")
             return Reading(point, inputs.selected_value)
 
     # -- identity ------------------------------------------------------------------------------------------------
@@ -321,5 +394,6 @@ class DeviceNetTransport(Transport):
             "expected_packet_rate_ms": link.epr_ms,
             "responses": link.responses,
             "misses": link.misses,
+            "duplicate_answers": link.duplicates,
             "last_error": str(link.last_error) if link.last_error else None,
         }

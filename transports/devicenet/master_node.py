@@ -1,0 +1,388 @@
+"""The DeviceNet master as a sans-IO state machine: frames and times in, frames out.
+
+:class:`MasterNode` goes on line with the duplicate MAC ID check, runs the connection sequence of every
+attached slave (:mod:`~starterbus.transports.devicenet.master_connection`), polls each established slave at its
+own interval (up to ``WINDOW`` poll commands in flight) and keeps the latest input assembly of each. Nothing
+here reads a clock, locks or touches a bus: the driver calls :meth:`start`, :meth:`handle` for every frame
+that :meth:`wants`, :meth:`tick` when :attr:`deadline` is due, passing the time, and sends :meth:`take`.
+
+Rules (documented in ``docs/devicenet.md``):
+
+- On line, a duplicate MAC ID *request* for the master's MAC is answered with a response; a *response* (or,
+  during the check, a request or a response) puts the master in the communication faulted state: nothing is
+  sent, every link shows the fault. With ``auto_reset`` the master leaves the fault after a backoff (1 s,
+  doubling up to 60 s; back to 1 s after 10 minutes on line) by re-running the whole check.
+- An answer to a poll is published only when no second answer to the same poll came within ``ANSWER_GUARD``
+  (and never after the next poll command went out). Two answers to one poll mark the link with a
+  :class:`DuplicateResponderError`, withdraw its inputs, and keep it marked until ``CLEAR_POLLS`` polls in a row
+  got exactly one answer.
+- A slave silent for 4 x EPR is lost (its run command is dropped: a start must be sent again) and the
+  sequence starts over until it answers. The explicit connection is kept alive by reading the identity status.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+from starterbus.core.errors import ConfigurationError, TimeoutError, TransportError
+from starterbus.transports.devicenet.cip import DeviceNetDecodeError, ObjectClass, Service
+from starterbus.transports.devicenet.connection import inactivity_timeout
+from starterbus.transports.devicenet.dupmac import DuplicateMacCheck, decode_duplicate_mac
+from starterbus.transports.devicenet.frames import CanFrame
+from starterbus.transports.devicenet.ids import duplicate_mac_id, explicit_response_id
+from starterbus.transports.devicenet.ids import poll_response_id as _poll_response_id
+from starterbus.transports.devicenet.master_link import (
+    CommunicationFaultError,
+    LinkConfig,
+    LinkState,
+    MasterLink,
+    ScannerConfig,
+    ScannerState,
+    Transaction,
+)
+from starterbus.transports.devicenet.master_polling import PollScheduler
+
+RESET_BACKOFF = (1.0, 60.0)  # first and longest wait before leaving the communication fault
+STABLE_ONLINE = 600.0  # seconds on line after which the backoff starts over
+CONFIRM_SLACK = 0.0005  # answers confirmed together when their guards end within this (fewer wake-ups)
+IDLE_TICK = 1.0  # longest time between two passes over the links (every timer is also woken exactly)
+MASTER_VENDOR_ID = 0  # the scanner is no registered product; vendor 0 in its duplicate MAC ID messages
+
+
+class MasterNode(PollScheduler):
+    """One DeviceNet master (scanner) on one CAN bus, as a state machine."""
+
+    def __init__(self, config: ScannerConfig, serial: int, where: str = "") -> None:
+        self.config = config
+        self.serial = serial
+        self.where = where or f"{config.interface}/{config.channel}"
+        self.state = ScannerState.CLOSED
+        self.fault: CommunicationFaultError | None = None
+        self.faults = 0  # communication faults since the master was last stable on line
+        self.reset_at = 0.0
+        self.online_since = 0.0
+        self.links: dict[int, MasterLink] = {}
+        self.deadline = float("inf")
+        self.cycles = 0
+        self.polls_sent = 0
+        self.ignored = 0  # frames handled but not for this master
+        self._out: list[CanFrame] = []
+        self._check_step = 0
+        self._check_deadline = 0.0
+        self._scan: list[MasterLink] = []
+        self._ready: deque[MasterLink] = deque()
+        self._in_flight = 0
+        self._confirming: deque[MasterLink] = deque()
+        self._deadlines: deque[tuple[float, MasterLink]] = deque()  # poll commands' answer deadlines, in order
+        self._due: list[tuple[float, int, MasterLink]] = []  # heap of next poll times
+        self._sequence = 0
+        self._slow_at = float("inf")
+        self._routes: dict[int, MasterLink] = {}  # poll and explicit response ids
+        self.wanted: frozenset[int] = frozenset()  # identifiers worth handing to :meth:`handle`
+        self._update_routes()
+
+    # -- driver interface -----------------------------------------------------------------------------------
+
+    def take(self) -> list[CanFrame]:
+        """The frames to send, in order (and forget them)."""
+        out, self._out = self._out, []
+        return out
+
+    def start(self, now: float) -> list[CanFrame]:
+        """Begin (or restart, after a fault) the duplicate MAC ID check."""
+        self._begin_check(now)
+        return self.take()
+
+    def _begin_check(self, now: float) -> None:
+        self.state = ScannerState.CHECKING
+        self._out.append(self._dup_mac_frame(False))
+        self._check_step = 1
+        self._check_deadline = now + self.config.dup_mac_wait
+        self._wake(self._check_deadline)
+
+    def close(self) -> None:
+        self.state = ScannerState.CLOSED
+        for link in list(self.links.values()):
+            self.detach(link)
+
+    def _update_routes(self) -> None:
+        routes: dict[int, MasterLink] = {}
+        for link in self.links.values():
+            routes[_poll_response_id(link.mac)] = link
+            routes[explicit_response_id(link.mac)] = link
+        self._routes = routes
+        dup_ids = {duplicate_mac_id(mac) for mac in (self.config.master_mac, *self.links)}
+        self.wanted = frozenset(routes) | dup_ids
+        self._scan = sorted(self.links.values(), key=lambda item: item.mac)
+
+    # -- links ----------------------------------------------------------------------------------------------
+
+    def attach(self, config: LinkConfig, now: float) -> MasterLink:
+        if config.mac in self.links:
+            raise ConfigurationError(f"DeviceNet MAC {config.mac} on {self.where} is already open in this process")
+        if config.mac == self.config.master_mac:
+            raise ConfigurationError(f"slave MAC {config.mac} equals the master's MAC on {self.where}")
+        interval = self.config.poll_period if config.interval is None else config.interval
+        link = MasterLink(config, self.where, interval)
+        self.links[config.mac] = link
+        self._update_routes()
+        if self.state is ScannerState.ONLINE:
+            link.state = LinkState.ALLOCATING
+            link.retry_at = now
+            self._wake(now)
+        elif self.state is ScannerState.FAULT and self.fault is not None:
+            link.state = LinkState.FAULTED
+            link.last_error = self.fault
+        return link
+
+    def release(self, link: MasterLink, now: float) -> Transaction | None:
+        """Queue the Release of an established slave's connection set (before :meth:`detach`)."""
+        if not link.established or self.state is not ScannerState.ONLINE:
+            return None
+        transaction = Transaction(self._release_request(), False)
+        self.enqueue(link, transaction, now)
+        return transaction
+
+    def detach(self, link: MasterLink) -> None:
+        link.state = LinkState.CLOSED
+        if self.links.get(link.mac) is link:
+            del self.links[link.mac]
+        if link.awaiting:
+            link.awaiting = False
+            self._in_flight -= 1
+        self._update_routes()
+        self._fail_transactions(link, ConfigurationError(f"{link.describe()} closed"), started_too=True)
+
+    def submit(self, link: MasterLink, transaction: Transaction, now: float) -> None:
+        """Queue a user's explicit request; ``transaction.done`` turns True with its outcome."""
+        if self.state is not ScannerState.ONLINE:
+            transaction.error = self.not_online()
+            transaction.done = True
+            return
+        if not transaction.unconnected and not link.established:
+            transaction.error = TimeoutError(f"{link.describe()}: no explicit connection ({link.state.value})")
+            transaction.done = True
+            return
+        self.enqueue(link, transaction, now)
+
+    def set_outputs(
+        self,
+        link: MasterLink,
+        now: float,
+        *,
+        run: bool | None = None,
+        reset: bool | None = None,
+        select: int | None = None,
+        polls: int = 1,
+    ) -> int:
+        """Change a slave's outputs and poll it ``polls`` times at once; returns the sequence number to wait for."""
+        if run is not None:
+            link.run = run
+        if reset is not None:
+            link.reset = reset
+        if select is not None:
+            link.select = select
+        link.output_seq += 1
+        self.expedite(link, now, polls)
+        return link.output_seq
+
+    def expedite(self, link: MasterLink, now: float, polls: int = 1) -> None:
+        """Poll ``link`` as soon as possible, ``polls`` times in a row (a reader waits for fresh inputs)."""
+        link.urgent = max(link.urgent, polls)
+        link.next_poll_at = min(link.next_poll_at, now)
+        self._make_ready(link)
+        self._wake_fast(now)
+
+    def not_online(self) -> Exception:
+        if self.fault is not None:
+            again = " (checking the MAC id again)" if self.state is ScannerState.CHECKING else ""
+            return CommunicationFaultError(f"DeviceNet master on {self.where} is off line{again}: {self.fault}")
+        if self.state is ScannerState.CLOSED:
+            return TransportError(f"DeviceNet master on {self.where} is closed")
+        return TimeoutError(f"DeviceNet master on {self.where} is not on line yet ({self.state.value})")
+
+    def link_error(self, link: MasterLink) -> Exception | None:
+        """Why ``link`` cannot deliver a value right now (None if it can)."""
+        if self.state is not ScannerState.ONLINE:
+            return self.not_online()
+        if link.duplicate is not None:
+            return link.duplicate
+        return None
+
+    # -- frames ---------------------------------------------------------------------------------------------
+
+    def handle(self, frame: CanFrame, now: float) -> list[CanFrame]:
+        """A frame seen on the bus; returns the frames to send."""
+        return self.receive(frame.can_id, frame.data, now)
+
+    def receive(self, can_id: int, data: bytes, now: float) -> list[CanFrame]:
+        """:meth:`handle` for a driver that has the identifier and data of a classic 11-bit data frame."""
+        link = self._routes.get(can_id)
+        if link is not None:
+            if can_id & 0x400:
+                if self.state is ScannerState.ONLINE:
+                    self._on_explicit_response(link, data, now)
+            elif link.state is LinkState.ESTABLISHED and self.state is ScannerState.ONLINE:
+                self._on_poll_response(link, data, now)
+        elif can_id in self.wanted:
+            self._on_duplicate_mac(CanFrame(can_id, data), now)
+        else:
+            self.ignored += 1
+        out, self._out = self._out, []
+        return out
+
+    def _dup_mac_frame(self, response: bool) -> CanFrame:
+        return DuplicateMacCheck(self.config.master_mac, response, MASTER_VENDOR_ID, self.serial).frame()
+
+    def _on_duplicate_mac(self, frame: CanFrame, now: float) -> None:
+        try:
+            message = decode_duplicate_mac(frame)
+        except DeviceNetDecodeError:
+            self.ignored += 1
+            return
+        if message.mac == self.config.master_mac:
+            if self.state is ScannerState.CHECKING or (self.state is ScannerState.ONLINE and message.response):
+                kind = "response" if message.response else "request"
+                self._fault(
+                    now,
+                    f"duplicate MAC ID {message.mac} on {self.where}: another node (vendor {message.vendor_id}, "
+                    f"serial 0x{message.serial_number:08X}) uses the master's MAC (duplicate MAC ID check {kind} "
+                    f"{frame.text()})",
+                )
+            elif self.state is ScannerState.ONLINE:
+                self._out.append(self._dup_mac_frame(True))
+            return
+        link = self.links.get(message.mac)
+        if link is not None and not message.response and link.state is LinkState.ESTABLISHED:
+            self._lose(link, now, "the slave restarted (duplicate MAC ID check seen)")
+            link.retry_at = now + 2 * self.config.dup_mac_wait
+            self._wake(link.retry_at)
+
+    # -- the communication fault ------------------------------------------------------------------------------
+
+    def _fault(self, now: float, why: str) -> None:
+        if self.online_since and now - self.online_since >= STABLE_ONLINE:
+            self.faults = 0
+        self.faults += 1
+        self.online_since = 0.0
+        self.fault = CommunicationFaultError(why)
+        self.state = ScannerState.FAULT
+        first, longest = RESET_BACKOFF
+        self.reset_at = now + min(longest, first * 2 ** (self.faults - 1))
+        if self.config.auto_reset:
+            self._wake(self.reset_at)
+        self._ready.clear()
+        self._confirming.clear()
+        self._deadlines.clear()
+        self._due.clear()
+        self._in_flight = 0
+        for link in self.links.values():
+            link.awaiting = link.queued = False
+            link.pending = None
+            link.urgent = 0
+            if link.run:  # the slave's watchdog stops the motor: a start must be sent again
+                link.run = False
+                link.output_seq += 1
+            link.state = LinkState.FAULTED
+            link.last_error = self.fault
+            self._fail_transactions(link, self.fault, started_too=True)
+            link.note(now, f"master faulted: {why}")
+
+    def reset(self, now: float) -> list[CanFrame]:
+        """Leave the communication fault: run the whole duplicate MAC ID check again."""
+        if self.state is not ScannerState.FAULT:
+            return []
+        return self.start(now)
+
+    def _go_online(self, now: float) -> None:
+        self.state = ScannerState.ONLINE
+        self.fault = None
+        self.online_since = now
+        for link in self.links.values():
+            if link.state in (LinkState.WAITING, LinkState.FAULTED):
+                link.state = LinkState.ALLOCATING
+                link.retry_at = now
+        self._wake(now)
+
+    # -- timers ---------------------------------------------------------------------------------------------
+
+    def tick(self, now: float) -> list[CanFrame]:
+        """Run what is due at ``now``; returns the frames to send. :attr:`deadline` is the next due time."""
+        if self.state is ScannerState.ONLINE:
+            self._fast(now)
+        if now >= self._slow_at:
+            self._slow(now)
+        self.deadline = self._slow_at
+        if self.state is ScannerState.ONLINE:
+            self._send_ready(now)
+            if self._confirming:
+                self._wake_fast(self._confirming[0].confirm_at + CONFIRM_SLACK)
+            deadlines = self._deadlines
+            while deadlines and not deadlines[0][1].awaiting:  # answered: no timer needed
+                deadlines.popleft()
+            if deadlines:
+                self._wake_fast(deadlines[0][0])
+            if self._due:
+                self._wake_fast(self._due[0][0])
+        return self.take()
+
+    def _slow(self, now: float) -> None:
+        self._slow_at = now + IDLE_TICK
+        if self.state is ScannerState.CHECKING:
+            if now >= self._check_deadline:
+                if self._check_step == 1:
+                    self._out.append(self._dup_mac_frame(False))
+                    self._check_step = 2
+                    self._check_deadline = now + self.config.dup_mac_wait
+                else:
+                    self._go_online(now)
+            if self.state is ScannerState.CHECKING:
+                self._wake(self._check_deadline)
+        elif self.state is ScannerState.FAULT and self.config.auto_reset:
+            if now >= self.reset_at:
+                self._begin_check(now)
+            else:
+                self._wake(self.reset_at)
+        if self.state is ScannerState.ONLINE:
+            for link in self._scan:
+                self._link_timers(link, now)
+
+    def _link_timers(self, link: MasterLink, now: float) -> None:
+        self._transaction_timer(link, now)
+        head = link.transactions[0] if link.transactions else None
+        if head is not None:
+            self._wake(head.deadline)
+        if link.state is LinkState.ESTABLISHED:
+            lost_after = inactivity_timeout(link.epr_ms) or max(1.0, 10 * link.interval)
+            if now - link.last_response_at > lost_after:
+                self._lose(link, now, f"no poll response for {now - link.last_response_at:.3f} s")
+                return
+            if head is None and now - link.last_explicit_at >= link.keepalive:
+                keepalive = self._request(Service.GET_ATTRIBUTE_SINGLE, ObjectClass.IDENTITY, 1, 5)
+                self.enqueue(link, Transaction(keepalive, False), now)
+            self._wake(link.last_explicit_at + link.keepalive)
+            self._wake(link.last_response_at + lost_after)
+            if self._idle(link) and now - link.next_poll_at > 1.0:  # safety net: never forget a link
+                self._make_ready(link)
+        elif head is None and link.state in (LinkState.ALLOCATING, LinkState.LOST, LinkState.REFUSED):
+            if now >= link.retry_at:
+                self._allocate(link, now)
+            else:
+                self._wake(link.retry_at)
+
+    def _lose(self, link: MasterLink, now: float, why: str) -> None:
+        link.state = LinkState.LOST
+        if link.awaiting:
+            link.awaiting = False
+            self._in_flight -= 1
+        link.pending = None
+        link.urgent = 0
+        if link.run:
+            link.run = False
+            link.output_seq += 1
+            why += "; run command dropped (send start again)"
+        link.last_error = TimeoutError(f"{link.describe()}: {why}")
+        link.retry_at = now
+        link.failures += 1
+        self._wake(now)
+        link.note(now, f"lost: {why}")
