@@ -269,6 +269,9 @@ class TransportPlugin(ABC):
     requires_point_addresses: bool = False
     #: the URL query parameter a fleet file's ``address`` of a device on this transport fills (None: it takes none)
     address_parameter: str | None = None
+    #: the URL query parameter that tells the transport the fleet's poll period, s (a scanner that polls on its
+    #: own then polls at the rate asked); None: the transport polls only when asked
+    period_parameter: str | None = None
 
     def parse_address(self, value: object) -> Any:
         """A point's address on this transport, from the profile field named after the plugin (``NAME = ...``).

@@ -243,7 +243,7 @@ def build_fleet(data: Mapping[str, Any], source: str = "<fleet>", lines: _Lines 
             if not isinstance(options, Mapping):
                 raise fail(f"{dwhere}.options", "must be a table of URL parameters")
             try:
-                param = _address_parameter(url.transport)
+                param, period_param = _url_parameters(url.transport)
             except StarterbusError as exc:
                 raise fail(f"{where}.url", str(exc)) from None
             if address is not None and param is None:
@@ -253,6 +253,9 @@ def build_fleet(data: Mapping[str, Any], source: str = "<fleet>", lines: _Lines 
                 )
             if param is not None and param in options:
                 raise fail(f"{dwhere}.options.{param}", f"give the device's {param} as address = ..., not as an option")
+            dperiod = _positive(dev.get("period", period), f"{dwhere}.period", fail)
+            if period_param is not None and period_param not in options and period_param not in url.query:
+                options = {**options, period_param: f"{dperiod:g}"}  # the transport scans at the fleet's rate
             dev_url = _device_url(url, param, address, options)
             if "url" in dev:
                 raise fail(f"{dwhere}.url", "give address/options; the URL comes from the bus")
@@ -276,7 +279,6 @@ def build_fleet(data: Mapping[str, Any], source: str = "<fleet>", lines: _Lines 
                 points[kind] = tuple(resolved)
             if "measurements" not in dev:
                 points["measurements"] = tuple(p.key for p in profile.phase_currents())
-            dperiod = _positive(dev.get("period", period), f"{dwhere}.period", fail)
             remote = _remote(dev.get("remote", {}), profile, f"{dwhere}.remote", fail)
             config = DeviceConfig(
                 name=dname,
@@ -295,11 +297,12 @@ def build_fleet(data: Mapping[str, Any], source: str = "<fleet>", lines: _Lines 
     return FleetConfig(tuple(buses), period, max_backoff, source, devices)
 
 
-def _address_parameter(transport: str) -> str | None:
-    """The URL parameter a device's ``address`` fills, as the transport's plugin declares it."""
+def _url_parameters(transport: str) -> tuple[str | None, str | None]:
+    """The URL parameters a device's ``address`` and poll ``period`` fill, as the transport's plugin declares."""
     from starterbus.core.registry import get_transport
 
-    return get_transport(transport).address_parameter
+    plugin = get_transport(transport)
+    return plugin.address_parameter, plugin.period_parameter
 
 
 def _device_url(bus: DeviceUrl, param: str | None, address: int | None, options: Mapping[str, Any]) -> str:

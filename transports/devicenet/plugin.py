@@ -19,6 +19,7 @@ from starterbus.core.url import DeviceUrl
 class DeviceNetPlugin(TransportPlugin):
     name = "devicenet"
     address_parameter = "mac"
+    period_parameter = "period"
     summary = "DeviceNet master (scanner) over python-can: polled I/O assemblies 1/101/2/102, explicit messaging"
     capabilities = frozenset({Capability.READ_MEASUREMENTS, Capability.COMMANDS, Capability.STATUS})
     url_forms = (
