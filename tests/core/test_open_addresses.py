@@ -15,63 +15,7 @@ from starterbus.core.simulator import SimulatedStarter
 from starterbus.fleet.config import parse_fleet
 
 ROOT = Path(__file__).resolve().parents[2]
-# the toy model of test_profile_validation.py (test modules are not importable from each other here)
-BASE = """
-schema = 1
-[model]
-name = "toy"
-address_style = "register"
-[roles]
-control_word = "control_word"
-status_word = "status_word"
-phase_currents = ["phase_a_current"]
-rated_current = "rated"
-current_limit = "limit"
-[transports.modbus-rtu]
-max_read_registers = 4
-[enums.F2]
-0 = { en = "disabled", zh = "禁止" }
-1 = { en = "enabled", zh = "允许" }
-[[measurements]]
-key = "control_word"
-address = "0x0000"
-name_en = "control word"
-min = 0
-max = 65535
-modbus-rtu = 0x0000
-[[measurements]]
-key = "status_word"
-address = "0x0001"
-name_en = "status word"
-min = 0
-max = 65535
-modbus-rtu = 0x0001
-[[measurements]]
-key = "phase_a_current"
-address = "0x0002"
-name_en = "phase A current"
-min = 0
-max = 65535
-scale = 0.1
-unit = "A"
-modbus-rtu = 0x0002
-[[parameters]]
-key = "rated"
-address = "0x0100"
-name_en = "rated current"
-min = 1
-max = 1500
-unit = "A"
-modbus-rtu = 0x0100
-[[parameters]]
-key = "limit"
-address = "0x0103"
-name_en = "current limit"
-min = 150
-max = 500
-unit = "%"
-modbus-rtu = 0x0103
-"""
+BASE = (Path(__file__).parent / "toy_profile.toml").read_text(encoding="utf-8")  # as test_profile_validation
 
 
 def test_a_transport_that_is_not_installed_keeps_its_addresses_in_any_shape() -> None:

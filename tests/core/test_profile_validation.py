@@ -2,67 +2,14 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from starterbus.core.errors import ProfileError, UnknownPointError
 from starterbus.core.profile import load_profile_text
 
-BASE = """
-schema = 1
-[model]
-name = "toy"
-address_style = "register"
-[roles]
-control_word = "control_word"
-status_word = "status_word"
-phase_currents = ["phase_a_current"]
-rated_current = "rated"
-current_limit = "limit"
-[transports.modbus-rtu]
-max_read_registers = 4
-[enums.F2]
-0 = { en = "disabled", zh = "禁止" }
-1 = { en = "enabled", zh = "允许" }
-[[measurements]]
-key = "control_word"
-address = "0x0000"
-name_en = "control word"
-min = 0
-max = 65535
-modbus-rtu = 0x0000
-[[measurements]]
-key = "status_word"
-address = "0x0001"
-name_en = "status word"
-min = 0
-max = 65535
-modbus-rtu = 0x0001
-[[measurements]]
-key = "phase_a_current"
-address = "0x0002"
-name_en = "phase A current"
-min = 0
-max = 65535
-scale = 0.1
-unit = "A"
-modbus-rtu = 0x0002
-[[parameters]]
-key = "rated"
-address = "0x0100"
-name_en = "rated current"
-min = 1
-max = 1500
-unit = "A"
-modbus-rtu = 0x0100
-[[parameters]]
-key = "limit"
-address = "0x0103"
-name_en = "current limit"
-min = 150
-max = 500
-unit = "%"
-modbus-rtu = 0x0103
-"""
+BASE = (Path(__file__).parent / "toy_profile.toml").read_text(encoding="utf-8")
 
 
 def test_base_loads_and_resolves_manual_addresses() -> None:
