@@ -137,6 +137,9 @@ _EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser],
 from starterbus.cli import identify  # noqa: E402  (DeviceNet issue: `starterbus identify URL`)
 
 _EXTENSIONS.append(identify.add_parser)
+from starterbus.cli import ops_cmds  # noqa: E402  (operator workflows: backup, diff, restore, history, record, plot)
+
+_EXTENSIONS.append(ops_cmds.add_parser)
 
 
 def _quiet_libraries() -> None:

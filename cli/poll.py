@@ -12,6 +12,7 @@ from starterbus.cli.output import table
 from starterbus.fleet.config import FleetConfig, load_fleet
 from starterbus.fleet.output import TABLE_HEADERS, CsvLog, JsonLines, table_rows
 from starterbus.fleet.poller import FleetPoller, Sample
+from starterbus.ops.recorder import for_fleet as recorder_for_fleet
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -21,6 +22,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--csv", metavar="FILE", help="append every sample to a CSV log")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("--refresh", type=float, default=0.5, help="table refresh period on a terminal, s")
+    p.add_argument("--record", metavar="DB", help="write samples and events to this SQLite history (see `history`)")
+    p.add_argument("--keep", action="append", metavar="AGE|SIZE", help="history retention: 30d, 12h, 500MB")
 
 
 def render(poller: FleetPoller, out: TextIO, in_place: bool, banner: str = "") -> None:
@@ -95,11 +98,17 @@ def run_fleet(
 
 def cmd_poll(args: argparse.Namespace) -> int:
     config = load_fleet(args.fleet)
-    return run_fleet(
-        config,
-        once=args.once,
-        json_out=args.json,
-        csv_path=args.csv,
-        duration=args.duration,
-        refresh=args.refresh,
-    )
+    recorder = recorder_for_fleet(args.record, config, args.keep) if args.record else None
+    try:
+        return run_fleet(
+            config,
+            once=args.once,
+            json_out=args.json,
+            csv_path=args.csv,
+            duration=args.duration,
+            refresh=args.refresh,
+            sinks=[recorder] if recorder is not None else None,
+        )
+    finally:
+        if recorder is not None:
+            recorder.close()
