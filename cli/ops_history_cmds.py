@@ -87,6 +87,7 @@ def cmd_history(args: argparse.Namespace) -> int:
             rows = store.samples(device=args.device, since=since, until=until, limit=args.limit)
             columns = SAMPLE_COLUMNS
     if args.json:
+        rows = [{**row, "time_iso": _stamp(row["time"])} for row in rows]
         emit_json({"events" if columns is EVENT_COLUMNS else "samples": rows})
     elif args.csv:
         out = csv.writer(sys.stdout)

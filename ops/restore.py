@@ -75,7 +75,7 @@ def plan(backup: Backup, device: Device, *, accept_uncertain: bool = False) -> R
     if backup.model != profile.name:
         raise ValidationError(
             f"this is a backup of a {backup.model} and {device.describe()} is a {profile.name}: "
-            "a backup is restored only into the same model; nothing sent"
+            "a backup is restored only into the same model (compare them with `starterbus diff`); nothing sent"
         )
     current = take_backup(device)
     rows = compare(

@@ -9,11 +9,9 @@ from pathlib import Path
 import pytest
 
 from starterbus.cli.main import main
-from starterbus.core.device import Device
+from starterbus.core.device import open_device
 from starterbus.core.errors import ConfigurationError, UnsupportedOperationError, ValidationError
 from starterbus.core.registry import get_profile
-from starterbus.core.transport import Capability, Transport
-from starterbus.core.url import DeviceUrl
 from starterbus.ops import backup as backups
 from starterbus.ops.diff import parse_spec
 
@@ -160,24 +158,15 @@ def test_every_profile_round_trips_through_a_backup_file(tmp_path: Path) -> None
         assert backups.load(tmp_path / f"{name}.toml")[0].raws() == raws
 
 
-class NoParameters(Transport):
-    name = "profibus-pkw"
-
-    def open(self) -> None: ...
-
-    def close(self) -> None: ...
-
-    @property
-    def capabilities(self) -> frozenset[Capability]:
-        return frozenset({Capability.STATUS, Capability.COMMANDS})
-
-
-def test_a_path_without_parameters_says_so_in_one_line() -> None:
+def test_a_path_without_parameters_says_so_in_one_line(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     profile = get_profile("jjr5000")
-    device = Device(NoParameters(DeviceUrl.parse("profibus-pkw://x?ppo=3"), profile), profile)
-    with pytest.raises(UnsupportedOperationError, match=r"^profibus-pkw \(.*\) cannot read parameters") as info:
-        backups.take_backup(device)
-    assert "\n" not in str(info.value)
+    with open_device("profibus-pkw+sim://?ppo=3", profile) as device:  # PPO3: no PKW channel
+        with pytest.raises(UnsupportedOperationError, match=r"^profibus-pkw \(.*\) cannot read parameters"):
+            backups.take_backup(device)
+    assert main(["backup", "profibus-pkw+sim://?ppo=3", "--model", "jjr5000", "-o", str(tmp_path / "x.toml")]) == 1
+    err = capsys.readouterr().err
+    assert not (tmp_path / "x.toml").exists()
+    assert err.count("\n") == 1 and "cannot read parameters, so it cannot back them up" in err
 
 
 def test_diff_sides_and_errors(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
