@@ -160,9 +160,11 @@ def test_every_profile_round_trips_through_a_backup_file(tmp_path: Path) -> None
 
 def test_a_path_without_parameters_says_so_in_one_line(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
     profile = get_profile("jjr5000")
-    with open_device("profibus-pkw+sim://?ppo=3", profile) as device:  # PPO3: no PKW channel
-        with pytest.raises(UnsupportedOperationError, match=r"^profibus-pkw \(.*\) cannot read parameters"):
-            backups.take_backup(device)
+    with (
+        open_device("profibus-pkw+sim://?ppo=3", profile) as device,  # PPO3: no PKW channel
+        pytest.raises(UnsupportedOperationError, match=r"^profibus-pkw \(.*\) cannot read parameters"),
+    ):
+        backups.take_backup(device)
     assert main(["backup", "profibus-pkw+sim://?ppo=3", "--model", "jjr5000", "-o", str(tmp_path / "x.toml")]) == 1
     err = capsys.readouterr().err
     assert not (tmp_path / "x.toml").exists()
