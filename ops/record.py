@@ -84,6 +84,12 @@ def record_start(
     """
     if Capability.STATUS not in device.capabilities:
         raise UnsupportedOperationError(f"{device.transport.name} cannot read the status, so it cannot record a start")
+    if start and device.transport.run_needs_connection:
+        raise UnsupportedOperationError(
+            f"{device.transport.name}: the run command lives only while this program holds the connection, so a "
+            "start recorded here would end in a soft stop when `record` exits; record without --start while a "
+            "long-running `poll --record`/`serve` starts the motor, or `plot` that start from its history"
+        )
     limit_a, rated_a = current_limit_amps(device)
     rec = Recording(name or device.transport.url.text, device.profile.name, wall(), limit_a=limit_a, rated_a=rated_a)
     deadline = clock() + limit

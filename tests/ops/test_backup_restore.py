@@ -11,6 +11,7 @@ import pytest
 from starterbus.cli.main import main
 from starterbus.core.device import open_device
 from starterbus.core.errors import ConfigurationError, UnsupportedOperationError, ValidationError
+from starterbus.core.model import PointDef
 from starterbus.core.registry import get_profile
 from starterbus.ops import backup as backups
 from starterbus.ops.diff import parse_spec
@@ -71,6 +72,26 @@ def test_restore_puts_the_lock_back_last(line: Line, tmp_path: Path, capsys: pyt
     written = [(w["key"], w["new"]) for w in json.loads(capsys.readouterr().out.split("\n", 1)[1])["written"]]
     assert written[-1] == ("parameter_modify", "disabled (0)")
     assert line.starters[2].params == line.starters[3].params
+
+
+def test_a_failed_write_stops_the_restore_and_puts_the_lock_back(
+    line: Line, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    file_a = tmp_path / "a.toml"
+    main(["backup", line.url(2), "--model", "jjr5000", "-o", str(file_a)])
+    starter = line.starters[3]
+    write = starter.write
+
+    def sticky(point: PointDef, raw: int) -> None:  # the device acknowledges ramp_time but keeps its value
+        if point.key != "ramp_time":
+            write(point, raw)
+
+    starter.write = sticky  # type: ignore[method-assign]
+    assert main(["restore", str(file_a), line.url(3), "--model", "jjr5000", "--yes"]) == 1
+    err = capsys.readouterr().err
+    assert "wrote 10 s but read back 20 s" in err and "not sent (an earlier write failed)" in err
+    assert starter.params["parameter_modify"] == 0  # lifted for the restore, put back after the failure
+    assert starter.params["current_limit"] == 400
 
 
 def test_backup_of_another_model_is_refused(line: Line, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
