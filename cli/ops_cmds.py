@@ -66,7 +66,7 @@ def cmd_diff(args: argparse.Namespace) -> int:
     try:
         a, b = load_pair(args.a, args.b, args.model)
         rows = compare(a, b)
-    except StarterbusError as exc:
+    except (StarterbusError, OSError) as exc:
         if args.json:
             emit_json({"error": str(exc)})
         else:

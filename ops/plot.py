@@ -42,7 +42,9 @@ def plot_recording(rec: Recording, path: str | Path, title: str | None = None) -
     )
 
 
-def draw(points: Sequence[Point], path: str | Path, *, limit_a: float | None, title: str) -> None:
+def draw(
+    points: Sequence[Point], path: str | Path, *, limit_a: float | None, title: str, marker: str = "start"
+) -> None:
     from matplotlib.patches import Patch
 
     fig = _figure()
@@ -58,7 +60,7 @@ def draw(points: Sequence[Point], path: str | Path, *, limit_a: float | None, ti
         ax.axvspan(begin, end, color=STATE_COLOURS.get(state, "#eeeeee"), alpha=0.18, linewidth=0)
         seen[state] = None
     ax.axvline(0.0, color="black", linewidth=1)
-    ax.annotate("start", xy=(0.0, 1.0), xycoords=("data", "axes fraction"), xytext=(4, -14),
+    ax.annotate(marker, xy=(0.0, 1.0), xycoords=("data", "axes fraction"), xytext=(4, -14),
                 textcoords="offset points")  # fmt: skip
     peak = _peak(points)
     if peak is not None:
@@ -73,7 +75,7 @@ def draw(points: Sequence[Point], path: str | Path, *, limit_a: float | None, ti
     handles, _ = ax.get_legend_handles_labels()
     handles += [Patch(color=STATE_COLOURS.get(s, "#eeeeee"), alpha=0.35, label=s) for s in seen]
     ax.legend(handles=handles, loc="lower right", fontsize="small")
-    ax.set_xlabel("time since start (s)")
+    ax.set_xlabel(f"time since {marker} (s)")
     ax.set_ylabel("phase current (A)")
     ax.set_title(title)
     top = max([peak[1] if peak else 0.0, limit_a or 0.0, 1.0])
@@ -106,11 +108,14 @@ def _peak(points: Sequence[Point]) -> tuple[float, float, str] | None:
 # -- from history -------------------------------------------------------------------------------------------
 
 
-def plot_event(db: str | Path, device: str, event_id: int, path: str | Path, *, after: float = 60.0) -> int:
-    """Draw the start of history event ``event_id`` of ``device``; returns the number of samples drawn.
+def plot_event(
+    db: str | Path, device: str, event_id: int, path: str | Path, *, after: float = 60.0, before_trip: float = 30.0
+) -> int:
+    """Draw history event ``event_id`` of ``device``; returns the number of samples drawn.
 
     A ``start`` event (``record``) spans to its recorded end; a ``state`` event into ``starting`` (``poll
-    --record``) spans to the next change of state after running was reached, at most ``after`` seconds.
+    --record``) spans to the next change of state after running was reached, at most ``after`` seconds; a
+    ``fault`` event shows the ``before_trip`` seconds before the trip and a few after.
     """
     with HistoryStore(db, create=False) as store:
         event = store.event(event_id)
@@ -125,7 +130,10 @@ def plot_event(db: str | Path, device: str, event_id: int, path: str | Path, *, 
                 if e["id"] != event_id and e["detail"].get("from") == "running"
             ]  # fmt: skip
             end = min([begin + after, *(float(e["time"]) for e in later)])
-        rows = store.samples(device=device, since=begin - 0.5, until=end)
+        lead = 0.5
+        if event["kind"] == "fault":
+            lead, end = before_trip, begin + 5.0
+        rows = store.samples(device=device, since=begin - lead, until=end)
     if not rows:
         raise ConfigurationError(f"{db}: no samples of {device!r} around event {event_id}")
     points = [
@@ -141,7 +149,8 @@ def plot_event(db: str | Path, device: str, event_id: int, path: str | Path, *, 
     limit_a = detail.get("limit_a")
     if limit_a is None:
         limit_a = _limit_from_values(rows)
-    draw(points, path, limit_a=limit_a, title=f"{device}: event {event_id} ({event['text']})")
+    marker = "trip" if event["kind"] == "fault" else "start"
+    draw(points, path, limit_a=limit_a, title=f"{device}: event {event_id} ({event['text']})", marker=marker)
     return len(points)
 
 

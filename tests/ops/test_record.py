@@ -98,5 +98,9 @@ def test_plot_a_start_from_poll_history(tmp_path: Path, capsys: pytest.CaptureFi
                               "current_a": amps, "values": values})  # fmt: skip
     assert main(["plot", str(db), "--device", "m1", "--event", str(event)]) == 0
     check_png(tmp_path / f"h-m1-event-{event}.png")
+    with HistoryStore(db) as store:
+        trip = store.add_event(104.0, "m1", "fault", "7: motor locked rotor", code=7)
+    assert main(["plot", str(db), "--device", "m1", "--event", str(trip), "-o", str(tmp_path / "trip.png")]) == 0
+    check_png(tmp_path / "trip.png")
     assert main(["plot", str(db), "--device", "m2", "--event", str(event)]) == 1
     assert "is of device 'm1'" in capsys.readouterr().err
