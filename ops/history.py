@@ -78,6 +78,9 @@ class HistoryStore:
             raise ConfigurationError(f"{self.path}: no such history database")
         try:
             self.conn = sqlite3.connect(str(self.path), check_same_thread=False, isolation_level=None, timeout=10)
+        except sqlite3.Error as exc:
+            raise ConfigurationError(f"{self.path}: cannot open: {exc}") from exc
+        try:
             self.conn.execute("PRAGMA journal_mode=WAL")
             self.conn.execute("PRAGMA synchronous=NORMAL")
             if create:
@@ -85,6 +88,7 @@ class HistoryStore:
             else:
                 self.conn.execute("SELECT 1 FROM samples LIMIT 1")
         except sqlite3.DatabaseError as exc:
+            self.conn.close()
             raise ConfigurationError(f"{self.path}: not a starterbus history database ({exc})") from exc
         self.lock = threading.Lock()
 

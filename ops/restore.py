@@ -21,10 +21,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from starterbus.core.device import Device
-from starterbus.core.errors import StarterbusError, ValidationError
+from starterbus.core.errors import StarterbusError, UnsupportedOperationError, ValidationError
 from starterbus.core.guarded import Outcome, PlannedWrite
 from starterbus.core.model import PointDef, Value
 from starterbus.core.profile import Profile
+from starterbus.core.transport import Capability
 from starterbus.ops.backup import Backup, take_backup
 from starterbus.ops.diff import ParameterSet, Row, compare
 
@@ -76,6 +77,11 @@ def plan(backup: Backup, device: Device, *, accept_uncertain: bool = False) -> R
         raise ValidationError(
             f"this is a backup of a {backup.model} and {device.describe()} is a {profile.name}: "
             "a backup is restored only into the same model (compare them with `starterbus diff`); nothing sent"
+        )
+    if Capability.READ_PARAMETERS not in device.capabilities:
+        raise UnsupportedOperationError(
+            f"{device.transport.name} ({device.transport.describe()}) cannot read parameters, so a restore could "
+            "neither compare nor read back; use a path with a parameter channel (Modbus RTU, Profibus PPO1)"
         )
     current = take_backup(device)
     rows = compare(

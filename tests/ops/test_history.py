@@ -195,3 +195,8 @@ def test_history_of_a_missing_database_is_one_line(tmp_path: Path, capsys: pytes
     assert main(["history", str(tmp_path / "none.db")]) == 1
     assert "no such history database" in capsys.readouterr().err
     assert not (tmp_path / "none.db").exists()
+    (tmp_path / "junk.db").write_bytes(b"not sqlite at all" * 100)
+    assert main(["history", str(tmp_path / "junk.db")]) == 1
+    assert "not a starterbus history database" in capsys.readouterr().err
+    with pytest.raises(ConfigurationError, match="h.db: cannot open"):
+        HistoryStore(tmp_path / "no" / "dir" / "h.db")
