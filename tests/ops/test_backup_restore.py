@@ -149,8 +149,8 @@ def test_uncertain_and_state_rules_are_checked_before_anything_is_sent(
     j8.soft_stop()
     j8.params["soft_stop_time"] = 0  # so the motor is stopped on the next read
     file_8.write_text(text, encoding="utf-8")
-    main(["restore", str(file_8), line.url(5), "--model", "jjr8000", "--yes", "--accept-uncertain"])
-    assert j8.params["current_limit"] == 350
+    assert main(["restore", str(file_8), line.url(5), "--model", "jjr8000", "--yes", "--accept-uncertain"]) == 0
+    assert j8.params["current_limit"] == 350 and j8.params[assumed.key] == assumed.default
 
 
 def test_an_edited_backup_is_checked(tmp_path: Path, line: Line) -> None:

@@ -37,6 +37,7 @@ def check_png(path: Path) -> None:
 
 def test_record_start_writes_csv_db_and_a_png(line: Line, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "rec"
+    line.starters[2].params["ramp_time"] = 30  # 1.5 s of wall time: the current rises over the first 0.375 s
     code = main(["record", line.url(2), "--model", "jjr5000", "--start", "--yes", "-o", str(out), "--json"])
     summary = json.loads(capsys.readouterr().out)
     assert code == 0 and summary["ended"] == "running"
@@ -49,6 +50,8 @@ def test_record_start_writes_csv_db_and_a_png(line: Line, tmp_path: Path, capsys
     peak = max(amps)
     assert states[0] == "starting" and states[-1] == "running"
     assert amps[0] < peak / 2 and peak == pytest.approx(summary["current_limit_a"], abs=0.1)  # it rises...
+    starting = [a for a, s in zip(amps, states, strict=True) if s == "starting"]
+    assert starting == sorted(starting)
     running = [a for a, s in zip(amps, states, strict=True) if s == "running"]
     assert len(running) >= 3 and len(set(running)) == 1 and running[0] < peak  # ...and settles at 0.8 x In
     assert running[0] == pytest.approx(0.8 * 390, abs=0.1)
