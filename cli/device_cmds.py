@@ -27,6 +27,7 @@ from starterbus.core.guarded import (
 )
 from starterbus.core.model import Value
 from starterbus.core.status import Command, Status
+from starterbus.ops.faults import value_text
 
 
 def _device(args: argparse.Namespace) -> Device:
@@ -43,13 +44,13 @@ def cmd_read(args: argparse.Namespace) -> int:
             {
                 "device": args.url,
                 "model": device.profile.name,
-                "values": [v.as_json() for v in values.values()],
+                "values": [{**v.as_json(), "text": value_text(device.profile, v)} for v in values.values()],
             }
         )
     else:
         table(
             ["address", "key", "name", "value", "raw"],
-            [[v.point.address, v.key, v.point.name_en, v.text(), v.raw] for v in values.values()],
+            [[v.point.address, v.key, v.point.name_en, value_text(device.profile, v), v.raw] for v in values.values()],
         )
     return 0
 

@@ -171,6 +171,21 @@ def _lazy(name: str, help_text: str) -> Callable[[argparse._SubParsersAction[arg
     return extend
 
 
+def _lazy_group(
+    module: str, commands: dict[str, str]
+) -> Callable[[argparse._SubParsersAction[argparse.ArgumentParser], str], None]:
+    """Several commands that one module's ``add_parser`` defines, imported only when one of them is asked for."""
+
+    def extend(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: str) -> None:
+        if wants in commands:
+            _module(module).add_parser(sub, wants)  # type: ignore[attr-defined]
+            return
+        for name, help_text in commands.items():
+            sub.add_parser(name, help=help_text)
+
+    return extend
+
+
 class _Version(argparse.Action):
     """``--version``, looked up only when asked (importlib.metadata is slow to import)."""
 
@@ -191,6 +206,17 @@ _EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser],
     _lazy("watch", "watch one device: status and chosen points, refreshed in place"),
     _lazy("validate", "check fleet files without opening any port or bus"),
     _lazy("completion", "print a shell completion script (bash, zsh, fish)"),
+    _lazy_group(
+        "ops_cmds",
+        {
+            "backup": "save every readable parameter of a device to an editable TOML file",
+            "diff": "compare two parameter sets (backup file, URL@MODEL, defaults); exit 1 if they differ",
+            "restore": "write a backup's differing parameters into a device (guarded, read back)",
+            "history": "query a history database written by `poll --record`",
+            "record": "record a start: status and currents at the line's fastest rate, CSV + PNG plot",
+            "plot": "plot a start or a fault from a history database",
+        },
+    ),
 ]
 
 

@@ -29,6 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--csv", metavar="FILE", help="append every sample to a CSV log (wide: a column per point, ISO 8601 times)"
     )
     p.add_argument("--csv-long", action="store_true", help="CSV in long format: one row per value")
+    p.add_argument("--record", metavar="DB", help="write samples and events to this SQLite history (see `history`)")
+    p.add_argument("--keep", action="append", metavar="AGE|SIZE", help="history retention: 30d, 12h, 500MB")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("--refresh", type=float, default=0.5, help="table refresh period on a terminal, s")
     p.add_argument(
@@ -188,13 +190,21 @@ def cmd_poll(args: argparse.Namespace) -> int:
         probing = ProbeSettings(args.probe_timeout, args.probe_share)
     except ValueError as exc:
         raise ConfigurationError(str(exc)) from None
-    return run_fleet(
-        config,
-        once=args.once,
-        json_out=args.json,
-        csv_path=args.csv,
-        csv_long=args.csv_long,
-        duration=args.duration,
-        refresh=args.refresh,
-        probing=probing,
-    )
+    from starterbus.ops.recorder import for_fleet as recorder_for_fleet
+
+    recorder = recorder_for_fleet(args.record, config, args.keep) if args.record else None
+    try:
+        return run_fleet(
+            config,
+            once=args.once,
+            json_out=args.json,
+            csv_path=args.csv,
+            csv_long=args.csv_long,
+            duration=args.duration,
+            refresh=args.refresh,
+            probing=probing,
+            sinks=[recorder] if recorder is not None else None,
+        )
+    finally:
+        if recorder is not None:
+            recorder.close()
