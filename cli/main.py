@@ -137,6 +137,9 @@ _EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser],
 from starterbus.cli import identify  # noqa: E402  (DeviceNet issue: `starterbus identify URL`)
 
 _EXTENSIONS.append(identify.add_parser)
+from starterbus.cli import opcua_cmd  # noqa: E402  (OPC UA issue: `starterbus opcua`, `starterbus opcua-user`)
+
+_EXTENSIONS.append(opcua_cmd.add_parser)
 
 
 def _quiet_libraries() -> None:

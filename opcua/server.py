@@ -77,6 +77,17 @@ class OpcUaSettings:
     locale: str = "en"  # "en": English display names, Chinese descriptions; "zh": the other way round
     server_name: str = "starterbus OPC UA server"
 
+    def check(self) -> None:
+        """Refuse settings under which nobody could connect, before anything starts."""
+        if not self.users and not self.anonymous:
+            raise ConfigurationError(
+                "no OPC UA users and anonymous access off: nobody could connect (add a users file)"
+            )
+        if (self.certificate is None) != (self.private_key is None):
+            raise ConfigurationError("give both the certificate and its private key, or neither")
+        if self.locale not in ("en", "zh"):
+            raise ConfigurationError(f"locale {self.locale!r}: use 'en' or 'zh'")
+
     def uri(self) -> str:
         return self.application_uri or f"urn:starterbus:{socket.gethostname()}:opcua"
 
@@ -147,10 +158,7 @@ class OpcUaServer:
 
     async def start(self) -> None:
         settings = self.settings
-        if not settings.users and not settings.anonymous:
-            raise ConfigurationError(
-                "no OPC UA users and anonymous access off: nobody could connect (add a users file)"
-            )
+        settings.check()
         server = self.server
         await server.init()
         server.set_endpoint(settings.endpoint)
@@ -199,8 +207,6 @@ class OpcUaServer:
 
     async def _load_certificate(self) -> None:
         settings = self.settings
-        if (settings.certificate is None) != (settings.private_key is None):
-            raise ConfigurationError("give both the certificate and its private key, or neither")
         if settings.certificate is not None and settings.private_key is not None:
             cert, key = Path(settings.certificate), Path(settings.private_key)
         else:
