@@ -32,6 +32,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     )
     p.add_argument("--cert", metavar="DER", help="use this server certificate (with --key) instead of --pki")
     p.add_argument("--key", metavar="PEM", help="private key of --cert")
+    p.add_argument(
+        "--trust-clients",
+        metavar="DIR",
+        help="accept only client certificates in this directory (default: any client certificate; users by password)",
+    )
     p.add_argument("--anonymous", action="store_true", help="let anonymous clients read and subscribe (never write)")
     p.add_argument(
         "--allow-insecure", action="store_true", help="also offer security policy None (unsigned, unencrypted)"
@@ -85,6 +90,7 @@ def cmd_opcua(args: argparse.Namespace) -> int:
         allow_insecure=args.allow_insecure,
         certificate=args.cert,
         private_key=args.key,
+        trusted_clients=args.trust_clients,
         application_uri=args.application_uri,
         locale=args.locale,
     )

@@ -2,7 +2,7 @@
 
 Node ids are strings in the fleet namespace, stable across restarts: ``s=conveyor``, ``s=conveyor.Status.State``,
 ``s=conveyor.Measurements.phase_a_current``, ``s=conveyor.Parameters.current_limit``, ``s=conveyor.Start``.
-Building happens once before the server starts; :func:`sample_updates` turns one poll into DataValues (pure).
+Building happens once before the server starts; :mod:`starterbus.opcua.values` fills the variables.
 """
 
 from __future__ import annotations
@@ -10,7 +10,6 @@ from __future__ import annotations
 import enum
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
 from typing import Any
 
 from asyncua import Node, Server, ua
@@ -21,7 +20,6 @@ from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.status import Command, MotorState
 from starterbus.fleet.config import DeviceConfig, FleetConfig
-from starterbus.fleet.poller import Sample
 from starterbus.opcua.units import eu_information
 
 #: StarterStateEnum values (the enumeration's order is part of the interface: do not reorder)
@@ -242,6 +240,16 @@ async def _build_device(
             ident.nodeid, b.nid(f"{name}.Identification.{key}"), key, ua.Variant(value, vtype),
             ua.NodeId(vtype.value), prop=True,
         )  # fmt: skip
+    # OPC 40400-1 PtSoftStarterAttributesType, mirrored: only what the profile proves (see docs/opcua.md)
+    attributes = await obj.add_object(
+        b.nid(f"{name}.PtSoftStarterAttributes"), ua.QualifiedName("PtSoftStarterAttributes", b.idx)
+    )
+    overload = any(label.en == "motor overload" for label in profile.faults.labels.values())
+    await b.variable(
+        attributes.nodeid, b.nid(f"{name}.PtSoftStarterAttributes.MotorOverloadProtectionIntegrated"),
+        "MotorOverloadProtectionIntegrated", ua.Variant(overload, ua.VariantType.Boolean),
+        _dt(ua.VariantType.Boolean), prop=True,
+    )  # fmt: skip
     device.status["DeviceHealth"] = await b.variable(
         obj.nodeid, b.nid(f"{name}.DeviceHealth"), "DeviceHealth", ua.Variant(0, ua.VariantType.Int32), health
     )
@@ -296,91 +304,3 @@ async def _add_method(
     for attr in (ua.AttributeIds.Executable, ua.AttributeIds.UserExecutable):
         await b.server.write_attribute_value(node.nodeid, ua.DataValue(ua.Variant(allowed)), attr)
     return node.nodeid
-
-
-# -- values -----------------------------------------------------------------------------------------------------
-
-
-def _timestamp(seconds: float) -> datetime:
-    return datetime.fromtimestamp(seconds, timezone.utc)
-
-
-def _bad(code: int, at: datetime) -> ua.DataValue:
-    return ua.DataValue(StatusCode=ua.StatusCode(code), SourceTimestamp=at, ServerTimestamp=datetime.now(timezone.utc))
-
-
-def _good(variant: ua.Variant, at: datetime) -> ua.DataValue:
-    return ua.DataValue(variant, SourceTimestamp=at, ServerTimestamp=datetime.now(timezone.utc))
-
-
-Update = tuple[ua.NodeId, ua.DataValue]
-
-
-def initial_updates(device: DeviceNodes, at: float) -> list[Update]:
-    """Before the first poll: every live value BadWaitingForInitialData."""
-    when = _timestamp(at)
-    code = ua.StatusCodes.BadWaitingForInitialData
-    nodes = [device.status[k] for k in (*STATUS_VARIABLES, "Online", "DeviceHealth")]
-    nodes += [p.node for p in device.points.values()]
-    return [(n, _bad(code, when)) for n in nodes]
-
-
-def sample_updates(device: DeviceNodes, sample: Sample, locale: str = "en") -> list[Update]:
-    """The DataValues one poll sets: values with the poll's time, or Bad codes, never a stale Good value."""
-    at = _timestamp(sample.time)
-    status_ids = device.status
-    updates: list[Update] = [
-        (status_ids["Online"], _good(ua.Variant(sample.online, ua.VariantType.Boolean), at)),
-        (status_ids["LastError"], _good(ua.Variant(sample.error or "", ua.VariantType.String), at)),
-    ]
-    status = sample.status
-    if not sample.online:
-        missing = ua.StatusCodes.BadCommunicationError
-    elif status is None and sample.error is not None:
-        missing = ua.StatusCodes.BadDeviceFailure
-    else:
-        missing = ua.StatusCodes.BadNotSupported  # the transport does not report it
-    if status is None:
-        updates += [(status_ids[k], _bad(missing, at)) for k in (*STATUS_VARIABLES, "DeviceHealth")]
-    else:
-        code = status.fault_code if status.fault_code is not None else 0
-        label = device.profile.faults.label(code) if status.fault else None
-        fault_text = ua.LocalizedText("")
-        if label is not None:
-            fault_text = texts(label.en, label.zh, locale)[0]
-        health = DeviceHealth.FAILURE if status.fault else DeviceHealth.NORMAL
-        updates += [
-            (status_ids["State"], _good(ua.Variant(STATES.index(status.state), ua.VariantType.Int32), at)),
-            (status_ids["Fault"], _good(ua.Variant(status.fault, ua.VariantType.Boolean), at)),
-            (status_ids["FaultCode"], _good(ua.Variant(code, ua.VariantType.UInt16), at)),
-            (status_ids["FaultText"], _good(ua.Variant(fault_text, ua.VariantType.LocalizedText), at)),
-            (status_ids["DeviceHealth"], _good(ua.Variant(int(health), ua.VariantType.Int32), at)),
-        ]
-        for key, flag in (("Ready", status.ready), ("BusControl", status.bus_control)):
-            shown = _bad(ua.StatusCodes.BadNotSupported, at) if flag is None else _good(ua.Variant(flag), at)
-            updates.append((status_ids[key], shown))
-    for key, point_node in device.points.items():
-        value = sample.values.get(key)
-        if value is not None:
-            updates += point_updates(point_node, value.raw, value.value, at, locale)
-        elif key in sample.unreadable:
-            updates.append((point_node.node, _bad(ua.StatusCodes.BadNotSupported, at)))
-        else:
-            updates.append((point_node.node, _bad(missing if sample.error else ua.StatusCodes.BadNoData, at)))
-    return updates
-
-
-def point_updates(point_node: PointNode, raw: int, value: float, at: datetime, locale: str = "en") -> list[Update]:
-    point = point_node.point
-    if point.enum is not None or point.bits:
-        updates = [(point_node.node, _good(ua.Variant(raw, ua.VariantType.UInt16), at))]
-        if point_node.value_as_text is not None and point.enum is not None:
-            label = point.enum.label(raw)
-            text = texts(label.en, label.zh, locale)[0] if label else ua.LocalizedText(f"unknown value {raw}")
-            updates.append((point_node.value_as_text, _good(ua.Variant(text, ua.VariantType.LocalizedText), at)))
-        return updates
-    return [(point_node.node, _good(ua.Variant(float(value), ua.VariantType.Double), at))]
-
-
-def timestamp_now() -> datetime:
-    return datetime.now(timezone.utc)

@@ -7,6 +7,8 @@ import socket
 from pathlib import Path
 
 from asyncua.crypto import cert_gen
+from asyncua.crypto.truststore import TrustStore
+from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 from cryptography.x509.oid import ExtendedKeyUsageOID
@@ -67,3 +69,22 @@ def check_uri(cert: Path, application_uri: str) -> None:
             f"{cert}: its subject alternative name URI {uris or '(none)'} is not the server's application URI "
             f"{application_uri!r}; clients would refuse it (pass the certificate's URI or let one be generated)"
         )
+
+
+async def client_validator(trusted: Path) -> CertificateValidator:
+    """Accept only client certificates found in ``trusted`` (checked for validity time and application URI).
+
+    asyncua's KEY_USAGE check also demands nonRepudiation, which common clients' certificates lack, so key usage
+    is left to the client's own stack.
+    """
+    if not trusted.is_dir():
+        raise ConfigurationError(f"{trusted}: no such directory of trusted client certificates")
+    store = TrustStore([trusted], [])
+    await store.load()
+    options = (
+        CertificateValidatorOptions.TIME_RANGE
+        | CertificateValidatorOptions.URI
+        | CertificateValidatorOptions.TRUSTED
+        | CertificateValidatorOptions.PEER_CLIENT
+    )
+    return CertificateValidator(options, store)

@@ -34,19 +34,11 @@ from asyncua.server.internal_session import InternalSession
 from starterbus.aio import AsyncFleet
 from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.status import Command
-from starterbus.opcua.address_space import (
-    DeviceNodes,
-    FleetNodes,
-    PointNode,
-    build_fleet,
-    initial_updates,
-    point_updates,
-    sample_updates,
-    timestamp_now,
-)
-from starterbus.opcua.certs import ensure_certificate
+from starterbus.opcua.address_space import DeviceNodes, FleetNodes, PointNode, build_fleet
+from starterbus.opcua.certs import client_validator, ensure_certificate
 from starterbus.opcua.refusals import code_name, status_code
 from starterbus.opcua.users import Role, RoleRuleset, UserEntry, UserManager
+from starterbus.opcua.values import initial_updates, point_updates, sample_updates, timestamp_now
 
 NAMESPACE = "urn:starterbus:fleet"
 log = logging.getLogger("starterbus.opcua")
@@ -64,6 +56,8 @@ class OpcUaSettings:
     ``pki_dir`` holds the server certificate (generated there on first run unless ``certificate`` and
     ``private_key`` are given). Only Basic256Sha256 Sign and SignAndEncrypt are offered unless
     ``allow_insecure``; anonymous sessions are refused unless ``anonymous`` (then they are read-only).
+    With ``trusted_clients`` a directory of client certificates (DER or PEM), only those clients may open a
+    secure channel; without it any client certificate is accepted and users are told apart by password.
     """
 
     endpoint: str = "opc.tcp://0.0.0.0:4840/starterbus"
@@ -73,6 +67,7 @@ class OpcUaSettings:
     allow_insecure: bool = False
     certificate: Path | str | None = None
     private_key: Path | str | None = None
+    trusted_clients: Path | str | None = None  # directory of trusted client certificates; None: any client cert
     application_uri: str = ""  # default urn:starterbus:HOSTNAME:opcua
     locale: str = "en"  # "en": English display names, Chinese descriptions; "zh": the other way round
     server_name: str = "starterbus OPC UA server"
@@ -168,6 +163,8 @@ class OpcUaServer:
         server.application_type = ua.ApplicationType.Server
         await server.set_application_uri(settings.uri())
         await self._load_certificate()
+        if settings.trusted_clients is not None:
+            server.set_certificate_validator(await client_validator(Path(settings.trusted_clients)))
         policies = [
             ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
             ua.SecurityPolicyType.Basic256Sha256_Sign,

@@ -17,11 +17,12 @@ from starterbus.core.registry import get_profile
 from starterbus.core.status import decode_status_word
 from starterbus.fleet.config import DeviceConfig
 from starterbus.fleet.poller import Sample
-from starterbus.opcua.address_space import STATES, DeviceNodes, PointNode, sample_updates
+from starterbus.opcua.address_space import STATES, DeviceNodes, PointNode
 from starterbus.opcua.certs import ensure_certificate
 from starterbus.opcua.refusals import status_code
 from starterbus.opcua.units import eu_information, unit_id
 from starterbus.opcua.users import Role, dump_users, hash_password, load_users, parse_users, verify_password
+from starterbus.opcua.values import sample_updates
 
 # OPC 10000-8 / UNECE Rec. 20 codes as printed in shared/spec/OPCUA.md section 1
 UNECE_VECTORS = [

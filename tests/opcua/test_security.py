@@ -1,4 +1,4 @@
-"""Default security: Basic256Sha256 Sign/SignAndEncrypt only, user names only; `starterbus opcua --demo` end to end."""
+"""Default security (Basic256Sha256 Sign/SignAndEncrypt, user names, trusted clients); `starterbus opcua --demo`."""
 
 from __future__ import annotations
 
@@ -30,17 +30,22 @@ def test_defaults_offer_only_signed_endpoints_and_refuse_anonymous(tmp_path: Pat
         "s.toml",
     )
     users = {"op": UserEntry("op", Role.OPERATOR, hash_password("op-secret", iterations=1000))}
-    settings = OpcUaSettings("opc.tcp://127.0.0.1:0/sb", pki_dir=tmp_path / "pki", users=users)
     cert, key = ensure_certificate(tmp_path / "client", CLIENT_URI)
+    stranger = ensure_certificate(tmp_path / "stranger", CLIENT_URI)
+    (tmp_path / "trusted").mkdir()
+    (tmp_path / "trusted" / "client.der").write_bytes(cert.read_bytes())
+    settings = OpcUaSettings(
+        "opc.tcp://127.0.0.1:0/sb", pki_dir=tmp_path / "pki", users=users, trusted_clients=tmp_path / "trusted"
+    )
     url = ""
 
-    async def secure(user: str | None) -> Client:
+    async def secure(user: str | None, pair: tuple[Path, Path] = (cert, key)) -> Client:
         c = Client(url, timeout=10)
         c.application_uri = CLIENT_URI
         if user is not None:
             c.set_user(user)
             c.set_password("op-secret")
-        await c.set_security(SecurityPolicyBasic256Sha256, str(cert), str(key), mode=ua.MessageSecurityMode.Sign)
+        await c.set_security(SecurityPolicyBasic256Sha256, str(pair[0]), str(pair[1]), mode=ua.MessageSecurityMode.Sign)
         return c
 
     async def scenario() -> None:
@@ -60,6 +65,9 @@ def test_defaults_offer_only_signed_endpoints_and_refuse_anonymous(tmp_path: Pat
                     pass
             with pytest.raises(ua.UaError):  # anonymous is off
                 async with await secure(None):
+                    pass
+            with pytest.raises(ua.uaerrors.BadCertificateUntrusted):  # not in the trusted directory
+                async with await secure("op", stranger):
                     pass
             async with await secure("op") as c:
                 idx = await c.get_namespace_index("urn:starterbus:fleet")

@@ -199,6 +199,8 @@ def test_browse_lines_devices_and_read_measurements_with_units(rig: Rig) -> None
             conveyor = await ns_node(c, "conveyor")
             children = {(await n.read_browse_name()).Name for n in await conveyor.get_children()}
             assert {"Status", "Measurements", "Parameters", "Identification", "Start", "Stop", "Reset"} <= children
+            protection = await ns_node(c, "conveyor.PtSoftStarterAttributes.MotorOverloadProtectionIntegrated")
+            assert await protection.read_value() is True
 
             current = await ns_node(c, "conveyor.Measurements.phase_a_current")
             value = await wait_value(current, lambda v: v.StatusCode is not None and v.StatusCode.is_good())
