@@ -9,6 +9,7 @@ import argparse
 import asyncio
 import dataclasses
 import getpass
+import os
 import sys
 from pathlib import Path
 
@@ -110,7 +111,8 @@ async def _serve(config: FleetConfig, settings: object, duration: float | None) 
     assert isinstance(settings, OpcUaSettings)
     async with AsyncFleet(config) as fleet, OpcUaServer(fleet, settings) as server:
         security = "Basic256Sha256 Sign, SignAndEncrypt" + (", None" if settings.allow_insecure else "")
-        users = f"{len(settings.users)} users" + (", anonymous read-only" if settings.anonymous else "")
+        count = len(settings.users)
+        users = f"{count} user{'' if count == 1 else 's'}" + (", anonymous read-only" if settings.anonymous else "")
         print(
             f"OPC UA: {len(config.devices)} devices on {server.endpoint_url} ({security}; {users})",
             flush=True,
@@ -133,8 +135,10 @@ def cmd_opcua_user(args: argparse.Namespace) -> int:
     else:
         password = _read_password(args.name)
         users[args.name] = UserEntry(args.name, Role(args.role), hash_password(password))
-    path.write_text(dump_users(users), encoding="utf-8")
-    path.chmod(0o600)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    os.fchmod(fd, 0o600)  # also an existing file: it holds password hashes
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(dump_users(users))
     print(f"{path}: {'removed' if args.delete else 'set'} {args.name}")
     return 0
 

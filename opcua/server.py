@@ -220,9 +220,13 @@ class OpcUaServer:
         assert self.nodes is not None
         async for sample in self.fleet.samples():
             device = self.nodes.devices.get(sample.device)
-            if device is not None:
+            if device is None:
+                continue
+            try:
                 await self._apply(sample_updates(device, sample, self.settings.locale))
-                self.samples_served += 1
+            except Exception:  # one bad sample must not freeze every value at its last Good state
+                log.exception("%s: cannot publish a poll", sample.device)
+            self.samples_served += 1
 
     async def _apply(self, updates: list[tuple[ua.NodeId, ua.DataValue]]) -> None:
         for nodeid, value in updates:

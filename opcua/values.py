@@ -30,7 +30,7 @@ def initial_updates(device: DeviceNodes, at: float) -> list[Update]:
     when = _timestamp(at)
     code = ua.StatusCodes.BadWaitingForInitialData
     nodes = [device.status[k] for k in (*STATUS_VARIABLES, "Online", "DeviceHealth")]
-    nodes += [p.node for p in device.points.values()]
+    nodes += [n for p in device.points.values() for n in _nodes(p)]
     return [(n, _bad(code, when)) for n in nodes]
 
 
@@ -72,11 +72,18 @@ def sample_updates(device: DeviceNodes, sample: Sample, locale: str = "en") -> l
         value = sample.values.get(key)
         if value is not None:
             updates += point_updates(point_node, value.raw, value.value, at, locale)
-        elif key in sample.unreadable:
-            updates.append((point_node.node, _bad(ua.StatusCodes.BadNotSupported, at)))
+            continue
+        if key in sample.unreadable:
+            bad = _bad(ua.StatusCodes.BadNotSupported, at)
         else:
-            updates.append((point_node.node, _bad(missing if sample.error else ua.StatusCodes.BadNoData, at)))
+            bad = _bad(missing if sample.error else ua.StatusCodes.BadNoData, at)
+        updates += [(node, bad) for node in _nodes(point_node)]
     return updates
+
+
+def _nodes(point_node: PointNode) -> list[ua.NodeId]:
+    """The variable and, for an enum, its ValueAsText: both go Bad together."""
+    return [point_node.node] + ([point_node.value_as_text] if point_node.value_as_text is not None else [])
 
 
 def point_updates(point_node: PointNode, raw: int, value: float, at: datetime, locale: str = "en") -> list[Update]:

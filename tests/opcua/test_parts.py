@@ -87,7 +87,8 @@ def _device() -> DeviceNodes:
         "State", "Fault", "FaultCode", "FaultText", "Ready", "BusControl", "Online", "LastError", "DeviceHealth",
     )}  # fmt: skip
     point = PointNode(profile.point("phase_a_current"), ua.NodeId("c.phase_a_current", 2))
-    return DeviceNodes(config, profile, ua.NodeId("c", 2), status, {"phase_a_current": point})
+    mode = PointNode(profile.point("start_mode"), ua.NodeId("c.start_mode", 2), ua.NodeId("c.start_mode.text", 2))
+    return DeviceNodes(config, profile, ua.NodeId("c", 2), status, {"phase_a_current": point, "start_mode": mode})
 
 
 def _sample(online: bool, **kwargs: object) -> Sample:
@@ -109,6 +110,8 @@ def test_offline_sample_sets_bad_codes_not_stale_values() -> None:
     current = updates[device.points["phase_a_current"].node]
     assert current.StatusCode.value == ua.StatusCodes.BadCommunicationError and current.Value.Value is None
     assert current.SourceTimestamp.timestamp() == 1_700_000_000.5
+    label = updates[device.points["start_mode"].value_as_text]
+    assert label.StatusCode.value == ua.StatusCodes.BadCommunicationError
 
 
 def test_online_sample_sets_values_fault_text_and_source_time() -> None:
