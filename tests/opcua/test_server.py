@@ -63,6 +63,14 @@ url = "modbus-rtu://{line1}?timeout=0.3"
   measurements = ["phase_a_current"]
   parameters = ["current_limit"]
 
+  [[bus.device]]
+  name = "crusher"
+  model = "jjr8000"
+  address = 4
+  measurements = ["phase_a_current"]
+  parameters = ["ramp_time"]
+  remote = {{ write = ["ramp_time"] }}
+
 [[bus]]
 name = "line-2"
 url = "modbus-rtu://{line2}?timeout=0.05&retries=0"
@@ -104,8 +112,9 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
         "conveyor": SimulatedStarter(get_profile("jjr5000")),
         "fan": SimulatedStarter(get_profile("ssd1")),
         "pump": SimulatedStarter(get_profile("jjr5000")),  # only the subscription test moves it
+        "crusher": SimulatedStarter(get_profile("jjr8000")),  # only the state-rule test moves it
     }
-    line1 = ModbusRtuSimulator({1: starters["conveyor"], 2: starters["fan"]}, pty=True).start()
+    line1 = ModbusRtuSimulator({1: starters["conveyor"], 2: starters["fan"], 4: starters["crusher"]}, pty=True).start()
     line2 = ModbusRtuSimulator({3: starters["pump"]}, pty=True).start()
     loop = asyncio.new_event_loop()
     thread = threading.Thread(target=loop.run_forever, name="opcua-test-loop", daemon=True)
@@ -195,7 +204,7 @@ def test_browse_lines_devices_and_read_measurements_with_units(rig: Rig) -> None
             lines = {(await n.read_browse_name()).Name: n for n in await root.get_children()}
             assert sorted(lines) == ["line-1", "line-2"]
             devices = [(await n.read_browse_name()).Name for n in await lines["line-1"].get_children()]
-            assert devices == ["conveyor", "fan"]
+            assert devices == ["conveyor", "fan", "crusher"]
             conveyor = await ns_node(c, "conveyor")
             children = {(await n.read_browse_name()).Name for n in await conveyor.get_children()}
             assert {"Status", "Measurements", "Parameters", "Identification", "Start", "Stop", "Reset"} <= children
@@ -357,6 +366,30 @@ def test_writes_only_after_read_back_and_refusals_as_status_codes(rig: Rig) -> N
     assert point.to_engineering(conveyor.params["current_limit"]) == target
     writes = [(e["actor"], e["key"], e["result"]) for e in audit(rig) if e.get("key")]
     assert writes[-1] == ("opcua:op", "current_limit", "ok")
+
+
+def test_parameter_locked_while_running_is_refused_with_bad_invalid_state(rig: Rig) -> None:
+    crusher = rig.starters["crusher"]
+    before = dict(crusher.params)
+    crusher.start()  # on the simulator: JJR8000 locks ramp_time while the motor runs
+
+    async def scenario() -> None:
+        c = await secure_client(rig, ua.MessageSecurityMode.SignAndEncrypt, "op", "op-secret")
+        async with c:
+            state = await ns_node(c, "crusher.Status.State")
+            running = {"starting", "running"}
+            await wait_value(state, lambda v: v.Value is not None and STATES[v.Value.Value].value in running)
+            ramp = await ns_node(c, "crusher.Parameters.ramp_time")
+            with pytest.raises(ua.uaerrors.BadInvalidState):
+                await ramp.write_value(ua.DataValue(ua.Variant(20.0, ua.VariantType.Double)))
+            reason = await (await ns_node(c, "crusher.Status.LastOperation")).read_value()
+            assert "stop the motor first; nothing sent" in reason
+
+    try:
+        rig.run(scenario)
+    finally:
+        crusher.soft_stop()
+    assert crusher.params == before
 
 
 @pytest.mark.parametrize("who", ["anonymous", "viewer"])
