@@ -217,6 +217,13 @@ _EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser],
             "plot": "plot a start or a fault from a history database",
         },
     ),
+    _lazy_group(
+        "opcua_cmd",
+        {
+            "opcua": "serve a fleet over OPC UA (methods and writes through the guarded path)",
+            "opcua-user": "add or change a user of the OPC UA server (password from a prompt or stdin)",
+        },
+    ),
 ]
 
 

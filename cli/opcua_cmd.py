@@ -1,0 +1,157 @@
+"""``starterbus opcua FLEET.toml --endpoint opc.tcp://HOST:PORT``: serve a fleet over OPC UA (and ``opcua-user``).
+
+``serve --opcua`` starts the same server (:class:`starterbus.opcua.server.OpcUaServer`) beside the MQTT bridge.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import dataclasses
+import getpass
+import os
+import sys
+from pathlib import Path
+
+from starterbus.core.errors import ConfigurationError
+from starterbus.core.registry import get_profile
+from starterbus.core.status import Command
+from starterbus.fleet.config import FleetConfig, RemotePolicy, load_fleet
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted: str) -> None:
+    p = sub.add_parser("opcua", help="serve a fleet over OPC UA (methods and writes through the guarded path)")
+    p.add_argument("fleet", nargs="?", metavar="FLEET.toml", help="fleet file (not with --demo)")
+    p.add_argument("--endpoint", default="opc.tcp://0.0.0.0:4840/starterbus", help="listen here (default %(default)s)")
+    p.add_argument("--demo", action="store_true", help="serve the simulated demo fleet (remote control enabled)")
+    p.add_argument("--users", metavar="FILE", help="users file with hashed passwords and roles (see opcua-user)")
+    p.add_argument(
+        "--pki",
+        metavar="DIR",
+        default="opcua-pki",
+        help="directory of the server certificate; one is generated there on first run (default %(default)s)",
+    )
+    p.add_argument("--cert", metavar="DER", help="use this server certificate (with --key) instead of --pki")
+    p.add_argument("--key", metavar="PEM", help="private key of --cert")
+    p.add_argument(
+        "--trust-clients",
+        metavar="DIR",
+        help="accept only client certificates in this directory (default: any client certificate; users by password)",
+    )
+    p.add_argument("--anonymous", action="store_true", help="let anonymous clients read and subscribe (never write)")
+    p.add_argument(
+        "--allow-insecure", action="store_true", help="also offer security policy None (unsigned, unencrypted)"
+    )
+    p.add_argument(
+        "--application-uri", default="", help="the server's application URI (default urn:starterbus:HOST:opcua)"
+    )
+    p.add_argument(
+        "--locale", choices=["en", "zh"], default="en", help="language of display names (the other: descriptions)"
+    )
+    p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
+    p.set_defaults(handler=cmd_opcua)
+
+    p = sub.add_parser("opcua-user", help="add or change a user of the OPC UA server (password asked, stored hashed)")
+    p.add_argument("users", metavar="USERS.toml", help="users file (created if missing)")
+    p.add_argument("name", metavar="NAME")
+    p.add_argument("--role", choices=["operator", "read-only"], default="read-only", help="default %(default)s")
+    p.add_argument("--delete", action="store_true", help="remove the user instead")
+    p.set_defaults(handler=cmd_opcua_user)
+
+
+def demo_remote(config: FleetConfig) -> FleetConfig:
+    """The demo fleet with every command and every configured writable parameter open to remote callers."""
+    devices = {}
+    buses = []
+    for bus in config.buses:
+        changed = []
+        for original in bus.devices:
+            profile = get_profile(original.model)
+            writable = frozenset(profile.point(k).key for k in original.parameters if profile.point(k).writable)
+            commands = frozenset({Command.START, Command.SOFT_STOP, Command.FAULT_RESET})
+            device = dataclasses.replace(original, remote=RemotePolicy(commands, writable))
+            devices[device.name] = device
+            changed.append(device)
+        buses.append(dataclasses.replace(bus, devices=tuple(changed)))
+    return dataclasses.replace(config, buses=tuple(buses), devices_by_name=devices)
+
+
+def cmd_opcua(args: argparse.Namespace) -> int:
+    from starterbus.opcua.server import OpcUaSettings
+    from starterbus.opcua.users import load_users
+
+    if args.demo == bool(args.fleet):
+        raise ConfigurationError("give a fleet file or --demo (one of them)")
+    users = load_users(args.users) if args.users else {}
+    settings = OpcUaSettings(
+        endpoint=args.endpoint,
+        pki_dir=args.pki,
+        users=users,
+        anonymous=args.anonymous,
+        allow_insecure=args.allow_insecure,
+        certificate=args.cert,
+        private_key=args.key,
+        trusted_clients=args.trust_clients,
+        application_uri=args.application_uri,
+        locale=args.locale,
+    )
+    settings.check()
+    if args.demo:
+        from starterbus.fleet.demo import demo_fleet
+
+        with demo_fleet() as demo:
+            return asyncio.run(_serve(demo_remote(demo.config), settings, args.duration))
+    return asyncio.run(_serve(load_fleet(args.fleet), settings, args.duration))
+
+
+async def _serve(config: FleetConfig, settings: object, duration: float | None) -> int:
+    from starterbus.aio import AsyncFleet
+    from starterbus.opcua.server import OpcUaServer, OpcUaSettings
+
+    assert isinstance(settings, OpcUaSettings)
+    async with AsyncFleet(config) as fleet, OpcUaServer(fleet, settings) as server:
+        security = "Basic256Sha256 Sign, SignAndEncrypt" + (", None" if settings.allow_insecure else "")
+        count = len(settings.users)
+        users = f"{count} user{'' if count == 1 else 's'}" + (", anonymous read-only" if settings.anonymous else "")
+        print(
+            f"OPC UA: {len(config.devices)} devices on {server.endpoint_url} ({security}; {users})",
+            flush=True,
+        )
+        if duration is None:
+            await asyncio.Event().wait()
+        else:
+            await asyncio.sleep(duration)
+    return 0
+
+
+def cmd_opcua_user(args: argparse.Namespace) -> int:
+    from starterbus.opcua.users import Role, UserEntry, dump_users, hash_password, load_users
+
+    path = Path(args.users)
+    users = load_users(path) if path.exists() else {}
+    if args.delete:
+        if users.pop(args.name, None) is None:
+            raise ConfigurationError(f"{path}: no user {args.name!r}")
+    else:
+        password = _read_password(args.name)
+        users[args.name] = UserEntry(args.name, Role(args.role), hash_password(password))
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    os.fchmod(fd, 0o600)  # also an existing file: it holds password hashes
+    with os.fdopen(fd, "w", encoding="utf-8") as f:
+        f.write(dump_users(users))
+    print(f"{path}: {'removed' if args.delete else 'set'} {args.name}")
+    return 0
+
+
+def _read_password(name: str) -> str:
+    """From the terminal (asked twice), or the first line of standard input; never from the command line."""
+    if sys.stdin.isatty():
+        first = getpass.getpass(f"password for {name}: ")
+        if getpass.getpass("again: ") != first:
+            raise ConfigurationError("the passwords differ; nothing changed")
+        password = first
+    else:
+        password = sys.stdin.readline().rstrip("\r\n")
+    if len(password) < 8:
+        raise ConfigurationError("a password needs at least 8 characters; nothing changed")
+    return password

@@ -1,0 +1,422 @@
+"""The OPC UA server against asyncua's own client: browse, read, subscribe, methods, writes, roles, security.
+
+One server (and one simulated Modbus fleet on two pseudo-terminals) is shared by the module: asyncua takes
+about a second to start. It runs on an event loop in a thread; each test submits its client coroutine there.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import threading
+from collections.abc import Awaitable, Callable, Iterator
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any, TypeVar
+
+import pytest
+from asyncua import Client, Node, ua
+from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
+
+from starterbus.aio import AsyncFleet
+from starterbus.core.registry import get_profile
+from starterbus.core.simulator import SimulatedStarter
+from starterbus.fleet.config import parse_fleet
+from starterbus.opcua.address_space import STATES
+from starterbus.opcua.certs import ensure_certificate
+from starterbus.opcua.server import OpcUaServer, OpcUaSettings
+from starterbus.opcua.users import Role, UserEntry, hash_password
+from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+
+T = TypeVar("T")
+NS = "urn:starterbus:fleet"
+CLIENT_URI = "urn:starterbus:test-client"
+USERS = {
+    "op": UserEntry("op", Role.OPERATOR, hash_password("op-secret", iterations=1000)),
+    "viewer": UserEntry("viewer", Role.READ_ONLY, hash_password("view-secret", iterations=1000)),
+}
+
+
+def fleet_text(line1: str, line2: str) -> str:
+    return f"""
+[poll]
+period = 0.1
+max_backoff = 0.5
+
+[[bus]]
+name = "line-1"
+url = "modbus-rtu://{line1}?timeout=0.3"
+
+  [[bus.device]]
+  name = "conveyor"
+  model = "jjr5000"
+  address = 1
+  measurements = ["phase_a_current"]
+  parameters = ["current_limit", "ramp_time", "start_mode"]
+  remote = {{ commands = ["start", "stop", "reset"], write = ["current_limit"] }}
+
+  [[bus.device]]
+  name = "fan"
+  model = "ssd1"
+  address = 2
+  measurements = ["phase_a_current"]
+  parameters = ["current_limit"]
+
+  [[bus.device]]
+  name = "crusher"
+  model = "jjr8000"
+  address = 4
+  measurements = ["phase_a_current"]
+  parameters = ["ramp_time"]
+  remote = {{ write = ["ramp_time"] }}
+
+[[bus]]
+name = "line-2"
+url = "modbus-rtu://{line2}?timeout=0.05&retries=0"
+
+  [[bus.device]]
+  name = "pump"
+  model = "jjr5000"
+  address = 3
+  measurements = ["phase_a_current"]
+
+  [[bus.device]]
+  name = "ghost"
+  model = "jjr5000"
+  address = 9
+  measurements = ["phase_a_current"]
+"""
+
+
+@dataclass
+class Rig:
+    loop: asyncio.AbstractEventLoop
+    server: OpcUaServer
+    starters: dict[str, SimulatedStarter]
+    audit: Path
+    pki: Path
+    url: str
+
+    def run(self, make: Callable[[], Awaitable[T]], timeout: float = 20.0) -> T:
+        async def wrapped() -> T:
+            return await make()
+
+        return asyncio.run_coroutine_threadsafe(wrapped(), self.loop).result(timeout)
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
+    tmp = tmp_path_factory.mktemp("opcua")
+    starters = {
+        "conveyor": SimulatedStarter(get_profile("jjr5000")),
+        "fan": SimulatedStarter(get_profile("ssd1")),
+        "pump": SimulatedStarter(get_profile("jjr5000")),  # only the subscription test moves it
+        "crusher": SimulatedStarter(get_profile("jjr8000")),  # only the state-rule test moves it
+    }
+    line1 = ModbusRtuSimulator({1: starters["conveyor"], 2: starters["fan"], 4: starters["crusher"]}, pty=True).start()
+    line2 = ModbusRtuSimulator({3: starters["pump"]}, pty=True).start()
+    loop = asyncio.new_event_loop()
+    thread = threading.Thread(target=loop.run_forever, name="opcua-test-loop", daemon=True)
+    thread.start()
+    stop = asyncio.Event()
+    ready: asyncio.Future[OpcUaServer] = loop.create_future()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("STARTERBUS_AUDIT_LOG", str(tmp / "audit.jsonl"))
+        ports = [sim.client_urls()[unit].split("://", 1)[1].split("?", 1)[0] for sim, unit in ((line1, 1), (line2, 3))]
+        config = parse_fleet(fleet_text(*ports), "opcua-test.toml")
+        settings = OpcUaSettings(
+            "opc.tcp://127.0.0.1:0/starterbus", pki_dir=tmp / "pki", users=USERS, anonymous=True, allow_insecure=True
+        )
+
+        async def serve() -> None:
+            try:
+                async with AsyncFleet(config) as fleet, OpcUaServer(fleet, settings) as server:
+                    ready.set_result(server)
+                    await stop.wait()
+            except BaseException as exc:
+                if not ready.done():
+                    ready.set_exception(exc)
+                raise
+
+        task = asyncio.run_coroutine_threadsafe(serve(), loop)
+        try:
+            server = asyncio.run_coroutine_threadsafe(asyncio.wait_for(asyncio.shield(ready), 30), loop).result()
+            yield Rig(loop, server, starters, tmp / "audit.jsonl", tmp / "pki", server.endpoint_url)
+        finally:
+            loop.call_soon_threadsafe(stop.set)
+            task.result(30)
+            loop.call_soon_threadsafe(loop.stop)
+            thread.join(10)
+            loop.close()
+            line2.close()
+            line1.close()
+
+
+def client(rig: Rig, user: str | None = None, password: str | None = None) -> Client:
+    c = Client(rig.url, timeout=10)
+    if user is not None:
+        c.set_user(user)
+        c.set_password(password or "")
+    return c
+
+
+async def secure_client(rig: Rig, mode: ua.MessageSecurityMode, user: str, password: str) -> Client:
+    cert, key = ensure_certificate(rig.pki / "client", CLIENT_URI)
+    c = client(rig, user, password)
+    c.application_uri = CLIENT_URI
+    await c.set_security(SecurityPolicyBasic256Sha256, str(cert), str(key), mode=mode)
+    return c
+
+
+async def ns_node(c: Client, text: str) -> Node:
+    idx = await c.get_namespace_index(NS)
+    return c.get_node(ua.NodeId(text, idx))
+
+
+async def wait_value(node: Node, accept: Callable[[ua.DataValue], bool], timeout: float = 10.0) -> ua.DataValue:
+    """Read until ``accept`` holds (values arrive with the polls)."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while True:
+        value = await node.read_data_value(raise_on_bad_status=False)
+        if accept(value):
+            return value
+        if loop.time() > deadline:
+            raise AssertionError(f"{node}: still {value}")
+        await asyncio.sleep(0.02)  # polling an observable, not synchronising on time
+
+
+def audit(rig: Rig) -> list[dict[str, Any]]:
+    if not rig.audit.exists():
+        return []
+    return [json.loads(line) for line in rig.audit.read_text(encoding="utf-8").splitlines()]
+
+
+# -- browse and read ----------------------------------------------------------------------------------------
+
+
+def test_browse_lines_devices_and_read_measurements_with_units(rig: Rig) -> None:
+    async def scenario() -> None:
+        async with client(rig) as c:  # anonymous, read-only: allowed in this rig
+            idx = await c.get_namespace_index(NS)
+            root = await c.nodes.objects.get_child([f"{idx}:StarterBus"])
+            lines = {(await n.read_browse_name()).Name: n for n in await root.get_children()}
+            assert sorted(lines) == ["line-1", "line-2"]
+            devices = [(await n.read_browse_name()).Name for n in await lines["line-1"].get_children()]
+            assert devices == ["conveyor", "fan", "crusher"]
+            conveyor = await ns_node(c, "conveyor")
+            children = {(await n.read_browse_name()).Name for n in await conveyor.get_children()}
+            assert {"Status", "Measurements", "Parameters", "Identification", "Start", "Stop", "Reset"} <= children
+            protection = await ns_node(c, "conveyor.PtSoftStarterAttributes.MotorOverloadProtectionIntegrated")
+            assert await protection.read_value() is True
+
+            current = await ns_node(c, "conveyor.Measurements.phase_a_current")
+            value = await wait_value(current, lambda v: v.StatusCode is not None and v.StatusCode.is_good())
+            assert value.Value is not None and value.Value.VariantType is ua.VariantType.Double
+            assert value.SourceTimestamp is not None
+            assert abs((datetime.now(timezone.utc) - value.SourceTimestamp).total_seconds()) < 60
+            assert (await current.read_display_name()).Text == "phase A current"
+            assert (await current.read_description()).Locale == "zh-CN"
+            assert await current.read_type_definition() == ua.NodeId(ua.ObjectIds.AnalogItemType)
+            units = await (await current.get_child("0:EngineeringUnits")).read_value()
+            assert (units.UnitId, units.DisplayName.Text) == (4279632, "A")  # UNECE AMP
+
+            limit = await ns_node(c, "conveyor.Parameters.current_limit")
+            eu_range = await (await limit.get_child("0:EURange")).read_value()
+            point = get_profile("jjr5000").point("current_limit")
+            assert (eu_range.Low, eu_range.High) == (
+                point.to_engineering(point.raw_min),
+                point.to_engineering(point.raw_max),
+            )
+            limit_value = await wait_value(limit, lambda v: v.StatusCode is not None and v.StatusCode.is_good())
+            assert limit_value.Value is not None
+            assert limit_value.Value.Value == point.to_engineering(rig.starters["conveyor"].params["current_limit"])
+
+            analog = await ns_node(c, "conveyor.Parameters.start_mode")
+            labels = await (await analog.get_child("0:EnumValues")).read_value()
+            enum = get_profile("jjr5000").point("start_mode").enum
+            assert enum is not None
+            assert [(e.Value, e.DisplayName.Text) for e in labels] == [
+                (k, v.en) for k, v in sorted(enum.labels.items())
+            ]
+            shown = await wait_value(
+                await analog.get_child("0:ValueAsText"), lambda v: v.Value is not None and bool(v.Value.Value.Text)
+            )
+            assert shown.Value is not None and shown.Value.Value.Text in {v.en for v in enum.labels.values()}
+
+            state = await ns_node(c, "fan.Status.State")
+            state_value = await wait_value(state, lambda v: v.StatusCode is not None and v.StatusCode.is_good())
+            assert state_value.Value is not None
+            assert STATES[state_value.Value.Value].value == "ready"
+            enum_type = c.get_node(await state.read_data_type())
+            assert (await enum_type.read_browse_name()).Name == "StarterStateEnum"
+            assert await (await ns_node(c, "fan.Status.Online")).read_value() is True
+
+    rig.run(scenario)
+
+
+def test_offline_device_reads_bad_communication_not_a_stale_value(rig: Rig) -> None:
+    async def scenario() -> None:
+        async with client(rig) as c:
+            online = await ns_node(c, "ghost.Status.Online")
+            await wait_value(
+                online, lambda v: v.Value is not None and v.Value.Value is False and v.StatusCode.is_good()
+            )
+            for text in ("ghost.Status.State", "ghost.Status.FaultCode", "ghost.Measurements.phase_a_current"):
+                value = await (await ns_node(c, text)).read_data_value(raise_on_bad_status=False)
+                assert value.StatusCode is not None
+                assert value.StatusCode.value == ua.StatusCodes.BadCommunicationError, text
+                assert value.Value is None or value.Value.Value is None
+            assert await (await ns_node(c, "ghost.Status.LastError")).read_value() != ""
+
+    rig.run(scenario)
+
+
+# -- subscriptions ------------------------------------------------------------------------------------------
+
+
+class Changes:
+    def __init__(self) -> None:
+        self.queue: asyncio.Queue[ua.DataValue] = asyncio.Queue()
+
+    def datachange_notification(self, node: Node, val: Any, data: Any) -> None:
+        self.queue.put_nowait(data.monitored_item.Value)
+
+
+def test_subscription_sees_the_current_change_poll_by_poll(rig: Rig) -> None:
+    pump = rig.starters["pump"]
+
+    async def scenario() -> None:
+        async with client(rig, "viewer", "view-secret") as c:
+            handler = Changes()
+            sub = await c.create_subscription(50, handler)
+            await sub.subscribe_data_change(await ns_node(c, "pump.Measurements.phase_a_current"))
+            first = await asyncio.wait_for(handler.queue.get(), 10)  # the current value, at once
+            assert first.Value is not None
+            pump.start()  # on the simulator itself: the ramp makes the current rise poll after poll
+            seen: list[ua.DataValue] = []
+            while len({v.Value.Value for v in seen if v.Value is not None}) < 3:
+                seen.append(await asyncio.wait_for(handler.queue.get(), 10))
+            stamps = [v.SourceTimestamp for v in seen]
+            assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
+            assert all(v.StatusCode is not None and v.StatusCode.is_good() for v in seen)
+            await sub.delete()
+
+    rig.run(scenario)
+
+
+# -- methods and writes -------------------------------------------------------------------------------------
+
+
+def test_operator_starts_and_stops_over_sign_and_encrypt_audited_as_opcua_user(rig: Rig) -> None:
+    conveyor = rig.starters["conveyor"]
+
+    async def scenario() -> None:
+        c = await secure_client(rig, ua.MessageSecurityMode.SignAndEncrypt, "op", "op-secret")
+        async with c:
+            device = await ns_node(c, "conveyor")
+            idx = device.nodeid.NamespaceIndex
+            reached = await device.call_method(f"{idx}:Start")
+            assert reached in {"starting", "running"}
+            assert conveyor.phase.value in {"starting", "running"}
+            assert await device.call_method(f"{idx}:Stop") in {"stopping", "ready", "stopped"}
+            last = await (await ns_node(c, "conveyor.Status.LastOperation")).read_value()
+            assert last.startswith("opcua:op stop: ok")
+
+            fan = await ns_node(c, "fan")  # the fleet file enables nothing for the fan
+            with pytest.raises(ua.uaerrors.BadNotExecutable):
+                await fan.call_method(f"{idx}:Start")
+            reason = await (await ns_node(c, "fan.Status.LastOperation")).read_value()
+            assert "does not allow the command 'start'" in reason
+            executable = await (await fan.get_child(f"{idx}:Start")).read_attribute(ua.AttributeIds.Executable)
+            assert executable.Value is not None and executable.Value.Value is False
+
+    rig.run(scenario)
+    assert rig.starters["fan"].phase.value != "starting"
+    entries = [(e["actor"], e["command"], e["result"]) for e in audit(rig) if e.get("command")]
+    assert ("opcua:op", "start", "ok") in entries and ("opcua:op", "stop", "ok") in entries
+
+
+def test_writes_only_after_read_back_and_refusals_as_status_codes(rig: Rig) -> None:
+    conveyor = rig.starters["conveyor"]
+    point = get_profile("jjr5000").point("current_limit")
+    target = next(
+        point.to_engineering(raw)
+        for raw in range(point.raw_min, point.raw_max + 1)
+        if raw != conveyor.params["current_limit"]
+    )
+
+    async def scenario() -> None:
+        c = await secure_client(rig, ua.MessageSecurityMode.Sign, "op", "op-secret")
+        async with c:
+            limit = await ns_node(c, "conveyor.Parameters.current_limit")
+            await limit.write_value(ua.DataValue(ua.Variant(float(target), ua.VariantType.Double)))
+            assert await limit.read_value() == target  # the read-back, at once
+            with pytest.raises(ua.uaerrors.BadOutOfRange):
+                await limit.write_value(ua.DataValue(ua.Variant(99999.0, ua.VariantType.Double)))
+            assert await limit.read_value() == target
+            reason = await (await ns_node(c, "conveyor.Status.LastOperation")).read_value()
+            assert "out of range" in reason
+            for text in ("conveyor.Parameters.ramp_time", "conveyor.Measurements.phase_a_current"):
+                with pytest.raises(ua.uaerrors.BadNotWritable):
+                    await (await ns_node(c, text)).write_value(ua.DataValue(ua.Variant(1.0, ua.VariantType.Double)))
+
+    rig.run(scenario)
+    assert point.to_engineering(conveyor.params["current_limit"]) == target
+    writes = [(e["actor"], e["key"], e["result"]) for e in audit(rig) if e.get("key")]
+    assert writes[-1] == ("opcua:op", "current_limit", "ok")
+
+
+def test_parameter_locked_while_running_is_refused_with_bad_invalid_state(rig: Rig) -> None:
+    crusher = rig.starters["crusher"]
+    before = dict(crusher.params)
+    crusher.start()  # on the simulator: JJR8000 locks ramp_time while the motor runs
+
+    async def scenario() -> None:
+        c = await secure_client(rig, ua.MessageSecurityMode.SignAndEncrypt, "op", "op-secret")
+        async with c:
+            state = await ns_node(c, "crusher.Status.State")
+            running = {"starting", "running"}
+            await wait_value(state, lambda v: v.Value is not None and STATES[v.Value.Value].value in running)
+            ramp = await ns_node(c, "crusher.Parameters.ramp_time")
+            with pytest.raises(ua.uaerrors.BadInvalidState):
+                await ramp.write_value(ua.DataValue(ua.Variant(20.0, ua.VariantType.Double)))
+            reason = await (await ns_node(c, "crusher.Status.LastOperation")).read_value()
+            assert "stop the motor first; nothing sent" in reason
+
+    try:
+        rig.run(scenario)
+    finally:
+        crusher.soft_stop()
+    assert crusher.params == before
+
+
+@pytest.mark.parametrize("who", ["anonymous", "viewer"])
+def test_anonymous_and_read_only_users_cannot_call_or_write(rig: Rig, who: str) -> None:
+    conveyor = rig.starters["conveyor"]
+    before = dict(conveyor.params), conveyor.phase
+    entries = len(audit(rig))
+
+    async def scenario() -> None:
+        c = client(rig) if who == "anonymous" else client(rig, "viewer", "view-secret")
+        async with c:
+            device = await ns_node(c, "conveyor")
+            with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+                await device.call_method(f"{device.nodeid.NamespaceIndex}:Start")
+            limit = await ns_node(c, "conveyor.Parameters.current_limit")
+            with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+                await limit.write_value(ua.DataValue(ua.Variant(400.0, ua.VariantType.Double)))
+
+    rig.run(scenario)
+    assert (dict(conveyor.params), conveyor.phase) == before
+    assert len(audit(rig)) == entries
+
+
+def test_wrong_password_is_refused(rig: Rig) -> None:
+    async def scenario() -> None:
+        with pytest.raises(ua.uaerrors.BadUserAccessDenied):
+            async with client(rig, "op", "wrong"):
+                pass
+
+    rig.run(scenario)
