@@ -76,7 +76,17 @@ def demo_remote(config: FleetConfig) -> FleetConfig:
     return dataclasses.replace(config, buses=tuple(buses), devices_by_name=devices)
 
 
+def _need_asyncua() -> None:
+    try:
+        import asyncua  # noqa: F401
+    except ImportError:
+        raise ConfigurationError(
+            "the OPC UA server needs asyncua, an optional part: pip install 'starterbus[opcua]'"
+        ) from None
+
+
 def cmd_opcua(args: argparse.Namespace) -> int:
+    _need_asyncua()
     from starterbus.opcua.server import OpcUaSettings
     from starterbus.opcua.users import load_users
 
@@ -125,6 +135,7 @@ async def _serve(config: FleetConfig, settings: object, duration: float | None) 
 
 
 def cmd_opcua_user(args: argparse.Namespace) -> int:
+    _need_asyncua()
     from starterbus.opcua.users import Role, UserEntry, dump_users, hash_password, load_users
 
     path = Path(args.users)
