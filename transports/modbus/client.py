@@ -84,10 +84,7 @@ class ModbusRtuTransport(Transport):
     # -- lifecycle ------------------------------------------------------------------------------------------
 
     def _connect(self) -> Link:
-        cfg = self.config
-        if cfg.variant == "tcp":
-            return Link.connect_tcp(cfg.host, cfg.port, max(cfg.policy.timeout, 1.0))
-        return Link.open_serial(cfg.path, cfg.serial)
+        return self.config.connect()
 
     def _make_line(self) -> RtuLine:
         return RtuLine(self._connect, self.config.serial)
