@@ -171,14 +171,13 @@ class RtuLine:
         error = guard.answer_complete(len(exchange.frame), answer, at)
         if error is not None:
             raise error
-        if self.link.wait_readable(guard.trail_until - at):
-            try:
-                extra = self.link.take_input()
-            except TransportError:  # the connection closed after the answer: no byte followed it
-                self._broken = True
-                extra = b""
-            if extra:
-                raise guard.trailing(answer, extra)
+        try:
+            extra = self.link.take_input() if self.link.wait_readable(guard.trail_until - at) else b""
+        except TransportError:  # the connection closed after the answer: no byte followed it
+            self._broken = True
+            extra = b""
+        if extra:
+            raise guard.trailing(answer, extra)
         guard.delivered()
         return response
 
