@@ -6,7 +6,8 @@ the guard the times (monotonic seconds) and the bytes it saw:
 
 1. **Silence before every request.** The next request starts only when the line has been silent for the silent
    interval (3.5 characters) since the last byte, and input is discarded just before the send: bytes found
-   then are stray (rule 2).
+   then are stray (rule 2). Input found empty less than one character time before the send (the silence
+   after the last answer, when the next request follows at once) counts as discarded.
 2. **Quarantine after any fault.** After a timeout, a bad frame (CRC, wrong unit, function, byte count or
    length), garbage or a suspect answer, the line must stay silent for the quarantine (at least the response
    timeout) before the next request: long enough that a late answer to the failed request can no longer
@@ -40,14 +41,17 @@ class LineGuard:
     :attr:`trail_until` for :meth:`trailing` bytes, and :meth:`delivered`; or :meth:`failed`."""
 
     __slots__ = (
-        "hold", "last_stray", "min_char_time", "quarantines", "quiet_at", "silence", "started", "stray_bytes",
-        "trail_until",
+        "checked_at", "fresh", "hold", "last_stray", "min_char_time", "quarantines", "quiet_at", "silence", "started",
+        "stray_bytes", "trail_until",
     )  # fmt: skip
 
-    def __init__(self, silence: float, min_char_time: float = 0.0) -> None:
+    def __init__(self, silence: float, min_char_time: float = 0.0, fresh: float = 0.0) -> None:
         """``silence``: the silent interval; ``min_char_time``: the shortest time a character can take on the
-        wire (0 turns the wire-time rule off: pty, TCP)."""
+        wire (0 turns the wire-time rule off: pty, TCP); ``fresh``: for how long input found empty counts as
+        discarded (one character time)."""
         self.silence = silence
+        self.fresh = fresh
+        self.checked_at = -1e300  # when the input was last found empty
         self.min_char_time = min_char_time * WIRE_TOLERANCE
         self.quiet_at = 0.0  # the next request may start at this time
         self.hold = 0.0  # the quarantine in force (0: the line is healthy)
@@ -66,6 +70,14 @@ class LineGuard:
     def send_wait(self, now: float) -> float:
         """Seconds to wait before the next request may start (0 or less: it may start now)."""
         return self.quiet_at - now
+
+    def found_empty(self, now: float) -> None:
+        """The driver waited until ``now`` and no byte came."""
+        self.checked_at = now
+
+    def must_discard(self, now: float) -> bool:
+        """True unless the input was found empty within the last :attr:`fresh` seconds."""
+        return now - self.checked_at > self.fresh
 
     def stray(self, data: bytes, now: float, quarantine: float) -> None:
         """Bytes that answer no request (seen while waiting to send, or found when input is discarded): the line
@@ -113,7 +125,7 @@ class LineGuard:
 
     def delivered(self) -> None:
         """The answer was followed by silence until :attr:`trail_until`: the line is healthy again."""
-        self.quiet_at = self.trail_until
+        self.quiet_at = self.checked_at = self.trail_until
         self.hold = 0.0
 
     def failed(self, now: float, quarantine: float) -> None:

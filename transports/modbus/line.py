@@ -43,7 +43,7 @@ class RtuLine:
         self.char_time = char_time(settings.baudrate)
         self._silence = settings.silence
         check = settings.wire_check if settings.wire_check is not None else self.link.real_serial
-        self.guard = LineGuard(settings.silence, settings.min_char_time if check else 0.0)
+        self.guard = LineGuard(settings.silence, settings.min_char_time if check else 0.0, self.char_time)
         self.transactions = 0
         self.retries = 0
         self.requests = 0  # frames written
@@ -91,13 +91,18 @@ class RtuLine:
                     )
                 ready = link.wait_readable(min(wait, give_up - now))
                 data = link.take_input() if ready else b""
+                now = clock()
+                if not data:
+                    guard.found_empty(now)
+                    continue
+            elif not guard.must_discard(now):  # found empty a moment ago (the silence after the last answer)
+                return now
             else:
                 data = link.take_input()  # input is discarded before each send
                 if not data:
                     return now
-            now = clock()
-            if data:
-                guard.stray(data, now, exchange.quarantine)
+                now = clock()
+            guard.stray(data, now, exchange.quarantine)
 
     def prepare(self, request: Request, policy: TransactionPolicy) -> Exchange:
         """``request`` made ready for :meth:`run` (encoded and checked: an invalid request raises here)."""
