@@ -156,3 +156,64 @@ def test_pyserial_socket_url_against_a_local_listener() -> None:
         thread.join(timeout=5)
         server.close()
     assert received == [READ] * 3
+
+
+@pytest.mark.filterwarnings("ignore::DeprecationWarning")  # pyserial's rfc2217 client: setDaemon, setName
+def test_pyserial_rfc2217_url_against_a_local_port_server(peer: PtyPeer) -> None:
+    """``modbus-rtu+rfc2217://``: a small RFC 2217 server (pyserial's PortManager) in front of a pty whose other
+    end is the scripted device; a good answer is a value, trailing bytes make the answer suspect."""
+    import serial
+    from serial import rfc2217
+
+    peer.serve([GOOD, GOOD + b"\x00", GOOD])
+    port = serial.Serial(peer.path, timeout=0.01)
+    server = socket.create_server(("127.0.0.1", 0))
+    stop = threading.Event()
+
+    def serve() -> None:
+        conn, _ = server.accept()
+        conn.settimeout(0.01)
+
+        class Connection:  # what PortManager writes its telnet answers to
+            write = conn.sendall
+
+        class Uart:  # the settings the client negotiates (a pty has no baud rate and no modem lines)
+            baudrate, bytesize, parity, stopbits = 9600, 8, "N", 1
+            rts = dtr = break_condition = rtscts = xonxoff = cts = dsr = ri = cd = False
+
+            def reset_input_buffer(self) -> None:
+                port.reset_input_buffer()
+
+            def reset_output_buffer(self) -> None:
+                port.reset_output_buffer()
+
+        manager = rfc2217.PortManager(Uart(), Connection())
+        with conn:
+            while not stop.is_set():
+                data = port.read(64)
+                if data:
+                    conn.sendall(b"".join(manager.escape(data)))
+                try:
+                    received = conn.recv(64)
+                except TimeoutError:
+                    continue
+                if not received:
+                    return
+                port.write(b"".join(manager.filter(received)))
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        url = f"modbus-rtu+rfc2217://127.0.0.1:{server.getsockname()[1]}?unit=2&timeout=0.3&retries=0"
+        with open_device(url, "jjr5000") as device:
+            assert isinstance(_link(device), PySerialLink)
+            assert device.read_value("motor_rated_current").value == 390
+            with pytest.raises(DecodeError, match="suspect"):
+                device.read("motor_rated_current")
+            assert device.read_value("motor_rated_current").value == 390
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+        server.close()
+        port.close()
+    assert peer.received == [READ] * 3
