@@ -9,10 +9,10 @@ pieces, late (after the master's deadline, by a varying margin), late and split,
 followed by trailing bytes, preceded by garbage, with a bad CRC, from another unit, an exception, or none.
 
 The peer stays inside the fault model the master's rules are built for: a late answer arrives before the
-master's quarantine can have ended (up to 0.7 of the quarantine after the master's deadline, as the peer
-reckons it from the request's arrival; the rest covers the peer's wake-up latency). If the peer was held up
-beyond that (a loaded machine), it skips the bytes and counts them in :attr:`SequencePeer.skipped` instead of
-breaking the model.
+master's quarantine can have ended (up to 0.7 of the quarantine after the master's deadline, reckoned from
+when the master wrote the request: :meth:`SequencePeer.watch` records it; the rest is slack for the moment
+between the peer's last look at the clock and its write). If the peer was held up beyond that (a loaded
+machine), it skips the bytes and counts them in :attr:`SequencePeer.skipped` instead of breaking the model.
 """
 
 from __future__ import annotations
@@ -53,10 +53,21 @@ class SequencePeer:
         self.char_time = char_time(baudrate)
         self.rng = random.Random(seed)
         self.requests: list[tuple[int, int]] = []  # (address, count) by sequence number
+        self.sent_at: list[float] = []  # when the master wrote each request (see watch)
         self.skipped = 0
         self.sent_faults: dict[str, int] = {}
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="sequence peer", daemon=True)
+
+    def watch(self, link: object) -> None:
+        """Record when ``link`` (the master's) writes each request, just before it does."""
+        write = link.write  # type: ignore[attr-defined]
+
+        def recorded(data: bytes) -> None:
+            self.sent_at.append(time.monotonic())
+            write(data)
+
+        link.write = recorded  # type: ignore[attr-defined]
 
     def start(self) -> SequencePeer:
         self._thread.start()
@@ -98,7 +109,8 @@ class SequencePeer:
         fault, x = self.schedule[seq % len(self.schedule)]
         answer = answer_for(seq, unit, count)
         # the master gives up at its deadline (request and answer wire time + timeout) and then quarantines
-        deadline = arrival + (8 + len(answer)) * self.char_time + self.timeout
+        sent = self.sent_at[seq] if seq < len(self.sent_at) else arrival
+        deadline = sent + (8 + len(answer)) * self.char_time + self.timeout
         latest = deadline + 0.7 * self.quarantine  # the model's bound for any byte about this request
         pieces: list[bytes | float] = []
         if fault == "ok":
