@@ -245,3 +245,14 @@ def test_replay_random_fault_schedules_never_return_a_foreign_value(schedule: li
         values += 1
     if any(fault in ("ok", "split") for fault, _ in schedule):
         assert values
+
+
+def test_send_now_only_right_after_a_silence_that_was_watched() -> None:
+    guard = LineGuard(SILENCE, fresh=0.0005)
+    assert not guard.send_now(1.0)  # nothing watched yet: the driver discards the input first
+    guard.sent(1.0)
+    assert guard.answer_complete(8, b"x" * 7, 1.01) is None
+    guard.delivered()
+    assert not guard.send_now(1.01 + SILENCE / 2)  # the silence is not over
+    assert guard.send_now(1.01 + SILENCE + 0.0004) and guard.started == 1.01 + SILENCE + 0.0004
+    assert not guard.send_now(1.01 + SILENCE + 0.001)  # watched too long ago: discard first

@@ -75,6 +75,14 @@ class LineGuard:
         """The driver waited until ``now`` and no byte came."""
         self.checked_at = now
 
+    def send_now(self, now: float) -> bool:
+        """The usual case in one call: True (and the request counts as started at ``now``) if it may start now
+        without waiting or discarding input; False: the driver waits (:meth:`send_wait`) and discards."""
+        if self.quiet_at <= now and now - self.checked_at <= self.fresh:
+            self.started = now
+            return True
+        return False
+
     def must_discard(self, now: float) -> bool:
         """True unless the input was found empty within the last :attr:`fresh` seconds."""
         return now - self.checked_at > self.fresh

@@ -131,18 +131,20 @@ class RtuLine:
 
     def _attempts(self, exchange: Exchange) -> Response | None:
         attempts = exchange.attempts
+        guard = self.guard
         for attempt in range(1, attempts + 1):
-            self.guard.sent(self._wait_quiet(exchange))
+            if not guard.send_now(self._clock()):
+                guard.sent(self._wait_quiet(exchange))
             self.link.write(exchange.frame)
             sent_at = self._clock()
             self.requests += 1
             if exchange.broadcast:
-                self.guard.broadcast_sent(sent_at, exchange.wire, exchange.policy.turnaround)
+                guard.broadcast_sent(sent_at, exchange.wire, exchange.policy.turnaround)
                 return None
             try:
                 return self._receive(exchange, sent_at)
             except (TimeoutError, DecodeError) as exc:
-                self.guard.failed(self._clock(), exchange.quarantine)  # the next request waits the quarantine
+                guard.failed(self._clock(), exchange.quarantine)  # the next request waits the quarantine
                 if attempt == attempts:
                     note = f" (attempt {attempt} of {attempts}"
                     note += ")" if exchange.may_retry else "; a write is not repeated unless retry_writes=1)"
