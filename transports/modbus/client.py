@@ -81,6 +81,19 @@ def value_positions(addresses: Sequence[int], plan: Sequence[tuple[int, int]]) -
     return tuple(position[address] for address in addresses)
 
 
+class _KnownPoints:
+    """A list of points read before: the prepared requests that read them, where each value is in their answers,
+    and the last words read with the readings made of them."""
+
+    __slots__ = ("exchanges", "last", "points", "positions")
+
+    def __init__(self, points: tuple[PointDef, ...], exchanges: list[Exchange], positions: tuple[int, ...]) -> None:
+        self.points = points  # held, so that their ids stay theirs
+        self.exchanges = exchanges
+        self.positions = positions
+        self.last: tuple[tuple[int, ...], tuple[Reading, ...]] = ((), ())
+
+
 class ModbusRtuTransport(Transport):
     name = TRANSPORT
 
@@ -100,14 +113,12 @@ class ModbusRtuTransport(Transport):
         self._plans: dict[tuple[int, ...], tuple[list[tuple[int, int]], tuple[int, ...]]] = {}
         self.poll_plans = PollPlans(profile, self.max_read, self.config.serial.baudrate, self.config.serial.silence)
         self._counters = TransportCounters()
+        self._points: dict[tuple[int, ...], _KnownPoints] = {}  # ids of the points asked for -> their requests
 
     # -- lifecycle ------------------------------------------------------------------------------------------
 
     def _connect(self) -> Link:
-        cfg = self.config
-        if cfg.variant == "tcp":
-            return Link.connect_tcp(cfg.host, cfg.port, max(cfg.policy.timeout, 1.0))
-        return Link.open_serial(cfg.path, cfg.serial)
+        return self.config.connect()
 
     def _make_line(self) -> RtuLine:
         return RtuLine(self._connect, self.config.serial)
@@ -227,13 +238,34 @@ class ModbusRtuTransport(Transport):
         return address
 
     def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
+        key = tuple(map(id, points))  # the profile's point objects live as long as the transport
+        known = self._points.get(key) or self._point_requests(points, key)
+        values: tuple[int, ...] = ()
+        for exchange in known.exchanges:
+            response = self._run(exchange)
+            assert isinstance(response, ReadResponse)
+            values += response.values
+        last_values, last_readings = known.last
+        if values == last_values:  # the same words: the same (immutable) readings
+            return list(last_readings)
+        readings = [Reading(point, values[i]) for point, i in zip(known.points, known.positions, strict=True)]
+        known.last = (values, tuple(readings))  # one assignment: another thread sees the old pair or the new one
+        return readings
+
+    def _point_requests(self, points: Sequence[PointDef], key: tuple[int, ...]) -> _KnownPoints:
         self._no_broadcast_reads()
         addresses = tuple(self._address(p) for p in points)
         plan, positions = self._plans.get(addresses) or self._plan(addresses)
-        values: tuple[int, ...] = ()
-        for start, count in plan:
-            values += self.read_registers(start, count)
-        return [Reading(point, values[i]) for point, i in zip(points, positions, strict=True)]
+        exchanges = [
+            self._reads.get((start, count))
+            or self._prepare(self._reads, (start, count), ReadRequest(self.unit, start, count))
+            for start, count in plan
+        ]
+        known = _KnownPoints(tuple(points), exchanges, positions)
+        if len(self._points) >= CACHE_SIZE:
+            self._points.clear()
+        self._points[key] = known
+        return known
 
     def _plan(self, addresses: tuple[int, ...]) -> tuple[list[tuple[int, int]], tuple[int, ...]]:
         plan = plan_reads(addresses, self.max_read)

@@ -1,7 +1,9 @@
 """Device URL -> typed settings of a Modbus RTU device.
 
 ``modbus-rtu:///dev/ttyUSB0?unit=2&baudrate=9600&parity=E&stopbits=1&timeout=0.3&retries=2`` (serial port or
-pty path) and ``modbus-rtu+tcp://HOST:PORT?unit=2`` (RTU frames passed through a serial device server).
+pty path), ``modbus-rtu://COM3?unit=2`` (a Windows COM port), ``modbus-rtu+tcp://HOST:PORT?unit=2`` (RTU frames
+passed through a serial device server), and pyserial's URL handlers: ``modbus-rtu+rfc2217://HOST:PORT?unit=2``
+(``rfc2217://HOST:PORT``) and ``modbus-rtu+socket://HOST:PORT?unit=2`` (``socket://HOST:PORT``).
 Every parameter is documented in ``docs/modbus.md``; unknown ones are errors.
 """
 
@@ -13,43 +15,62 @@ from dataclasses import dataclass
 from starterbus.core.errors import ConfigurationError
 from starterbus.core.profile import Profile
 from starterbus.core.url import DeviceUrl
+from starterbus.transports.modbus.exchange import TransactionPolicy
 from starterbus.transports.modbus.frames import BROADCAST, MAX_UNIT
-from starterbus.transports.modbus.line import SerialSettings, TransactionPolicy
+from starterbus.transports.modbus.link import Link, PySerialLink, SerialSettings, com_port
 from starterbus.transports.modbus.slave import TRANSPORT
 from starterbus.transports.modbus.timing import silent_interval
 
 URL_PARAMETERS = (
     "unit", "baudrate", "parity", "stopbits", "bytesize", "timeout", "retries", "retry_writes", "silence",
-    "turnaround",
+    "turnaround", "quarantine", "io", "wire_check",
 )  # fmt: skip
 DEFAULT_TIMEOUT = 0.5
 DEFAULT_RETRIES = 2
 DEFAULT_TURNAROUND = 0.1
-VARIANTS = ("", "tcp")
+VARIANTS = ("", "tcp", "rfc2217", "socket")
+PYSERIAL_URL_VARIANTS = ("rfc2217", "socket")  # variant = the pyserial URL scheme
+IO_CHOICES = ("auto", "posix", "pyserial")
+WIRE_CHECK_CHOICES = {"auto": None, "on": True, "off": False}
 
 
 @dataclass(frozen=True, slots=True)
 class ModbusRtuConfig:
     """Everything a URL says about one Modbus RTU device."""
 
-    variant: str  # "" (serial port / pty) or "tcp"
-    path: str  # serial port path ("" for tcp)
+    variant: str  # "" (serial port / pty / COM port), "tcp", or a pyserial URL scheme (rfc2217, socket)
+    path: str  # serial port path or COM port name ("" otherwise)
     host: str
     port: int
     unit: int
     serial: SerialSettings
     policy: TransactionPolicy
+    io: str = "posix"  # serial ports: "posix" (select + os.read on the descriptor) or "pyserial"
 
     @property
     def line_key(self) -> tuple[str, str, int]:
         """What identifies the physical line, for sharing it between devices of one process."""
-        if self.variant == "tcp":
-            return ("tcp", self.host, self.port)
-        return ("serial", os.path.realpath(self.path), 0)
+        if self.variant:
+            return (self.variant, self.host, self.port)
+        return ("serial", self.path if com_port(self.path) else os.path.realpath(self.path), 0)
 
     @property
     def target(self) -> str:
-        return f"{self.host}:{self.port}" if self.variant == "tcp" else self.path
+        if self.variant == "tcp":
+            return f"{self.host}:{self.port}"
+        if self.variant:
+            return f"{self.variant}://{self.host}:{self.port}"
+        return self.path
+
+    def connect(self) -> Link:
+        """Open the port or connection: the POSIX fast path where it applies, else pyserial."""
+        if self.variant == "tcp":
+            return Link.connect_tcp(self.host, self.port, max(self.policy.timeout, 1.0))
+        if self.variant:
+            return PySerialLink.open(self.target, self.serial, url=True)
+        if self.io == "pyserial":
+            return PySerialLink.open(self.path, self.serial)
+        return Link.open_serial(self.path, self.serial)
 
     @property
     def broadcast(self) -> bool:
@@ -60,22 +81,22 @@ class ModbusRtuConfig:
         url.check_known(URL_PARAMETERS)
         if url.variant not in VARIANTS:
             raise ConfigurationError(
-                f"{url.text}: unknown variant {url.scheme!r} (use modbus-rtu:///dev/ttyUSB0 or modbus-rtu+tcp://HOST:PORT)"
+                f"{url.text}: unknown variant {url.scheme!r} (use modbus-rtu:///dev/ttyUSB0, modbus-rtu://COM3, "
+                "modbus-rtu+tcp://HOST:PORT, modbus-rtu+rfc2217://HOST:PORT or modbus-rtu+socket://HOST:PORT)"
             )
         settings = profile.transport_settings(TRANSPORT)
         path, host, port = "", "", 0
-        if url.variant == "tcp":
+        if url.variant:
             host, port = url.host_port()
             if url.path not in ("", "/"):
-                raise ConfigurationError(f"{url.text}: a modbus-rtu+tcp URL has no path (got {url.path!r})")
+                raise ConfigurationError(f"{url.text}: a {url.scheme} URL has no path (got {url.path!r})")
         else:
-            if url.host:
-                raise ConfigurationError(
-                    f"{url.text}: a serial URL has no host; write three slashes: modbus-rtu:///dev/ttyUSB0"
-                )
-            path = url.path
-            if not path or path == "/":
-                raise ConfigurationError(f"{url.text}: no serial port path (e.g. modbus-rtu:///dev/ttyUSB0?unit=2)")
+            path = serial_path(url)
+        io = url.get_str("io", "auto", IO_CHOICES)
+        if io != "auto" and url.variant:
+            raise ConfigurationError(f"{url.text}: io: applies to serial ports only (not {url.scheme})")
+        if io == "auto":
+            io = "posix" if os.name == "posix" else "pyserial"
 
         unit = url.get_int("unit", None, 0, MAX_UNIT) if "unit" in url.query else None
         if unit is None:
@@ -102,11 +123,20 @@ class ModbusRtuConfig:
         stopbits = url.get_int("stopbits", 1, 1, 2)
         bytesize = url.get_int("bytesize", 8, 8, 8)
         silence = url.get_float("silence", silent_interval(baudrate), 0.0, 1.0)
+        wire_check = WIRE_CHECK_CHOICES[url.get_str("wire_check", "auto", WIRE_CHECK_CHOICES)]
+        timeout = url.get_float("timeout", DEFAULT_TIMEOUT, 0.001, 60.0)
+        quarantine = url.get_float("quarantine", timeout, 0.0, 600.0)
+        if quarantine < timeout:
+            raise ConfigurationError(
+                f"{url.text}: quarantine: {quarantine:g} s is shorter than the response timeout {timeout:g} s "
+                "(a late answer could still arrive after it)"
+            )
         policy = TransactionPolicy(
-            timeout=url.get_float("timeout", DEFAULT_TIMEOUT, 0.001, 60.0),
+            timeout=timeout,
             retries=url.get_int("retries", DEFAULT_RETRIES, 0, 10),
             retry_writes=url.get_bool("retry_writes", False),
             turnaround=url.get_float("turnaround", DEFAULT_TURNAROUND, 0.0, 10.0),
+            quarantine=quarantine,
         )
         return cls(
             variant=url.variant,
@@ -114,6 +144,26 @@ class ModbusRtuConfig:
             host=host,
             port=port,
             unit=unit,
-            serial=SerialSettings(baudrate, parity, stopbits, bytesize, silence),
+            serial=SerialSettings(baudrate, parity, stopbits, bytesize, silence, wire_check),
             policy=policy,
+            io=io,
         )
+
+
+def serial_path(url: DeviceUrl) -> str:
+    """The port of a serial URL: a path (three slashes) or a Windows COM port (``modbus-rtu://COM3``,
+    ``modbus-rtu:///COM3``)."""
+    if url.host:
+        name = com_port(url.host)
+        if name is None or url.port is not None or url.path not in ("", "/"):
+            raise ConfigurationError(
+                f"{url.text}: a serial URL has no host; write three slashes (modbus-rtu:///dev/ttyUSB0) "
+                "or a COM port (modbus-rtu://COM3)"
+            )
+        return name
+    name = com_port(url.path)
+    if name is not None:
+        return name
+    if not url.path or url.path == "/":
+        raise ConfigurationError(f"{url.text}: no serial port path (e.g. modbus-rtu:///dev/ttyUSB0?unit=2)")
+    return url.path

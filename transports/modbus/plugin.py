@@ -1,4 +1,4 @@
-"""Entry point of the ``modbus-rtu`` transport (and its ``modbus-rtu+tcp`` variant)."""
+"""Entry point of the ``modbus-rtu`` transport (and its ``+tcp``, ``+rfc2217`` and ``+socket`` variants)."""
 
 from __future__ import annotations
 
@@ -35,7 +35,10 @@ class ModbusRtuPlugin(TransportPlugin):
     capabilities = ALL_CAPABILITIES
     url_forms = (
         "modbus-rtu:///dev/ttyUSB0?unit=2&baudrate=9600&parity=E&stopbits=1&timeout=0.3&retries=2",
+        "modbus-rtu://COM3?unit=2",
         "modbus-rtu+tcp://HOST:PORT?unit=2",
+        "modbus-rtu+rfc2217://HOST:PORT?unit=2",
+        "modbus-rtu+socket://HOST:PORT?unit=2",
     )
 
     def open(self, url: DeviceUrl, profile: Profile) -> Transport:

@@ -30,7 +30,7 @@ from starterbus.core.errors import ConfigurationError, DecodeError
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.transport import RunningSimulator
 from starterbus.transports.modbus.frames import AnyRequest
-from starterbus.transports.modbus.line import Link, SerialSettings
+from starterbus.transports.modbus.link import Link, SerialSettings
 from starterbus.transports.modbus.receiver import NEED_DATA, RequestReceiver
 from starterbus.transports.modbus.slave import TRANSPORT, SlaveLogic
 from starterbus.transports.modbus.timing import silent_interval
