@@ -107,7 +107,7 @@ class OptionValues(Mapping[str, object]):
 def resolve_options(declared: Sequence[PluginOption], given: Mapping[str, object], what: str = "") -> OptionValues:
     """Check ``given`` against ``declared``: unknown names refused, values converted and checked, defaults filled.
 
-    ``what`` names the plugin in errors (``"devicenet simulator"``). An option whose value is None counts as
+    ``what`` names the plugin in errors (``"acme simulator"``). An option whose value is None counts as
     not given (the command line's way of saying so).
     """
     by_name = {option.name: option for option in declared}
