@@ -122,6 +122,7 @@ def plugins(tmp_path_factory: pytest.TempPathFactory, third_party: Any) -> Itera
         acme-typed = acme_plugins:TYPED
         acme-legacy = acme_plugins:LEGACY
         acme-legacy-clash = acme_plugins:LEGACY_CLASH
+        acme-missing = acme_plugins:NOT_THERE
         """,
         {"__init__.py": PLUGINS},
     )
@@ -145,10 +146,11 @@ def test_clashing_plugins_are_reported_and_the_others_simulate(plugins: Path, th
     assert "acme-typed: here speed 7 units [2]" in out
     assert "acme-legacy: there units [2] jjr8000 x1" in out
     warned = _warnings(done.stderr)
-    assert set(warned) == {"acme-clash", "acme-broken", "acme-legacy-clash"}
+    assert set(warned) == {"acme-clash", "acme-broken", "acme-legacy-clash", "acme-missing"}
     assert "--mac is already devicenet's" in warned["acme-clash"]
     assert "declaration exploded" in warned["acme-broken"]
     assert "--modbus-rtu is already modbus-rtu's" in warned["acme-legacy-clash"]
+    assert "NOT_THERE" in warned["acme-missing"]
 
 
 def test_help_lists_each_plugin_in_its_own_group(plugins: Path, third_party: Any) -> None:
