@@ -6,36 +6,69 @@ import argparse
 import re
 import sys
 from collections.abc import Iterable
+from typing import Any
 
 from starterbus.cli.output import emit_json, table
-from starterbus.core.errors import ConfigurationError
+from starterbus.cli.plugin_args import ARGPARSE, OptionMapper, declared, plugin_order, warn
+from starterbus.core.errors import ConfigurationError, PluginError, StarterbusError
 from starterbus.core.registry import get_profile, get_transport, transports
+from starterbus.core.transport import Annotation, TransportPlugin
+
+#: what ``decode NAME`` itself defines; a plugin's options must leave these alone
+_OWN_FLAGS = ("-h", "--help", "--model", "--json", "--file", "-f")
+_OWN_DESTS = ("help", "model", "json", "file", "data", "protocol", "handler", "command_name", "plugin_args")
 
 
 def add_subparsers(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="protocol", required=True, metavar="PROTOCOL")
-    for entry in transports.load_all():
+    for entry in plugin_order(transports.load_all()):
         plugin = entry.loaded
-        if plugin is None or not plugin.has_decoder:
+        if plugin is None:
+            warn(f"transport plugin {entry.name!r} left out: {entry.error}")
             continue
-        p = sub.add_parser(plugin.name, help=f"decode {plugin.name} frames")
-        p.add_argument("--model", default=None, help="device model, for names and engineering values")
-        p.add_argument("--json", action="store_true", help="machine-readable output")
-        plugin.add_decode_arguments(p)
-        p.add_argument(
-            "data",
-            nargs="*",
-            metavar="HEX",
-            help="bytes as hex (spaces allowed: '02 03 01 00 ...'); none or '-': one frame per line from stdin",
-        )
-        p.add_argument(
-            "--file",
-            "-f",
-            action="append",
-            default=[],
-            metavar="FILE",
-            help="frames from a file, one per line: hex dumps or candump logs ('(time) can0 ID#DATA')",
-        )
+        try:
+            _add_decoder(sub, plugin)
+        except Exception as exc:  # a declaration that raises: this plugin only
+            warn(f"transport plugin {plugin.name!r} left out: its decoder cannot be declared ({exc})")
+
+
+def _add_decoder(sub: argparse._SubParsersAction[argparse.ArgumentParser], plugin: TransportPlugin) -> None:
+    if not plugin.has_decoder:
+        return
+    mapper = OptionMapper(dict.fromkeys(_OWN_FLAGS, "the command"), set(_OWN_DESTS))
+    made: list[argparse.ArgumentParser] = []
+
+    def command() -> argparse.ArgumentParser:
+        if not made:
+            made.append(sub.add_parser(plugin.name, help=f"decode {plugin.name} frames"))
+            if plugin.decoder_help:
+                made[0].epilog = plugin.decoder_help
+        return made[0]
+
+    if plugin.uses_argparse_decoder:
+        accepted = mapper.add_argparse(plugin, plugin.add_decode_arguments, command)
+    else:
+        accepted = mapper.add_typed(plugin, declared(plugin, "decoder_options"), command)
+    if not accepted:
+        return
+    p = command()
+    p.add_argument("--model", default=None, help="device model, for names and engineering values")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument(
+        "data",
+        nargs="*",
+        metavar="HEX",
+        help="bytes as hex (spaces allowed: '02 03 01 00 ...'); none or '-': one frame per line from stdin",
+    )
+    p.add_argument(
+        "--file",
+        "-f",
+        action="append",
+        default=[],
+        metavar="FILE",
+        help="frames from a file, one per line: hex dumps or candump logs ('(time) can0 ID#DATA')",
+    )
+    p.set_defaults(plugin_args=mapper)
 
 
 _CANDUMP = re.compile(r"^\(\s*[0-9.]+\)\s+\S+\s+(\S+)")
@@ -79,7 +112,18 @@ def cmd_decode(args: argparse.Namespace) -> int:
     args.data = _inputs(args)
     plugin = get_transport(args.protocol)
     profile = get_profile(args.model) if args.model else None
-    annotations = plugin.decode(args, profile)
+    mapper: OptionMapper = args.plugin_args
+    annotations: list[Annotation]
+    try:
+        if mapper.accepted[plugin.name][0] == ARGPARSE:
+            legacy: Any = plugin  # the deprecated decode(args, profile)
+            annotations = legacy.decode(args, profile)
+        else:
+            annotations = plugin.decode(args.data, mapper.given(args, plugin.name), profile)
+    except StarterbusError:
+        raise
+    except Exception as exc:
+        raise PluginError(f"transport plugin {plugin.name!r} failed to decode: {type(exc).__name__}: {exc}") from exc
     if args.json:
         emit_json([a.as_json() for a in annotations])
     else:

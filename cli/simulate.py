@@ -10,8 +10,9 @@ import threading
 import time
 from pathlib import Path
 
+from starterbus.cli.plugin_args import ARGPARSE, OptionMapper, declared, plugin_order, warn
 from starterbus.cli.sim_script import parse_script
-from starterbus.core.errors import ConfigurationError
+from starterbus.core.errors import ConfigurationError, PluginError, StarterbusError
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile, transports
 from starterbus.core.simulator import SimulatedStarter
@@ -29,24 +30,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "script lines: AT UNIT ACTION [ARG], e.g. '5 2 fault 6', '9 2 clear', '12 3 start', '20 3 stop'"
     )
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
-    parser.add_argument("--model", default=None, help="device model for units given without one (jjr5000, ssd1, ...)")
-    parser.add_argument(
-        "--unit",
-        action="append",
-        default=None,
-        metavar="ADDR[:MODEL]",
-        help="address of a simulated starter (Modbus unit id, DP station), optionally with its own model; "
-        "repeat for several on one line (default 1)",
-    )
-    parser.add_argument("--load", type=float, default=0.8, help="running current as a fraction of rated current")
-    parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
-    parser.add_argument("--fault", action="append", default=[], metavar="UNIT:CODE", help="start with a fault active")
-    parser.add_argument("--script", metavar="FILE", help="timed events: AT UNIT fault CODE|clear|start|stop")
-    parser.add_argument("--json", action="store_true", help="print where each front end listens as JSON")
-    for entry in transports.load_all():
-        if entry.loaded is not None:
-            group = parser.add_argument_group(f"{entry.name} front end")
-            entry.loaded.add_simulator_arguments(group)  # type: ignore[arg-type]
+    own = [
+        parser.add_argument(
+            "--model", default=None, help="device model for units given without one (jjr5000, ssd1, ...)"
+        ),
+        parser.add_argument(
+            "--unit",
+            action="append",
+            default=None,
+            metavar="ADDR[:MODEL]",
+            help="address of a simulated starter (Modbus unit id, DP station), optionally with its own model; "
+            "repeat for several on one line (default 1)",
+        ),
+        parser.add_argument("--load", type=float, default=0.8, help="running current as a fraction of rated current"),
+        parser.add_argument("--duration", type=float, default=None, help="stop after this many seconds"),
+        parser.add_argument(
+            "--fault", action="append", default=[], metavar="UNIT:CODE", help="start with a fault active"
+        ),
+        parser.add_argument("--script", metavar="FILE", help="timed events: AT UNIT fault CODE|clear|start|stop"),
+        parser.add_argument("--json", action="store_true", help="print where each front end listens as JSON"),
+    ]
+    mapper = OptionMapper()
+    mapper.hold(own)
+    mapper.taken_flags.update({"-h": "the command", "--help": "the command"})
+    mapper.taken_dests.update({"help", "handler", "command_name", "plugin_args"})
+    for entry in plugin_order(transports.load_all()):
+        plugin = entry.loaded
+        if plugin is None:
+            warn(f"transport plugin {entry.name!r} left out: {entry.error}")
+            continue
+
+        def group(name: str = plugin.name) -> argparse._ActionsContainer:
+            return parser.add_argument_group(f"{name} front end")
+
+        try:
+            if plugin.uses_argparse_simulator:
+                mapper.add_argparse(plugin, plugin.add_simulator_arguments, group)
+            else:
+                options = declared(plugin, "simulator_options")
+                if options:
+                    mapper.add_typed(plugin, options, group)
+        except Exception as exc:  # a declaration that raises: this plugin only
+            warn(f"transport plugin {plugin.name!r} left out: its options cannot be declared ({exc})")
+    parser.set_defaults(plugin_args=mapper)
 
 
 def _units(args: argparse.Namespace) -> list[tuple[int, Profile]]:
@@ -63,6 +89,35 @@ def _units(args: argparse.Namespace) -> list[tuple[int, Profile]]:
     if len(set(addresses)) != len(addresses):
         raise ConfigurationError(f"--unit given twice with the same address: {addresses}")
     return units
+
+
+def _start(args: argparse.Namespace, profile: Profile, starters: dict[int, SimulatedStarter]) -> list[RunningSimulator]:
+    """Every accepted plugin's front ends the command line asks for (typed call, or the deprecated hook)."""
+    mapper: OptionMapper = args.plugin_args
+    running: list[RunningSimulator] = []
+    try:
+        for entry in plugin_order(transports.entries()):
+            plugin = entry.loaded
+            if plugin is None or plugin.name not in mapper.accepted:
+                continue
+            try:
+                if mapper.accepted[plugin.name][0] == ARGPARSE:
+                    running.extend(plugin.start_simulators(args, profile, list(starters.values())))
+                else:
+                    given = mapper.given(args, plugin.name)
+                    if given:
+                        running.extend(plugin.start_simulator(given, starters))
+            except StarterbusError:
+                raise
+            except Exception as exc:
+                raise PluginError(
+                    f"transport plugin {plugin.name!r} failed to start its front end: {type(exc).__name__}: {exc}"
+                ) from exc
+    except BaseException:
+        for sim in running:
+            sim.close()
+        raise
+    return running
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -85,9 +140,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     running: list[RunningSimulator] = []
     interrupted = False
     try:
-        for entry in transports.entries():
-            if entry.loaded is not None:
-                running.extend(entry.loaded.start_simulators(args, profile, list(starters.values())))
+        running.extend(_start(args, profile, starters))
         if not running:
             raise ConfigurationError("no front end asked for: give at least one of the protocol options (see --help)")
         if args.json:

@@ -12,6 +12,9 @@ if TYPE_CHECKING:
     from typing import Any
 
     from starterbus.core.audit import AuditLog
+    from starterbus.core.canbridge import LoopbackBridge, parse_bridge_address
+    from starterbus.core.canbus import open_bus, parse_bus_spec
+    from starterbus.core.canbus import shutdown as shutdown_bus
     from starterbus.core.device import Device, open_device
     from starterbus.core.errors import (
         ChecksumError,
@@ -22,7 +25,9 @@ if TYPE_CHECKING:
         NotOpenError,
         PluginError,
         ProfileError,
+        Refusal,
         RemoteDeviceError,
+        SimulatorRefusal,
         StarterbusError,
         TimeoutError,
         TransportError,
@@ -41,11 +46,34 @@ if TYPE_CHECKING:
         UncertainValueError,
     )
     from starterbus.core.model import Access, EnumTable, Kind, Label, PointDef, Reading, Value
+    from starterbus.core.plugin_options import OptionValues, PluginOption, SimOption, resolve_options
     from starterbus.core.profile import Profile, load_profile_file
     from starterbus.core.registry import get_profile, get_transport
+    from starterbus.core.sharing import SharedPool
     from starterbus.core.simulator import ManualClock, SimulatedStarter
-    from starterbus.core.status import Command, ControlWordState, FaultTable, MotorState, Status
-    from starterbus.core.transport import Annotation, Capability, RunningSimulator, Transport, TransportPlugin
+    from starterbus.core.status import (
+        PHASE_NAMES,
+        Command,
+        ControlWordState,
+        FaultTable,
+        MotorState,
+        Status,
+        decode_status_word,
+        encode_status_word,
+        status_with_currents,
+    )
+    from starterbus.core.textinput import check_loopback, parse_hex, parse_host_port
+    from starterbus.core.transport import (
+        ALL_CAPABILITIES,
+        Annotation,
+        Capability,
+        PlannedRequest,
+        PollResult,
+        RunningSimulator,
+        Transport,
+        TransportCounters,
+        TransportPlugin,
+    )
     from starterbus.core.url import DeviceUrl
 
     load_profile = get_profile
@@ -103,6 +131,29 @@ _LAZY = {
     "TransportPlugin": "starterbus.core.transport",
     "DeviceUrl": "starterbus.core.url",
     "load_profile": "starterbus.core.registry:get_profile",
+    "PluginOption": "starterbus.core.plugin_options",
+    "SimOption": "starterbus.core.plugin_options",
+    "OptionValues": "starterbus.core.plugin_options",
+    "resolve_options": "starterbus.core.plugin_options",
+    "parse_hex": "starterbus.core.textinput",
+    "parse_host_port": "starterbus.core.textinput",
+    "check_loopback": "starterbus.core.textinput",
+    "open_bus": "starterbus.core.canbus",
+    "parse_bus_spec": "starterbus.core.canbus",
+    "shutdown_bus": "starterbus.core.canbus:shutdown",
+    "LoopbackBridge": "starterbus.core.canbridge",
+    "parse_bridge_address": "starterbus.core.canbridge",
+    "decode_status_word": "starterbus.core.status",
+    "encode_status_word": "starterbus.core.status",
+    "status_with_currents": "starterbus.core.status",
+    "PHASE_NAMES": "starterbus.core.status",
+    "Refusal": "starterbus.core.errors",
+    "SimulatorRefusal": "starterbus.core.errors",
+    "SharedPool": "starterbus.core.sharing",
+    "ALL_CAPABILITIES": "starterbus.core.transport",
+    "PollResult": "starterbus.core.transport",
+    "PlannedRequest": "starterbus.core.transport",
+    "TransportCounters": "starterbus.core.transport",
 }
 
 
@@ -117,6 +168,8 @@ def __getattr__(name: str) -> Any:
 
 
 __all__ = [
+    "ALL_CAPABILITIES",
+    "PHASE_NAMES",
     "Access",
     "Annotation",
     "AuditLog",
@@ -137,25 +190,35 @@ __all__ = [
     "GuardedOperationError",
     "Kind",
     "Label",
+    "LoopbackBridge",
     "ManualClock",
     "MotorState",
     "NotOpenError",
+    "OptionValues",
     "Outcome",
+    "PlannedRequest",
     "PluginError",
+    "PluginOption",
     "PointDef",
+    "PollResult",
     "Profile",
     "ProfileError",
     "Proposal",
     "ReadBackMismatch",
     "Reading",
+    "Refusal",
     "RemoteDeviceError",
     "RunningSimulator",
+    "SharedPool",
+    "SimOption",
     "SimulatedStarter",
+    "SimulatorRefusal",
     "StarterbusError",
     "StateRuleError",
     "Status",
     "TimeoutError",
     "Transport",
+    "TransportCounters",
     "TransportError",
     "TransportPlugin",
     "UncertainValueError",
@@ -163,9 +226,20 @@ __all__ = [
     "UnsupportedOperationError",
     "ValidationError",
     "Value",
+    "check_loopback",
+    "decode_status_word",
+    "encode_status_word",
     "get_profile",
     "get_transport",
     "load_profile",
     "load_profile_file",
+    "open_bus",
     "open_device",
+    "parse_bridge_address",
+    "parse_bus_spec",
+    "parse_hex",
+    "parse_host_port",
+    "resolve_options",
+    "shutdown_bus",
+    "status_with_currents",
 ]

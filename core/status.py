@@ -8,10 +8,14 @@ from __future__ import annotations
 
 import enum
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 from starterbus.core.model import Label, Value
+
+if TYPE_CHECKING:
+    from starterbus.core.profile import Profile
 
 
 class Command(str, enum.Enum):
@@ -159,6 +163,40 @@ def decode_status_word(
         raw=raw,
         unknown_bits=word & ~known & 0xFFFF,
         source=source,
+    )
+
+
+#: the keys of :attr:`Status.currents`, in the order of the profile's ``phase_currents`` role
+PHASE_NAMES = ("a", "b", "c")
+
+
+def status_with_currents(
+    profile: Profile,
+    word: int,
+    currents: Sequence[int],
+    *,
+    source: str = "",
+    scale: float | None = None,
+    current_source: str | None = None,
+    extra_raw: Mapping[str, int] | None = None,
+) -> Status:
+    """The status from a status word and the raw phase currents a transport read (L1 first; fewer is fine).
+
+    Each current is scaled by its profile point (or by ``scale``, the resolution of the transport's path);
+    ``current_source`` (default ``source``) tags the current values.
+    """
+    tag = source if current_source is None else current_source
+    values = {
+        name: Value.from_raw(point, raw, scale, tag)
+        for name, point, raw in zip(PHASE_NAMES, profile.phase_currents(), currents, strict=False)
+    }
+    return decode_status_word(
+        word,
+        profile.faults,
+        bit12_is_mains_voltage=profile.control.bit12_is_mains_voltage,
+        currents=values,
+        source=source,
+        extra_raw=extra_raw,
     )
 
 

@@ -9,21 +9,27 @@ does it before anything reaches a transport.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import dataclasses
 import enum
+import inspect
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from starterbus.core.errors import ConfigurationError, UnsupportedOperationError
 from starterbus.core.model import PointDef, Reading
+from starterbus.core.plugin_options import PluginOption
 from starterbus.core.profile import Profile
 from starterbus.core.status import Command, Status
 from starterbus.core.url import DeviceUrl
+
+if TYPE_CHECKING:
+    import argparse
+
+    from starterbus.core.simulator import SimulatedStarter
 
 
 class Capability(str, enum.Enum):
@@ -290,27 +296,70 @@ class TransportPlugin(ABC):
         the file. The default accepts anything.
         """
 
-    # -- optional hooks for the CLI ---------------------------------------------------------------------------
+    # -- optional hooks: simulator front ends and a decoder, declared as data -----------------------------------
 
-    def add_simulator_arguments(self, parser: argparse.ArgumentParser) -> None:
-        """Add this transport's ``starterbus simulate`` options (e.g. ``--modbus-rtu PORT``)."""
+    #: options of this plugin's ``starterbus simulate`` front ends (flags ``--NAME-OPTION`` unless declared)
+    simulator_options: tuple[PluginOption, ...] = ()
+    #: options of ``starterbus decode NAME`` (the frames themselves are given by the caller)
+    decoder_options: tuple[PluginOption, ...] = ()
+    #: a text shown under ``starterbus decode NAME --help`` (the frame syntax, for instance)
+    decoder_help: str = ""
 
-    def start_simulators(
-        self, args: argparse.Namespace, profile: Profile, starters: Sequence[object]
+    def start_simulator(
+        self, options: Mapping[str, object], starters: Mapping[int, SimulatedStarter]
     ) -> list[RunningSimulator]:
-        """Start the front ends the parsed options ask for, serving the given simulated starters.
+        """Start the front ends ``options`` ask for, serving ``starters`` (address -> starter, shared by every
+        front end); return ``[]`` when none of this plugin's options is given.
 
-        ``starters`` are :class:`~starterbus.core.simulator.SimulatedStarter` objects shared by every front end
-        (one per ``--unit``); return nothing when no option of this transport was given.
+        ``options`` maps the names of :attr:`simulator_options` to values (text is converted); check them with
+        :func:`~starterbus.core.plugin_options.resolve_options`. Errors are
+        :class:`~starterbus.core.errors.ConfigurationError` naming the option.
         """
         return []
 
-    def add_decode_arguments(self, parser: argparse.ArgumentParser) -> None:
-        """Options of ``starterbus decode NAME``; HEX arguments are added by the CLI as ``args.data``."""
-
-    def decode(self, args: argparse.Namespace, profile: Profile | None) -> list[Annotation]:
+    def decode(self, frames: Sequence[str], options: Mapping[str, object], profile: Profile | None) -> list[Annotation]:
+        """Annotate ``frames`` (one text per frame or hex chunk, as the user gave them) with ``options``
+        (names of :attr:`decoder_options`); ``profile`` names points and scales values when given."""
         raise UnsupportedOperationError(f"transport {self.name!r} has no decoder")
 
     @property
     def has_decoder(self) -> bool:
         return type(self).decode is not TransportPlugin.decode
+
+    # -- deprecated: the argparse hooks of starterbus < 0.x; the CLI still honours them --------------------------
+
+    def add_simulator_arguments(self, parser: argparse.ArgumentParser) -> None:
+        """Deprecated (use :attr:`simulator_options`): add ``starterbus simulate`` options to the shared parser."""
+
+    def start_simulators(
+        self, args: argparse.Namespace, profile: Profile, starters: Sequence[object]
+    ) -> list[RunningSimulator]:
+        """Deprecated (use :meth:`start_simulator`): start front ends from the parsed command line.
+
+        ``args.unit`` holds the addresses, ``starters`` the simulated starters in that order, ``profile`` the
+        first one's model.
+        """
+        return []
+
+    def add_decode_arguments(self, parser: argparse.ArgumentParser) -> None:
+        """Deprecated (use :attr:`decoder_options`); with it, ``decode(args, profile)`` gets the parsed
+        command line, the frames in ``args.data``."""
+
+    @property
+    def uses_argparse_simulator(self) -> bool:
+        """True for a plugin still written against the deprecated argparse simulator hooks."""
+        cls = type(self)
+        return (
+            cls.add_simulator_arguments is not TransportPlugin.add_simulator_arguments
+            or cls.start_simulators is not TransportPlugin.start_simulators
+        )
+
+    @property
+    def uses_argparse_decoder(self) -> bool:
+        """True for a decoder written as the deprecated ``decode(args, profile)``."""
+        if not self.has_decoder:
+            return False
+        try:
+            return len(inspect.signature(self.decode).parameters) == 2
+        except (TypeError, ValueError):  # pragma: no cover - a builtin or C callable
+            return False

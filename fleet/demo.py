@@ -28,7 +28,7 @@ from typing import TextIO
 from urllib.parse import parse_qsl, urlencode
 
 from starterbus.core.device import Device
-from starterbus.core.registry import get_profile
+from starterbus.core.registry import get_profile, get_transport
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.status import Command
 from starterbus.core.transport import RunningSimulator
@@ -76,11 +76,11 @@ def _bus_url(url: str, drop: str) -> str:
 
 
 def start_demo_fleet(period: float = 0.5, can_channel: str | None = None) -> DemoFleet:
-    """Start every simulator and return the fleet that polls them (close it when done)."""
-    from starterbus.transports.devicenet.simulator import DeviceNetSimulator
-    from starterbus.transports.modbus.simulator import ModbusRtuSimulator
-    from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
+    """Start every simulator and return the fleet that polls them (close it when done).
 
+    Each front end is started through its plugin's typed call (``start_simulator``), as ``starterbus simulate``
+    starts them.
+    """
     starters = {
         name: _starter(model)
         for name, model in (
@@ -95,19 +95,18 @@ def start_demo_fleet(period: float = 0.5, can_channel: str | None = None) -> Dem
     }
     channel = can_channel or f"starterbus-demo-{os.getpid()}-{threading.get_ident()}"
     sims: list[RunningSimulator] = []
+
+    def start(transport: str, options: dict[str, object], served: dict[int, str]) -> RunningSimulator:
+        started = get_transport(transport).start_simulator(options, {a: starters[n] for a, n in served.items()})
+        sims.extend(started)
+        return started[0]
+
     try:
-        line1 = ModbusRtuSimulator({1: starters["conveyor"], 2: starters["fan"]}, pty=True).start()
-        sims.append(line1)
-        line2 = ModbusRtuSimulator({3: starters["crusher"]}, pty=True).start()
-        sims.append(line2)
-        gw1 = ProfibusGatewaySimulator(starters["mill"], ppo=1, stations=[4]).start()
-        sims.append(gw1)
-        gw3 = ProfibusGatewaySimulator(starters["mixer"], ppo=3, stations=[5]).start()
-        sims.append(gw3)
-        dnet = DeviceNetSimulator(("virtual", channel), dup_mac_wait=0.05)
-        dnet.add_node(starters["pump-a"], 10)
-        dnet.add_node(starters["pump-b"], 11)
-        sims.append(dnet.start())
+        line1 = start("modbus-rtu", {"port": "PTY"}, {1: "conveyor", 2: "fan"})
+        line2 = start("modbus-rtu", {"port": "PTY"}, {3: "crusher"})
+        gw1 = start("profibus-pkw", {"gateway": "127.0.0.1:0", "ppo": 1}, {4: "mill"})
+        gw3 = start("profibus-pkw", {"gateway": "127.0.0.1:0", "ppo": 3}, {5: "mixer"})
+        start("devicenet", {"channel": f"virtual:{channel}", "dup_mac_wait": 0.05}, {10: "pump-a", 11: "pump-b"})
     except BaseException:
         for sim in reversed(sims):
             sim.close()

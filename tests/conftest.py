@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -42,3 +46,36 @@ def _audit_log_in_tmp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     path = tmp_path / "audit.jsonl"
     monkeypatch.setenv("STARTERBUS_AUDIT_LOG", str(path))
     return path
+
+
+class ThirdParty:
+    """Installed-looking third-party distributions (dist-info + entry points) and the real CLI run with them."""
+
+    @staticmethod
+    def make_dist(root: Path, dist: str, module: str, entry_points: str, files: dict[str, str]) -> None:
+        pkg = root / module
+        pkg.mkdir(parents=True)
+        for name, text in files.items():
+            (pkg / name).write_text(text, encoding="utf-8")
+        info = root / f"{dist}-1.0.dist-info"
+        info.mkdir()
+        (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {dist}\nVersion: 1.0\n", encoding="utf-8")
+        (info / "entry_points.txt").write_text(textwrap.dedent(entry_points), encoding="utf-8")
+
+    @staticmethod
+    def run_cli(*args: str, path: Path) -> subprocess.CompletedProcess[str]:
+        """``starterbus ARGS`` in a subprocess with ``path`` (the distributions) on PYTHONPATH."""
+        env = dict(os.environ, PYTHONPATH=str(path))
+        return subprocess.run(
+            [sys.executable, "-m", "starterbus.cli.main", *args],
+            capture_output=True,
+            text=True,
+            env=env,
+            timeout=60,
+            check=False,
+        )
+
+
+@pytest.fixture(scope="session")
+def third_party() -> type[ThirdParty]:
+    return ThirdParty

@@ -7,11 +7,10 @@ CLI in a subprocess with that directory on PYTHONPATH: no patching of the regist
 from __future__ import annotations
 
 import json
-import os
 import subprocess
 import sys
-import textwrap
 from pathlib import Path
+from typing import Any
 
 from starterbus.core.registry import get_profile
 
@@ -35,37 +34,14 @@ PROFILE = Path(__file__).with_name("acme9000.toml")
 """
 
 
-def make_dist(root: Path, dist: str, module: str, entry_points: str, files: dict[str, str]) -> None:
-    pkg = root / module
-    pkg.mkdir(parents=True)
-    for name, text in files.items():
-        (pkg / name).write_text(text, encoding="utf-8")
-    info = root / f"{dist}-1.0.dist-info"
-    info.mkdir()
-    (info / "METADATA").write_text(f"Metadata-Version: 2.1\nName: {dist}\nVersion: 1.0\n", encoding="utf-8")
-    (info / "entry_points.txt").write_text(textwrap.dedent(entry_points), encoding="utf-8")
-
-
 def acme_profile_text() -> str:
     """A copy of the JJR5000 profile renamed, as a third party would ship it."""
     source = Path(get_profile("jjr5000").source).read_text(encoding="utf-8")
     return source.replace('name = "jjr5000"', 'name = "acme9000"', 1)
 
 
-def run_cli(*args: str, path: Path) -> subprocess.CompletedProcess[str]:
-    env = dict(os.environ, PYTHONPATH=str(path))
-    return subprocess.run(
-        [sys.executable, "-m", "starterbus.cli.main", *args],
-        capture_output=True,
-        text=True,
-        env=env,
-        timeout=60,
-        check=False,
-    )
-
-
-def test_third_party_profile_and_transport_show_up(tmp_path: Path) -> None:
-    make_dist(
+def test_third_party_profile_and_transport_show_up(tmp_path: Path, third_party: Any) -> None:
+    third_party.make_dist(
         tmp_path,
         "acme_starterbus",
         "acme_starterbus",
@@ -77,27 +53,27 @@ def test_third_party_profile_and_transport_show_up(tmp_path: Path) -> None:
         """,
         {"__init__.py": PLUGIN_SOURCE, "acme9000.toml": acme_profile_text()},
     )
-    models = run_cli("models", "--json", path=tmp_path)
+    models = third_party.run_cli("models", "--json", path=tmp_path)
     assert models.returncode == 0, models.stderr
     by_name = {m["name"]: m for m in json.loads(models.stdout)}
     assert set(by_name) >= {"jjr5000", "ssd1", "jjr8000", "acme9000"}
     assert by_name["acme9000"]["error"] is None
     assert by_name["acme9000"]["source"] == "acme_starterbus 1.0"
 
-    listed = run_cli("transports", "--json", path=tmp_path)
+    listed = third_party.run_cli("transports", "--json", path=tmp_path)
     assert listed.returncode == 0, listed.stderr
     transports = {t["name"]: t for t in json.loads(listed.stdout)}
     assert set(transports) >= {"modbus-rtu", "profibus-pkw", "devicenet", "acme-loop"}
     assert transports["acme-loop"]["capabilities"] == ["status"]
     assert transports["acme-loop"]["error"] is None
 
-    params = run_cli("params", "acme9000", "--json", path=tmp_path)
+    params = third_party.run_cli("params", "acme9000", "--json", path=tmp_path)
     assert params.returncode == 0, params.stderr
     assert json.loads(params.stdout)["model"] == "acme9000"
 
 
-def test_broken_plugin_is_reported_and_others_still_load(tmp_path: Path) -> None:
-    make_dist(
+def test_broken_plugin_is_reported_and_others_still_load(tmp_path: Path, third_party: Any) -> None:
+    third_party.make_dist(
         tmp_path,
         "broken_plugin",
         "broken_plugin",
@@ -107,20 +83,20 @@ def test_broken_plugin_is_reported_and_others_still_load(tmp_path: Path) -> None
         """,
         {"__init__.py": "import this_module_does_not_exist\n"},
     )
-    listed = run_cli("transports", "--json", path=tmp_path)
+    listed = third_party.run_cli("transports", "--json", path=tmp_path)
     assert listed.returncode == 0, listed.stderr
     transports = {t["name"]: t for t in json.loads(listed.stdout)}
     assert "No module named 'this_module_does_not_exist'" in transports["broken"]["error"]
     assert transports["modbus-rtu"]["error"] is None
     # and using it says why, in one line
-    used = run_cli("status", "broken://x", "--model", "jjr5000", path=tmp_path)
+    used = third_party.run_cli("status", "broken://x", "--model", "jjr5000", path=tmp_path)
     assert used.returncode == 1
     assert "cannot load starterbus.transports plugin 'broken'" in used.stderr
     assert "this_module_does_not_exist" in used.stderr
 
 
-def test_two_plugins_with_one_name_is_an_error_not_an_override(tmp_path: Path) -> None:
-    make_dist(
+def test_two_plugins_with_one_name_is_an_error_not_an_override(tmp_path: Path, third_party: Any) -> None:
+    third_party.make_dist(
         tmp_path,
         "impostor",
         "impostor",
@@ -132,14 +108,14 @@ def test_two_plugins_with_one_name_is_an_error_not_an_override(tmp_path: Path) -
         """,
         {"__init__.py": PLUGIN_SOURCE.replace('"acme-loop"', '"modbus-rtu"'), "acme9000.toml": acme_profile_text()},
     )
-    listed = run_cli("transports", "--json", path=tmp_path)
+    listed = third_party.run_cli("transports", "--json", path=tmp_path)
     transports = {t["name"]: t for t in json.loads(listed.stdout)}
     assert "2 plugins claim the name 'modbus-rtu'" in transports["modbus-rtu"]["error"]
     assert "impostor 1.0" in transports["modbus-rtu"]["error"]
-    models = {m["name"]: m for m in json.loads(run_cli("models", "--json", path=tmp_path).stdout)}
+    models = {m["name"]: m for m in json.loads(third_party.run_cli("models", "--json", path=tmp_path).stdout)}
     assert "2 plugins claim the name 'jjr5000'" in models["jjr5000"]["error"]
     assert models["ssd1"]["error"] is None
-    used = run_cli("params", "jjr5000", path=tmp_path)
+    used = third_party.run_cli("params", "jjr5000", path=tmp_path)
     assert used.returncode == 1
     assert "claim the name 'jjr5000'" in used.stderr
 

@@ -5,15 +5,18 @@ Heavy modules (python-can, the scanner, the simulator) are imported only when a 
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from starterbus.core import settings_check as check
 from starterbus.core.errors import ConfigurationError
+from starterbus.core.plugin_options import PluginOption, resolve_options
 from starterbus.core.profile import Profile
 from starterbus.core.transport import Annotation, Capability, RunningSimulator, Transport, TransportPlugin
 from starterbus.core.url import DeviceUrl
+
+if TYPE_CHECKING:
+    from starterbus.core.simulator import SimulatedStarter
 
 
 class DeviceNetPlugin(TransportPlugin):
@@ -58,62 +61,55 @@ class DeviceNetPlugin(TransportPlugin):
 
     # -- simulate ----------------------------------------------------------------------------------------------
 
-    def add_simulator_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument(
-            "--devicenet",
-            metavar="INTERFACE:CHANNEL",
+    simulator_options = (
+        PluginOption(
+            "channel", flag="--devicenet", metavar="INTERFACE:CHANNEL",
             help="serve the starters as DeviceNet slaves on a python-can bus (e.g. virtual:bus0, socketcan:can0)",
-        )
-        parser.add_argument(
-            "--mac",
-            type=int,
-            action="append",
-            default=None,
+        ),
+        PluginOption(
+            "mac", flag="--mac", type=int, multiple=True,
             help="DeviceNet MAC id (1-63) of each simulated starter, in --unit order; default: the --unit values",
-        )
-        parser.add_argument(
-            "--devicenet-assemblies",
-            choices=("extended", "basic", "pro-type"),
-            default="extended",
-            help="assembly set of the polled connection: extended 101/102 (default), basic 1/2, or pro-type "
+        ),
+        PluginOption(
+            "assemblies", choices=("extended", "basic", "pro-type"), default="extended",
+            help="assembly set of the polled connection: extended 101/102, basic 1/2, or pro-type "
             "(follow parameter p71 like the device)",
-        )
-        parser.add_argument("--devicenet-bitrate", type=int, default=500000, choices=(125000, 250000, 500000))
-        parser.add_argument(
-            "--devicenet-dup-mac-wait",
-            type=float,
-            default=1.0,
-            metavar="SECONDS",
+        ),
+        PluginOption("bitrate", type=int, default=500000, choices=(125000, 250000, 500000), help="CAN bit rate"),
+        PluginOption(
+            "dup_mac_wait", type=float, default=1.0, metavar="SECONDS",
             help="wait of the duplicate MAC ID check (the specification says 1 s)",
-        )
-        parser.add_argument(
-            "--devicenet-bridge",
-            metavar="[HOST:]PORT",
+        ),
+        PluginOption(
+            "bridge", metavar="[HOST:]PORT",
             help="also serve the bus to other processes of this machine through python-can-remote on a loopback "
             "address (connect with devicenet://remote/127.0.0.1:PORT?mac=N)",
-        )
+        ),
+    )  # fmt: skip
 
-    def start_simulators(
-        self, args: argparse.Namespace, profile: Profile, starters: Sequence[object]
+    def start_simulator(
+        self, options: Mapping[str, object], starters: Mapping[int, SimulatedStarter]
     ) -> list[RunningSimulator]:
-        spec = getattr(args, "devicenet", None)
+        values = resolve_options(self.simulator_options, options, "devicenet simulator")
+        spec = values.text("channel")
         if not spec:
-            if getattr(args, "mac", None) or getattr(args, "devicenet_bridge", None):
+            if values.integers("mac") or values.text("bridge"):
                 raise ConfigurationError("--mac and --devicenet-bridge need --devicenet INTERFACE:CHANNEL")
             return []
-        from starterbus.core.simulator import SimulatedStarter
+        from starterbus.core.canbridge import parse_bridge_address
+        from starterbus.core.canbus import parse_bus_spec
         from starterbus.transports.devicenet.assemblies import AssemblySet
-        from starterbus.transports.devicenet.bridge import LoopbackBridge, parse_bridge_address
+        from starterbus.transports.devicenet.bridge import devicenet_bridge
         from starterbus.transports.devicenet.simulator import DeviceNetSimulator
 
-        if not profile.supports(self.name):
-            raise ConfigurationError(
-                f"{profile.display_name} has no DeviceNet interface (it speaks: {', '.join(profile.transports)})"
-            )
-        interface, sep, channel = str(spec).partition(":")
-        if not sep or not interface or not channel:
-            raise ConfigurationError(f"--devicenet {spec!r}: expected INTERFACE:CHANNEL, e.g. virtual:bus0")
-        macs = list(args.mac or getattr(args, "unit", None) or [1])
+        for starter in starters.values():
+            profile = starter.profile
+            if not profile.supports(self.name):
+                raise ConfigurationError(
+                    f"{profile.display_name} has no DeviceNet interface (it speaks: {', '.join(profile.transports)})"
+                )
+        interface, channel = parse_bus_spec(spec, "--devicenet")
+        macs = values.integers("mac") or list(starters) or [1]
         if len(macs) != len(starters):
             raise ConfigurationError(
                 f"{len(macs)} --mac value(s) for {len(starters)} simulated starter(s): give one --mac per --unit "
@@ -121,25 +117,26 @@ class DeviceNetPlugin(TransportPlugin):
             )
         if len(set(macs)) != len(macs):
             raise ConfigurationError(f"--mac given twice with the same MAC id: {macs}")
-        lo, hi = profile.transport_settings(self.name).get("mac_ids", [1, 63])
-        for mac in macs:
+        for mac, starter in zip(macs, starters.values(), strict=True):
+            lo, hi = starter.profile.transport_settings(self.name).get("mac_ids", [1, 63])
             if not int(lo) <= mac <= int(hi):
                 raise ConfigurationError(f"DeviceNet MAC id {mac} is outside {lo}..{hi}")
-        choice = args.devicenet_assemblies
-        assemblies = None if choice == "pro-type" else AssemblySet(choice)
-        bridge_address = parse_bridge_address(args.devicenet_bridge) if args.devicenet_bridge else None
+        choice = values.text("assemblies")
+        assemblies = None if choice == "pro-type" else AssemblySet(choice or "extended")
+        bridge = values.text("bridge")
+        bridge_address = parse_bridge_address(bridge) if bridge else None
         simulator = DeviceNetSimulator(
-            (interface, channel), bitrate=args.devicenet_bitrate, dup_mac_wait=args.devicenet_dup_mac_wait
+            (interface, channel),
+            bitrate=values.integer("bitrate") or 500000,
+            dup_mac_wait=values.number("dup_mac_wait") or 0.0,
         )
         running: list[RunningSimulator] = [simulator]
         try:
-            for mac, starter in zip(macs, starters, strict=True):
-                if not isinstance(starter, SimulatedStarter):
-                    raise ConfigurationError(f"not a simulated starter: {starter!r}")
+            for mac, starter in zip(macs, starters.values(), strict=True):
                 simulator.add_node(starter, mac, assemblies=assemblies)
             simulator.start()
             if bridge_address is not None:
-                running.append(LoopbackBridge(interface, channel, *bridge_address))
+                running.append(devicenet_bridge(interface, channel, *bridge_address))
         except BaseException:
             for item in running:
                 item.close()
@@ -148,16 +145,16 @@ class DeviceNetPlugin(TransportPlugin):
 
     # -- decode ------------------------------------------------------------------------------------------------
 
-    def add_decode_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.epilog = (
-            "Each HEX argument is one CAN frame in candump syntax ID#DATA (e.g. 42E#004B03010300 3C5#2D0000000100); "
-            "fragmented explicit messages are reassembled across the frames given."
-        )
+    decoder_help = (
+        "Each HEX argument is one CAN frame in candump syntax ID#DATA (e.g. 42E#004B03010300 3C5#2D0000000100); "
+        "fragmented explicit messages are reassembled across the frames given."
+    )
 
-    def decode(self, args: argparse.Namespace, profile: Profile | None) -> list[Annotation]:
+    def decode(self, frames: Sequence[str], options: Mapping[str, object], profile: Profile | None) -> list[Annotation]:
         from starterbus.transports.devicenet.decoder import annotate_frames
 
-        return annotate_frames(list(args.data), profile)
+        resolve_options(self.decoder_options, options, "devicenet decoder")
+        return annotate_frames(list(frames), profile)
 
 
 PLUGIN = DeviceNetPlugin()

@@ -19,8 +19,8 @@ from collections.abc import Callable
 
 import can
 
+from starterbus.core.canbus import open_bus, shutdown
 from starterbus.core.errors import StarterbusError, TimeoutError
-from starterbus.transports.devicenet.canbus import open_bus, shutdown
 from starterbus.transports.devicenet.explicit import ExplicitRequest, ExplicitResponse
 from starterbus.transports.devicenet.frames import CanFrame
 from starterbus.transports.devicenet.master_link import (

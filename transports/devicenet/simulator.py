@@ -27,6 +27,7 @@ from typing import TypeVar
 
 import can
 
+from starterbus.core.canbus import open_bus, shutdown
 from starterbus.core.errors import ConfigurationError, Refusal, SimulatorRefusal
 from starterbus.core.model import Kind, PointDef
 from starterbus.core.simulator import SimulatedStarter
@@ -38,7 +39,6 @@ from starterbus.transports.devicenet.assemblies import (
     InputBit,
     decode_output,
 )
-from starterbus.transports.devicenet.canbus import open_bus, shutdown
 from starterbus.transports.devicenet.cip import PROTOCOL
 from starterbus.transports.devicenet.dupmac import DEFAULT_WAIT
 from starterbus.transports.devicenet.frames import CanFrame

@@ -2,29 +2,22 @@
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 from starterbus.core import settings_check as check
 from starterbus.core.errors import ConfigurationError
+from starterbus.core.plugin_options import PluginOption, resolve_options
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
+from starterbus.core.textinput import parse_hex, parse_host_port
 from starterbus.core.transport import ALL_CAPABILITIES, Annotation, RunningSimulator, Transport, TransportPlugin
 from starterbus.core.url import DeviceUrl
-from starterbus.transports.modbus.annotate import annotate, parse_hex
+from starterbus.transports.modbus.annotate import annotate
 from starterbus.transports.modbus.client import ModbusRtuTransport
 from starterbus.transports.modbus.config import ModbusRtuConfig
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator, parse_host_port
+from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 from starterbus.transports.modbus.slave import TRANSPORT
-
-
-def _add_option(group: argparse._ActionsContainer, names: Sequence[str], **kwargs: object) -> None:
-    """Add an option with its short alias when no other transport took the alias, else only the long name."""
-    try:
-        group.add_argument(*names, **kwargs)  # type: ignore[arg-type]
-    except argparse.ArgumentError:
-        group.add_argument(names[0], **kwargs)  # type: ignore[arg-type]
 
 
 class ModbusRtuPlugin(TransportPlugin):
@@ -54,65 +47,62 @@ class ModbusRtuPlugin(TransportPlugin):
 
     # -- simulator ----------------------------------------------------------------------------------------------
 
-    def add_simulator_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument(
-            "--modbus-rtu", metavar="PORT|PTY", default=None,
+    simulator_options = (
+        PluginOption(
+            "port", flag="--modbus-rtu", metavar="PORT|PTY",
             help="serve Modbus RTU on a serial port, or on a new pseudo-terminal with PTY (prints its path)",
-        )  # fmt: skip
-        parser.add_argument(
-            "--modbus-rtu-tcp", metavar="HOST:PORT", default=None, help="serve Modbus RTU frames over TCP"
-        )
-        _add_option(
-            parser, ["--modbus-rtu-baudrate", "--baudrate"], dest="modbus_rtu_baudrate", type=int, default=None,
+        ),
+        PluginOption("tcp", metavar="HOST:PORT", help="serve Modbus RTU frames over TCP"),
+        PluginOption(
+            "baudrate", type=int, aliases=("--baudrate",),
             help="Modbus line baud rate (default: the model's default, 9600)",
-        )  # fmt: skip
-        _add_option(
-            parser, ["--modbus-rtu-parity", "--parity"], dest="modbus_rtu_parity", choices=["N", "E", "O"],
-            type=str.upper, default="N", help="Modbus parity N, E or O (default N)",
-        )  # fmt: skip
-        _add_option(
-            parser, ["--modbus-rtu-stopbits", "--stopbits"], dest="modbus_rtu_stopbits", type=int, choices=[1, 2],
-            default=1, help="Modbus stop bits (default 1)",
-        )  # fmt: skip
+        ),
+        PluginOption(
+            "parity", type=str.upper, choices=("N", "E", "O"), default="N", aliases=("--parity",),
+            help="Modbus parity N, E or O",
+        ),
+        PluginOption("stopbits", type=int, choices=(1, 2), default=1, aliases=("--stopbits",), help="Modbus stop bits"),
+    )  # fmt: skip
 
-    def start_simulators(
-        self, args: argparse.Namespace, profile: Profile, starters: Sequence[object]
+    def start_simulator(
+        self, options: Mapping[str, object], starters: Mapping[int, SimulatedStarter]
     ) -> list[RunningSimulator]:
-        port = getattr(args, "modbus_rtu", None)
-        tcp = getattr(args, "modbus_rtu_tcp", None)
+        values = resolve_options(self.simulator_options, options, f"{TRANSPORT} simulator")
+        port, tcp = values.text("port"), values.text("tcp")
         if port is None and tcp is None:
+            if values.given:
+                raise ConfigurationError("the Modbus line options need --modbus-rtu PORT|PTY or --modbus-rtu-tcp")
             return []
-        if not profile.supports(TRANSPORT):
-            raise ConfigurationError(f"{profile.display_name} has no Modbus RTU interface")
-        units = list(getattr(args, "unit", None) or [1])
-        settings = profile.transport_settings(TRANSPORT)
-        lo, hi = settings.get("unit_ids", [1, 247])
-        for unit in units:
+        first = next(iter(starters.values()), None)
+        default = first.profile.transport_settings(TRANSPORT).get("default_baudrate", 9600) if first else 9600
+        baudrate = values.integer("baudrate") or int(default)
+        for unit, starter in starters.items():
+            profile = starter.profile
+            if not profile.supports(TRANSPORT):
+                raise ConfigurationError(f"{profile.display_name} has no Modbus RTU interface")
+            settings = profile.transport_settings(TRANSPORT)
+            lo, hi = settings.get("unit_ids", [1, 247])
             if not max(1, lo) <= unit <= hi:
                 raise ConfigurationError(
                     f"--unit {unit}: {profile.display_name} Modbus slave addresses are {max(1, lo)}..{hi}"
                 )
-        baudrate = args.modbus_rtu_baudrate or int(settings.get("default_baudrate", 9600))
-        choices = [int(b) for b in settings.get("baudrates", [])]
-        if choices and baudrate not in choices:
-            raise ConfigurationError(
-                f"--baudrate {baudrate}: {profile.display_name} speaks {', '.join(map(str, choices))} baud"
-            )
-        served: dict[int, SimulatedStarter] = {}
-        for unit, starter in zip(units, starters, strict=True):
-            if not isinstance(starter, SimulatedStarter):
-                raise ConfigurationError(f"unit {unit}: {starter!r} is not a SimulatedStarter")
-            served[unit] = starter
-        line = {"baudrate": baudrate, "parity": args.modbus_rtu_parity, "stopbits": args.modbus_rtu_stopbits}
+            choices = [int(b) for b in settings.get("baudrates", [])]
+            if choices and baudrate not in choices:
+                raise ConfigurationError(
+                    f"--baudrate {baudrate}: {profile.display_name} speaks {', '.join(map(str, choices))} baud"
+                )
+        parity, stopbits = values.text("parity") or "N", values.integer("stopbits") or 1
+        served = dict(starters)
+
+        def simulator(**where: Any) -> RunningSimulator:
+            return ModbusRtuSimulator(served, baudrate=baudrate, parity=parity, stopbits=stopbits, **where).start()
+
         running: list[RunningSimulator] = []
         try:
             if port is not None:
-                if port.upper() == "PTY":
-                    running.append(ModbusRtuSimulator(served, pty=True, **line).start())
-                else:
-                    running.append(ModbusRtuSimulator(served, port=port, **line).start())
+                running.append(simulator(pty=True) if port.upper() == "PTY" else simulator(port=port))
             if tcp is not None:
-                running.append(ModbusRtuSimulator(served, tcp=parse_host_port(tcp), **line).start())
+                running.append(simulator(tcp=parse_host_port(tcp, default_host="0.0.0.0", option="--modbus-rtu-tcp")))
         except BaseException:
             for sim in running:
                 sim.close()
@@ -121,22 +111,31 @@ class ModbusRtuPlugin(TransportPlugin):
 
     # -- decoder ------------------------------------------------------------------------------------------------
 
-    def add_decode_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument(
-            "--direction", choices=["request", "response"], default=None,
+    decoder_options = (
+        PluginOption(
+            "direction", flag="--direction", choices=("request", "response"),
             help="what the (first) frame is; guessed when not given (a FC06 frame reads as a request)",
-        )  # fmt: skip
-        parser.add_argument(
-            "--no-crc", action="store_true", help="the frame is printed without its CRC (JJR8000 manual examples)"
-        )
-        parser.add_argument(
-            "--address", type=lambda text: int(text, 0), default=None,
+        ),
+        PluginOption(
+            "no_crc", flag="--no-crc", type=bool,
+            help="the frame is printed without its CRC (JJR8000 manual examples)",
+        ),
+        PluginOption(
+            "address", flag="--address", type=lambda text: int(text, 0), metavar="ADDRESS",
             help="start register of the request a lone FC03 response answers (names its values)",
-        )  # fmt: skip
+        ),
+    )  # fmt: skip
 
-    def decode(self, args: argparse.Namespace, profile: Profile | None) -> list[Annotation]:
-        data = parse_hex(args.data)
-        return annotate(data, profile, direction=args.direction, crc=not args.no_crc, address=args.address)
+    def decode(self, frames: Sequence[str], options: Mapping[str, object], profile: Profile | None) -> list[Annotation]:
+        values = resolve_options(self.decoder_options, options, f"{TRANSPORT} decoder")
+        data = parse_hex(frames)
+        return annotate(
+            data,
+            profile,
+            direction=values.text("direction"),
+            crc=not values.switch("no_crc"),
+            address=values.integer("address"),
+        )
 
 
 PLUGIN = ModbusRtuPlugin()

@@ -10,10 +10,11 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from starterbus.core.errors import CodecError, ValidationError
+from starterbus.core.errors import CodecError, DecodeError, ValidationError
 from starterbus.core.model import Kind, PointDef, Value
 from starterbus.core.profile import Profile
 from starterbus.core.status import FaultTable, decode_status_word, describe_control_word
+from starterbus.core.textinput import parse_hex
 from starterbus.core.transport import Annotation
 from starterbus.transports.profibus_pkw.telegram import (
     PROTOCOL,
@@ -220,9 +221,9 @@ def annotate_hex(
     """
     joined = " ".join(texts)
     try:
-        data = bytes.fromhex(joined.replace("0x", "").replace(",", " "))
-    except ValueError as exc:
-        return [Annotation(f"{PROTOCOL}: {joined!r}", [], f"not hex bytes: {exc}")]
+        data = parse_hex(texts)
+    except DecodeError as exc:
+        return [Annotation(f"{PROTOCOL}: {joined!r}", [], str(exc))]
     try:
         size = 2 * len(telegram_type(ppo, direction, part)._fields)
     except CodecError as exc:

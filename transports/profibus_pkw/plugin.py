@@ -2,28 +2,22 @@
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Mapping, Sequence
 from typing import Any
 
 from starterbus.core import settings_check as check
 from starterbus.core.errors import ConfigurationError, Refusal
 from starterbus.core.model import Kind
+from starterbus.core.plugin_options import PluginOption, resolve_options
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
+from starterbus.core.textinput import parse_host_port
 from starterbus.core.transport import Annotation, Capability, RunningSimulator, Transport, TransportPlugin
 from starterbus.core.url import DeviceUrl
 from starterbus.transports.profibus_pkw.decoder import annotate_hex
 from starterbus.transports.profibus_pkw.slave import UNSUPPORTED_TASK
 from starterbus.transports.profibus_pkw.telegram import PROTOCOL, Direction, Part, Ppo
 from starterbus.transports.profibus_pkw.transport import LinkSettings, ProfibusPkwTransport
-
-
-def _host_port(text: str) -> tuple[str, int]:
-    host, sep, port = text.rpartition(":")
-    if not sep or not port.isdigit() or not 0 <= int(port) <= 0xFFFF:
-        raise ConfigurationError(f"--profibus-gateway {text!r}: expected HOST:PORT (PORT 0 = any free port)")
-    return host or "127.0.0.1", int(port)
 
 
 class ProfibusPkwPlugin(TransportPlugin):
@@ -58,105 +52,89 @@ class ProfibusPkwPlugin(TransportPlugin):
 
     # -- simulator ---------------------------------------------------------------------------------------
 
-    def add_simulator_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument(
-            "--profibus-gateway",
-            metavar="HOST:PORT",
-            default=None,
+    simulator_options = (
+        PluginOption(
+            "gateway", flag="--profibus-gateway", metavar="HOST:PORT",
             help="serve the starters as DP stations behind a simulated Modbus TCP gateway",
-        )
-        parser.add_argument("--ppo", type=int, choices=(1, 3), default=1, help="PPO type of the DP slaves (default 1)")
-        parser.add_argument(
-            "--profibus-out",
-            type=int,
-            default=0,
-            metavar="REG",
-            help="holding register of station 1's output words (default 0)",
-        )
-        parser.add_argument(
-            "--profibus-in",
-            type=int,
-            default=0,
-            metavar="REG",
-            help="register of station 1's input words (default 0; FC03 and FC04 both read them)",
-        )
-        parser.add_argument(
-            "--profibus-cycle",
-            type=float,
-            default=0.005,
-            metavar="S",
-            help="the gateway's DP cycle in seconds (default 0.005)",
-        )
-        parser.add_argument(
-            "--profibus-latency",
-            type=int,
-            default=0,
-            metavar="N",
-            help="DP cycles before a slave's PKW response shows (default 0)",
-        )
+        ),
+        PluginOption("ppo", flag="--ppo", type=int, choices=(1, 3), default=1, help="PPO type of the DP slaves"),
+        PluginOption(
+            "out", flag="--profibus-out", type=int, default=0, metavar="REG",
+            help="holding register of station 1's output words",
+        ),
+        PluginOption(
+            "in", flag="--profibus-in", type=int, default=0, metavar="REG",
+            help="register of station 1's input words (FC03 and FC04 both read them)",
+        ),
+        PluginOption(
+            "cycle", flag="--profibus-cycle", type=float, default=0.005, metavar="S",
+            help="the gateway's DP cycle in seconds",
+        ),
+        PluginOption(
+            "latency", flag="--profibus-latency", type=int, default=0, metavar="N",
+            help="DP cycles before a slave's PKW response shows",
+        ),
+    )  # fmt: skip
 
-    def start_simulators(
-        self, args: argparse.Namespace, profile: Profile, starters: Sequence[object]
+    def start_simulator(
+        self, options: Mapping[str, object], starters: Mapping[int, SimulatedStarter]
     ) -> list[RunningSimulator]:
-        target = getattr(args, "profibus_gateway", None)
+        values = resolve_options(self.simulator_options, options, f"{PROTOCOL} simulator")
+        target = values.text("gateway")
         if not target:
             return []
         from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
 
-        if not profile.supports(PROTOCOL):
-            raise ConfigurationError(f"{profile.display_name} has no Profibus interface")
-        host, port = _host_port(target)
-        sims = [s for s in starters if isinstance(s, SimulatedStarter)]
-        stations = list(getattr(args, "unit", None) or range(1, len(sims) + 1))
-        limits = profile.transport_settings(PROTOCOL).get("stations")
-        for station in stations:
+        for station, starter in starters.items():
+            profile = starter.profile
+            if not profile.supports(PROTOCOL):
+                raise ConfigurationError(f"{profile.display_name} has no Profibus interface")
+            limits = profile.transport_settings(PROTOCOL).get("stations")
             if limits and not limits[0] <= station <= limits[1]:
                 raise ConfigurationError(
                     f"--unit {station}: {profile.display_name} DP stations are {limits[0]}..{limits[1]}"
                 )
+        host, port = parse_host_port(target, option="--profibus-gateway")
         sim = ProfibusGatewaySimulator(
-            sims,
+            list(starters.values()),
             host,
             port,
-            Ppo(args.ppo),
-            out=args.profibus_out,
-            inp=args.profibus_in,
-            cycle=args.profibus_cycle,
-            latency=args.profibus_latency,
-            stations=stations,
+            Ppo(values.integer("ppo") or 1),
+            out=values.integer("out") or 0,
+            inp=values.integer("in") or 0,
+            cycle=values.number("cycle") or 0.005,
+            latency=values.integer("latency") or 0,
+            stations=list(starters),
         )
         return [sim.start()]
 
     # -- decoder ------------------------------------------------------------------------------------------
 
-    def add_decode_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.add_argument("--ppo", type=int, choices=(1, 3), default=1, help="telegram type (default 1)")
-        parser.add_argument(
-            "--direction",
-            choices=("out", "in"),
-            required=True,
+    decoder_options = (
+        PluginOption("ppo", flag="--ppo", type=int, choices=(1, 3), default=1, help="telegram type"),
+        PluginOption(
+            "direction", flag="--direction", choices=("out", "in"), required=True,
             help="out = master -> slave (IND/PWE/STW), in = slave -> master (IND/PWE/ZSW/ACT)",
-        )
-        parser.add_argument(
-            "--part",
-            choices=("all", "pkw", "pzd"),
-            default="all",
+        ),
+        PluginOption(
+            "part", flag="--part", choices=("all", "pkw", "pzd"), default="all",
             help="the bytes are a whole telegram, or only its PKW or PZD half (the manual's examples)",
-        )
-        parser.add_argument(
-            "--kind",
-            choices=("parameter", "measurement"),
-            default=None,
+        ),
+        PluginOption(
+            "kind", flag="--kind", choices=("parameter", "measurement"),
             help="what a response's INDL addresses (a response does not say; default: show both)",
-        )
+        ),
+    )  # fmt: skip
 
-    def decode(self, args: argparse.Namespace, profile: Profile | None) -> list[Annotation]:
-        ppo = Ppo(args.ppo)
-        part = Part(args.part)
+    def decode(self, frames: Sequence[str], options: Mapping[str, object], profile: Profile | None) -> list[Annotation]:
+        values = resolve_options(self.decoder_options, options, f"{PROTOCOL} decoder")
+        ppo = Ppo(values.integer("ppo") or 1)
+        part = Part(values.text("part") or "all")
         if part is Part.PKW and not ppo.has_pkw:
             raise ConfigurationError("--part pkw needs --ppo 1 (PPO3 has no PKW area)")
-        kind = Kind(args.kind) if args.kind else None
-        return annotate_hex(args.data, ppo, Direction(args.direction), part, profile, kind)
+        kind_text = values.text("kind")
+        kind = Kind(kind_text) if kind_text else None
+        return annotate_hex(frames, ppo, Direction(values.text("direction") or ""), part, profile, kind)
 
 
 PLUGIN = ProfibusPkwPlugin()

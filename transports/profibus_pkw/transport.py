@@ -21,10 +21,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from starterbus.core.errors import ConfigurationError, DecodeError, UnsupportedOperationError
-from starterbus.core.model import Kind, PointDef, Reading, Value
+from starterbus.core.model import Kind, PointDef, Reading
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
-from starterbus.core.status import CW_START, Command, ControlWordState, Status, decode_status_word
+from starterbus.core.status import CW_START, Command, ControlWordState, Status, status_with_currents
 from starterbus.core.transport import Capability, Transport
 from starterbus.core.url import DeviceUrl
 from starterbus.transports.profibus_pkw.channels import Channel, GatewayChannel, SimChannel, get_slave
@@ -144,8 +144,6 @@ class ProfibusPkwTransport(Transport):
         self.link: CyclicLink | None = None
         self.control = ControlWordState()
         self._errors = profile.transport_settings(PROTOCOL).get("errors", {})
-        phases = profile.phase_currents()
-        self._phase_a: PointDef | None = phases[0] if phases else None
 
     # -- lifecycle -----------------------------------------------------------------------------------------
 
@@ -269,17 +267,7 @@ class ProfibusPkwTransport(Transport):
     def read_status(self) -> Status:
         words = self._link().inputs(self.settings.limits.timeout)
         zsw, act = (words[2], words[3]) if self.ppo is Ppo.PPO1 else (words[0], words[1])
-        currents: dict[str, Value] = {}
-        if self._phase_a is not None:
-            currents["a"] = Value.from_raw(self._phase_a, act, ACT_SCALE, PROTOCOL)
-        return decode_status_word(
-            zsw,
-            self.profile.faults,
-            bit12_is_mains_voltage=self.profile.control.bit12_is_mains_voltage,
-            currents=currents,
-            source=PROTOCOL,
-            extra_raw={"act": act},
-        )
+        return status_with_currents(self.profile, zsw, [act], source=PROTOCOL, scale=ACT_SCALE, extra_raw={"act": act})
 
     def send_command(self, command: Command) -> None:
         link = self._link()
