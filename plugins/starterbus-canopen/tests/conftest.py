@@ -11,8 +11,10 @@ import pytest
 _channels = itertools.count()
 
 
-def unique_channel(prefix: str = "co") -> str:
-    return f"{prefix}-{os.getpid()}-{next(_channels)}"
+@pytest.fixture
+def channel() -> str:
+    """A virtual CAN channel no other test uses."""
+    return f"co-{os.getpid()}-{next(_channels)}"
 
 
 @pytest.fixture(autouse=True)
