@@ -15,9 +15,10 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
+import can
 import canopen
 
-from starterbus.core import ConfigurationError, PointDef, RunningSimulator, SimulatedStarter
+from starterbus.core import ConfigurationError, DecodeError, PointDef, RunningSimulator, SimulatedStarter
 from starterbus.core.errors import SimulatorRefusal
 from starterbus_canopen.codes import (
     EMCY_HEARTBEAT,
@@ -154,7 +155,7 @@ class CanopenSimulator(RunningSimulator):
             return
         try:
             word = decode_rpdo1(bytes(data))
-        except Exception:  # wrong length: CiA 301 says EMCY 0x8210, the word is not applied
+        except DecodeError:  # wrong length: CiA 301 says EMCY 0x8210, the word is not applied
             served.local.emcy.send(0x8210, served.error_register | ER_GENERIC)
             return
         with self.lock:
@@ -214,7 +215,7 @@ class CanopenSimulator(RunningSimulator):
                 try:
                     self._watch(served, now)
                     self._tpdo(served, now)
-                except Exception:  # a bus error must not end the simulator; the next tick retries
+                except (can.CanError, OSError, canopen.SdoAbortedError):  # a bus error: the next tick retries
                     continue
 
     # -- RunningSimulator --------------------------------------------------------------------------------------

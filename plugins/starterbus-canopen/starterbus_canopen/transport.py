@@ -23,7 +23,9 @@ from starterbus.core import (
     Capability,
     Command,
     ControlWordState,
+    DecodeError,
     DeviceUrl,
+    NotOpenError,
     PointDef,
     Profile,
     Reading,
@@ -124,8 +126,6 @@ class CanopenTransport(Transport):
 
     def _require(self) -> tuple[canopen.Network, canopen.RemoteNode]:
         if self._network is None or self._node is None:
-            from starterbus.core import NotOpenError
-
             raise NotOpenError(f"{self.describe()}: the transport is not open")
         return self._network, self._node
 
@@ -168,8 +168,6 @@ class CanopenTransport(Transport):
         _, node = self._require()
         data = self._sdo(f"read {what} at 0x{index:04X}:{subindex:02X}", node.sdo.upload, index, subindex)
         if len(data) != size:
-            from starterbus.core import DecodeError
-
             raise DecodeError(
                 f"{what}: {len(data)} bytes, expected {size}", bytes(data), f"0x{index:04X}:{subindex:02X}"
             )
@@ -203,7 +201,7 @@ class CanopenTransport(Transport):
     def _on_tpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         try:
             sample = Tpdo1.decode(bytes(data))
-        except Exception:  # a malformed TPDO never yields a value
+        except DecodeError:  # a malformed TPDO never yields a value
             self.bad_tpdos += 1
             return
         self._tpdo = (sample, time.monotonic())
