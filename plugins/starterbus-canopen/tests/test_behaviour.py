@@ -56,7 +56,7 @@ def test_lost_master_soft_stops_the_run_it_held_and_sends_emcy(
     starter: SimulatedStarter, channel: str, listener: tuple[canopen.Network, list[tuple[int, bytes]]]
 ) -> None:
     _, seen = listener
-    with CanopenSimulator(("virtual", channel), heartbeat_ms=20, consumer_ms=150) as sim:
+    with CanopenSimulator(("virtual", channel), heartbeat_ms=20, consumer_ms=300) as sim:
         sim.add_node(starter, 5)
         url = f"canopen://virtual/{channel}?node=5&heartbeat=20"
         device = open_device(url, starter.profile)
@@ -127,7 +127,7 @@ def test_a_late_sdo_reply_never_answers_the_next_request(
 
     network.subscribe(0x605, server)
     profile = get_profile(MODEL)
-    url = f"canopen://virtual/{channel}?node=5&heartbeat=0&timeout=0.2&max_age=0"
+    url = f"canopen://virtual/{channel}?node=5&heartbeat=0&timeout=0.3&max_age=0"
     with open_device(url, profile) as device:
         with pytest.raises(TimeoutError):
             device.read("status_word")
