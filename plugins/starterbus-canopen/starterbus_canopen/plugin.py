@@ -1,0 +1,116 @@
+"""Entry point of the canopen transport: ``starterbus.transports`` -> ``PLUGIN``.
+
+canopen and python-can are imported only when a transport, a simulator or the decoder is used.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from starterbus.core import (
+    Annotation,
+    Capability,
+    ConfigurationError,
+    DeviceUrl,
+    Profile,
+    RunningSimulator,
+    Transport,
+    TransportPlugin,
+)
+
+_SETTINGS = ("node_ids", "device_type", "identity")
+_IDENTITY = ("vendor_id", "product_code", "revision", "serial_number")
+
+
+def _int(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+class CanopenPlugin(TransportPlugin):
+    name = "canopen"
+    summary = "CANopen master over python-can (canopen library): SDO, TPDO1 status, RPDO1 commands, heartbeat"
+    capabilities = frozenset(Capability)
+    url_forms = (
+        "canopen://INTERFACE/CHANNEL?node=N",
+        "canopen://virtual/bus0?node=5",
+        "canopen://socketcan/can0?node=5&bitrate=250000&heartbeat=100&master=127",
+        "canopen://virtual/bus0?node=5&timeout=0.5&max_age=0.5&cycle=100",
+    )
+    requires_point_addresses = True
+    address_parameter = "node"
+
+    def open(self, url: DeviceUrl, profile: Profile) -> Transport:
+        from starterbus_canopen.transport import CanopenTransport
+
+        return CanopenTransport(url, profile)
+
+    def parse_address(self, value: object) -> tuple[int, int]:
+        """``[index, subindex]``: index 0x1000..0xFFFF, subindex 0..0xFF."""
+        if (
+            not isinstance(value, (list, tuple))
+            or len(value) != 2
+            or not all(_int(v) for v in value)
+            or not 0x1000 <= value[0] <= 0xFFFF
+            or not 0 <= value[1] <= 0xFF
+        ):
+            raise ConfigurationError(
+                f"{value!r} is not a CANopen address [index, subindex] (index 0x1000..0xFFFF, subindex 0..255)"
+            )
+        return int(value[0]), int(value[1])
+
+    def check_settings(self, settings: Mapping[str, Any]) -> None:
+        """``[transports.canopen]``: node_ids = [lo, hi], device_type (0x1000), identity = {...} (0x1018)."""
+        unknown = sorted(set(settings) - set(_SETTINGS))
+        if unknown:
+            raise ConfigurationError(f"unknown key(s) {unknown} (known: {', '.join(_SETTINGS)})")
+        ids = settings.get("node_ids", [1, 127])
+        if (
+            not isinstance(ids, list)
+            or len(ids) != 2
+            or not all(_int(v) and 1 <= v <= 127 for v in ids)
+            or (ids[0] > ids[1])
+        ):
+            raise ConfigurationError(f"node_ids: {ids!r} is not [lo, hi] within 1..127")
+        device_type = settings.get("device_type", 0)
+        if not _int(device_type) or not 0 <= device_type <= 0xFFFFFFFF:
+            raise ConfigurationError(f"device_type: {device_type!r} is not a 32-bit unsigned integer")
+        identity = settings.get("identity", {})
+        if not isinstance(identity, Mapping):
+            raise ConfigurationError(f"identity: {identity!r} is not a table")
+        for key, value in identity.items():
+            if key not in _IDENTITY:
+                raise ConfigurationError(f"identity.{key}: unknown key (known: {', '.join(_IDENTITY)})")
+            if not _int(value) or not 0 <= value <= 0xFFFFFFFF:
+                raise ConfigurationError(f"identity.{key}: {value!r} is not a 32-bit unsigned integer")
+
+    # -- simulate (argparse glue in one module, see sim_cli) ------------------------------------------------------
+
+    def add_simulator_arguments(self, parser: argparse.ArgumentParser) -> None:
+        from starterbus_canopen.sim_cli import add_arguments
+
+        add_arguments(parser)
+
+    def start_simulators(
+        self, args: argparse.Namespace, profile: Profile, starters: Sequence[object]
+    ) -> list[RunningSimulator]:
+        from starterbus_canopen.sim_cli import start
+
+        return start(args, profile, starters)
+
+    # -- decode ------------------------------------------------------------------------------------------------
+
+    def add_decode_arguments(self, parser: argparse.ArgumentParser) -> None:
+        parser.epilog = (
+            "Each HEX argument is one CAN frame in candump syntax ID#DATA (e.g. 000#0105 605#4001200000000000 "
+            "185#00A0C003); segmented SDO transfers are followed across the frames given."
+        )
+
+    def decode(self, args: argparse.Namespace, profile: Profile | None) -> list[Annotation]:
+        from starterbus_canopen.decoder import annotate_frames
+
+        return annotate_frames(list(args.data), profile)
+
+
+PLUGIN = CanopenPlugin()

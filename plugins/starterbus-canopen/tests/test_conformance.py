@@ -1,0 +1,27 @@
+"""The canopen transport passes starterbus's conformance kit, served by its own LocalNode simulator."""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import os
+from collections.abc import Iterator
+
+from starterbus_canopen.simulator import CanopenSimulator
+
+from starterbus.core import SimulatedStarter
+from starterbus.testing import TransportConformance
+
+_channels = itertools.count()
+
+
+class TestCanopen(TransportConformance):
+    transport = "canopen"
+    model = "example_canopen_starter"
+
+    @contextlib.contextmanager
+    def serve(self, starter: SimulatedStarter) -> Iterator[str]:
+        channel = f"conformance-co-{os.getpid()}-{next(_channels)}"
+        with CanopenSimulator(("virtual", channel), heartbeat_ms=0, event_timer=0.05) as sim:
+            sim.add_node(starter, 5)
+            yield f"canopen://virtual/{channel}?node=5&heartbeat=50"
