@@ -101,16 +101,15 @@ class CanopenPlugin(TransportPlugin):
 
     # -- decode ------------------------------------------------------------------------------------------------
 
-    def add_decode_arguments(self, parser: argparse.ArgumentParser) -> None:
-        parser.epilog = (
-            "Each HEX argument is one CAN frame in candump syntax ID#DATA (e.g. 000#0105 605#4001200000000000 "
-            "185#00A0C003); segmented SDO transfers are followed across the frames given."
-        )
+    decoder_help = (
+        "Each HEX argument is one CAN frame in candump syntax ID#DATA (e.g. 000#0105 605#4001200000000000 "
+        "185#00A0C003); segmented SDO transfers are followed across the frames given; give --model to decode PDOs."
+    )
 
-    def decode(self, args: argparse.Namespace, profile: Profile | None) -> list[Annotation]:
+    def decode(self, frames: Sequence[str], options: Mapping[str, object], profile: Profile | None) -> list[Annotation]:
         from starterbus_canopen.decoder import annotate_frames
 
-        return annotate_frames(list(args.data), profile)
+        return annotate_frames(list(frames), profile)
 
 
 PLUGIN = CanopenPlugin()
