@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import subprocess
 import sys
 import textwrap
+import types
 from pathlib import Path
 
 import pytest
@@ -13,6 +15,18 @@ import pytest
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import ManualClock
+
+
+def _tests_importable() -> None:
+    """Helpers shared between test files import as ``starterbus.tests...`` (the repository root is the package);
+    a regular install does not ship the tests, so name this folder as that package when it is missing."""
+    if importlib.util.find_spec("starterbus.tests") is None:
+        package = types.ModuleType("starterbus.tests")
+        package.__path__ = [str(Path(__file__).parent)]
+        sys.modules["starterbus.tests"] = package
+
+
+_tests_importable()
 
 
 @pytest.fixture(params=["jjr5000", "ssd1", "jjr8000"])
