@@ -111,7 +111,11 @@ class RemoteDeviceError(StarterbusError):
         self.meaning = meaning
         self.additional = additional
         self.data = bytes(data)
+        #: what the refusal means whatever the protocol, when its text says so unambiguously (else None)
+        self.reason = classify_refusal(meaning)
         text = f"{protocol} error {code:#04x}: {meaning}"
+        if self.reason is not None:
+            text = f"{REFUSAL_TEXT[self.reason]} ({text})"
         if additional is not None:
             text += f" (additional code {additional:#04x})"
         if detail:
@@ -137,3 +141,28 @@ class SimulatorRefusal(StarterbusError):
     def __init__(self, reason: Refusal, message: str) -> None:
         self.reason = reason
         super().__init__(message)
+
+
+#: one message per kind of refusal, the same over every protocol
+REFUSAL_TEXT = {
+    Refusal.WHILE_RUNNING: "the device refuses this change while the motor runs",
+    Refusal.WRITE_PROTECTED: "parameter changes are switched off on the device (its parameter-modify setting)",
+    Refusal.OUT_OF_RANGE: "the device refuses the value as outside its limits",
+    Refusal.NOT_AVAILABLE: "the device has no such parameter or address",
+    Refusal.READ_ONLY: "the device does not allow this parameter to be changed",
+}
+_REFUSAL_WORDS = {
+    Refusal.WHILE_RUNNING: ("while running", "device state conflict"),
+    Refusal.WRITE_PROTECTED: ("modification forbidden", "parameter modify"),
+    Refusal.OUT_OF_RANGE: ("out of limits", "value out of", "invalid attribute value"),
+    Refusal.NOT_AVAILABLE: ("not available", "data address", "does not exist", "attribute not supported"),
+    Refusal.READ_ONLY: ("cannot be modified", "not modifiable", "not settable", "read-only", "no write permission"),
+}
+
+
+def classify_refusal(meaning: str) -> Refusal | None:
+    """The kind of refusal a device's error text names, or None when it names none or more than one (an
+    exception that means "out of limits, or not modifiable" stays as the manual words it)."""
+    text = meaning.casefold()
+    found = {reason for reason, words in _REFUSAL_WORDS.items() if any(w in text for w in words)}
+    return found.pop() if len(found) == 1 else None
