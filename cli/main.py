@@ -137,6 +137,7 @@ _EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser],
 from starterbus.cli import identify  # noqa: E402  (DeviceNet issue: `starterbus identify URL`)
 
 _EXTENSIONS.append(identify.add_parser)
+_EXTENSIONS.append(__import__("starterbus.cli.serve", fromlist=["add_parser"]).add_parser)  # issue 15: serve
 
 
 def _quiet_libraries() -> None:

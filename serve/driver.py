@@ -1,0 +1,226 @@
+"""The thin driver: runs an :class:`EdgeSession` on asyncio with paho-mqtt and an :class:`AsyncFleet`.
+
+paho's network loop runs in its own thread; its callbacks hand every event to the event loop, which owns the
+session. A new paho client is made for every connection, with the Will (NDEATH with the new bdSeq) set before
+its CONNECT; paho's own reconnect is off, because it would reuse the old Will (SPARKPLUG.md pitfalls).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import paho.mqtt.client as mqtt
+from paho.mqtt.enums import CallbackAPIVersion
+
+from starterbus.aio import AsyncFleet
+from starterbus.core.errors import StarterbusError
+from starterbus.core.guarded import GuardedOperationError, Outcome
+from starterbus.fleet.poller import Sample
+from starterbus.serve.broker import BrokerOptions
+from starterbus.serve.session import Action, CommandRequest, EdgeSession, Publish, Reconnect
+from starterbus.serve.state import save_bdseq
+
+log = logging.getLogger("starterbus.serve")
+
+
+def describe_outcomes(outcomes: list[Outcome]) -> str:
+    parts = []
+    for o in outcomes:
+        if o.key is not None:
+            shown = o.read_back.text() if o.read_back is not None else "?"
+            parts.append(f"{o.key}: {o.result} (read back {shown})")
+        else:
+            reached = o.reached.state.value if o.reached is not None else "unknown"
+            parts.append(f"{o.action}: {o.result} (reached {reached})")
+    return "; ".join(parts)
+
+
+class EdgeNodeDriver:
+    def __init__(
+        self,
+        fleet: AsyncFleet,
+        session: EdgeSession,
+        broker: BrokerOptions,
+        *,
+        state_file: Path | None = None,
+        on_sample: Callable[[Sample], None] | None = None,
+        retry_delay: float = 2.0,
+    ) -> None:
+        self.fleet = fleet
+        self.session = session
+        self.broker = broker
+        self.state_file = state_file
+        self.on_sample = on_sample
+        self.retry_delay = retry_delay
+        self.actor = f"mqtt:{broker.username or broker.client_id}@{broker.host}:{broker.port}"
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._client: mqtt.Client | None = None
+        self._lost = asyncio.Event()
+        self._tasks: set[asyncio.Task[None]] = set()
+        self.connections = 0  # sessions established (births sent at least once)
+
+    # -- paho thread -> event loop -------------------------------------------------------------------------
+
+    def _call(self, fn: Callable[..., None], *args: object) -> None:
+        loop = self._loop
+        if loop is not None and not loop.is_closed():
+            loop.call_soon_threadsafe(fn, *args)
+
+    def _make_client(self, will: Publish) -> mqtt.Client:
+        b = self.broker
+        client = mqtt.Client(
+            CallbackAPIVersion.VERSION2,
+            client_id=b.client_id,
+            clean_session=True,
+            protocol=mqtt.MQTTv311,
+            reconnect_on_failure=False,
+        )
+        client.will_set(will.topic, will.payload, qos=1, retain=False)
+        if b.username:
+            client.username_pw_set(b.username, b.password)
+        if b.tls:
+            client.tls_set(ca_certs=b.ca_file, certfile=b.cert_file, keyfile=b.key_file)
+        session = self.session
+        subs = session.subscriptions()
+
+        def on_connect(c: mqtt.Client, _u: Any, _f: Any, reason: Any, _p: Any) -> None:
+            if reason.is_failure:
+                log.warning("broker %s refused the connection: %s", b.describe(), reason)
+                self._call(self._lost.set)
+            else:
+                c.subscribe(subs)
+
+        def on_subscribe(_c: mqtt.Client, _u: Any, _mid: int, reasons: Any, _p: Any) -> None:
+            if any(r.is_failure for r in reasons):
+                log.warning("broker %s refused a subscription: %s", b.describe(), reasons)
+            self._call(self._subscribed, client)
+
+        def on_message(_c: mqtt.Client, _u: Any, msg: mqtt.MQTTMessage) -> None:
+            self._call(self._message, client, msg.topic, bytes(msg.payload))
+
+        def on_disconnect(_c: mqtt.Client, _u: Any, _f: Any, reason: Any, _p: Any) -> None:
+            self._call(self._disconnected, client)
+
+        client.on_connect = on_connect
+        client.on_subscribe = on_subscribe
+        client.on_message = on_message
+        client.on_disconnect = on_disconnect
+        return client
+
+    # -- event loop side -----------------------------------------------------------------------------------
+
+    def _subscribed(self, client: mqtt.Client) -> None:
+        if client is self._client:
+            self.connections += 1
+            self._apply(self.session.on_connected(time.time()))
+
+    def _disconnected(self, client: mqtt.Client) -> None:
+        if client is self._client:
+            self.session.on_disconnected()
+            self._lost.set()
+
+    def _message(self, client: mqtt.Client, topic: str, payload: bytes) -> None:
+        if client is self._client:
+            self._apply(self.session.on_message(topic, payload, time.time()))
+
+    def _apply(self, actions: list[Action]) -> None:
+        client = self._client
+        for action in actions:
+            if isinstance(action, Publish):
+                if client is not None:
+                    client.publish(action.topic, action.payload, qos=action.qos, retain=False)
+            elif isinstance(action, CommandRequest):
+                task = asyncio.get_running_loop().create_task(self._execute(action))
+                self._tasks.add(task)
+                task.add_done_callback(self._tasks.discard)
+            elif isinstance(action, Reconnect) and client is not None:
+                client.disconnect()
+
+    async def _execute(self, req: CommandRequest) -> None:
+        try:
+            if req.command is not None:
+                outcome = await self.fleet.remote_command(req.device, req.command, actor=self.actor)
+                text = describe_outcomes([outcome])
+                ok = outcome.ok
+            else:
+                outcomes = await self.fleet.remote_write(req.device, req.writes, actor=self.actor)
+                text, ok = describe_outcomes(outcomes), all(o.ok for o in outcomes)
+        except GuardedOperationError as exc:
+            text, ok = f"{exc} [{describe_outcomes(exc.outcomes)}]", False
+        except StarterbusError as exc:
+            text, ok = str(exc), False
+        log.info("DCMD %s %s: %s", req.device, req.command.value if req.command else req.writes, text)
+        now = time.time()
+        self._apply(
+            self.session.command_done(req.device, text, now) if ok else self.session.refuse(req.device, text, now)
+        )
+
+    # -- tasks ---------------------------------------------------------------------------------------------
+
+    async def _samples(self) -> None:
+        async for sample in self.fleet.samples():
+            if self.on_sample is not None:
+                self.on_sample(sample)
+            self._apply(self.session.on_sample(sample, time.time()))
+
+    async def _ticks(self) -> None:
+        while True:
+            await asyncio.sleep(1.0)
+            self._apply(self.session.on_tick(time.time()))
+
+    async def _connections(self) -> None:
+        b = self.broker
+        while True:
+            will = self.session.next_will()
+            if self.state_file is not None:
+                await asyncio.to_thread(save_bdseq, self.state_file, self.session.bdseq)
+            client = self._make_client(will)
+            self._lost.clear()
+            try:
+                await asyncio.to_thread(client.connect, b.host, b.port, b.keepalive)
+            except (OSError, ValueError) as exc:
+                log.warning("broker %s unreachable: %s; retrying in %g s", b.describe(), exc, self.retry_delay)
+                await asyncio.sleep(self.retry_delay)
+                continue
+            self._client = client
+            client.loop_start()
+            await self._lost.wait()  # cancelled on stop: _stop_cleanly says goodbye with this client
+            self.session.on_disconnected()
+            self._client = None
+            await asyncio.to_thread(self._close, client)
+            log.warning("connection to %s lost; reconnecting", b.describe())
+            await asyncio.sleep(min(self.retry_delay, 0.5))
+
+    @staticmethod
+    def _close(client: mqtt.Client) -> None:
+        client.disconnect()
+        client.loop_stop()
+
+    async def _stop_cleanly(self) -> None:
+        """Intentional stop: NDEATH (QoS 1), wait for its PUBACK, then DISCONNECT (intentional-disconnect-*)."""
+        client = self._client
+        if client is None:
+            return
+        self._client = None
+        if self.session.born:
+            death = self.session.ndeath()
+            info = client.publish(death.topic, death.payload, qos=1, retain=False)
+            await asyncio.to_thread(info.wait_for_publish, 2.0)
+        self.session.on_disconnected()
+        await asyncio.to_thread(self._close, client)
+
+    async def run(self, stop: asyncio.Event) -> None:
+        self._loop = asyncio.get_running_loop()
+        jobs = [asyncio.create_task(c) for c in (self._samples(), self._ticks(), self._connections())]
+        try:
+            await stop.wait()
+        finally:
+            for job in jobs:
+                job.cancel()
+            await asyncio.gather(*jobs, return_exceptions=True)
+            await self._stop_cleanly()
