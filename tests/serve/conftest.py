@@ -13,7 +13,7 @@ import tempfile
 import threading
 import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -108,7 +108,7 @@ class Host:
         return out
 
     def send(
-        self, kind: str, device: str | None, metrics: list[tuple[str, int, str, object]], ts: int | None = None
+        self, kind: str, device: str | None, metrics: Sequence[tuple[str, int, str, object]], ts: int | None = None
     ) -> None:
         """An NCMD/DCMD by metric name: (name, datatype, value field, value)."""
         payload = tahu.Payload()
