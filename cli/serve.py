@@ -39,6 +39,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p.add_argument("--command-max-age", type=float, default=10.0, help="refuse DCMDs older than this, s")
     p.add_argument("--primary-host", metavar="ID", help="publish only while this primary host's STATE is online")
     p.add_argument("--metrics", metavar="HOST:PORT", help="Prometheus endpoint, e.g. 127.0.0.1:9477")
+    p.add_argument("--reconnect-delay", type=float, default=2.0, help="wait between connection attempts, s")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("-v", "--verbose", action="store_true", help="log every connection event")
     p.set_defaults(handler=cmd_serve)
@@ -110,7 +111,10 @@ async def _serve(args: argparse.Namespace) -> int:
         collector = FleetCollector(session)
         async with AsyncFleet(config) as fleet:
             collector.poller = fleet.poller
-            driver = EdgeNodeDriver(fleet, session, broker, state_file=state_file, on_sample=collector.observe)
+            driver = EdgeNodeDriver(
+                fleet, session, broker, state_file=state_file, on_sample=collector.observe,
+                retry_delay=args.reconnect_delay,
+            )  # fmt: skip
             commands = "as the fleet file allows" if options.commands_allowed else "refused (plaintext)"
             print(
                 f"starterbus serve: {len(devices)} devices as {session.topic_prefix}/+/{node} on {broker.describe()}; "
