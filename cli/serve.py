@@ -61,11 +61,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 async def _serve(args: argparse.Namespace) -> int:
     from starterbus.aio import AsyncFleet
-    from starterbus.core.registry import get_profile
     from starterbus.fleet.config import load_fleet
     from starterbus.serve.broker import BrokerOptions, load_credentials, parse_broker_url
     from starterbus.serve.driver import EdgeNodeDriver
-    from starterbus.serve.metrics import Aliases, device_metrics, node_metrics
     from starterbus.serve.prometheus import FleetCollector, start_metrics_server
     from starterbus.serve.session import EdgeSession, SessionOptions
     from starterbus.serve.state import default_state_file, load_bdseq
@@ -103,11 +101,9 @@ async def _serve(args: argparse.Namespace) -> int:
             commands_allowed=tls or args.allow_plaintext_commands,
             primary_host=args.primary_host,
         )
-        aliases = Aliases()
-        node_set = node_metrics(aliases)
-        devices = {d.name: device_metrics(d, get_profile(d.model), aliases, args.deadband) for d in config.devices}
         state_file = args.state_file or default_state_file(args.group, node)
-        session = EdgeSession(options, node_set, devices, bdseq=load_bdseq(state_file))
+        bdseq = await asyncio.to_thread(load_bdseq, state_file)
+        session = EdgeSession.for_fleet(config, options, deadband_steps=args.deadband, bdseq=bdseq)
         collector = FleetCollector(session)
         async with AsyncFleet(config) as fleet:
             collector.poller = fleet.poller
@@ -116,11 +112,8 @@ async def _serve(args: argparse.Namespace) -> int:
                 retry_delay=args.reconnect_delay,
             )  # fmt: skip
             commands = "as the fleet file allows" if options.commands_allowed else "refused (plaintext)"
-            print(
-                f"starterbus serve: {len(devices)} devices as {session.topic_prefix}/+/{node} on {broker.describe()}; "
-                f"commands {commands}",
-                flush=True,
-            )
+            where = f"{session.topic_prefix}/+/{node} on {broker.describe()}"
+            print(f"starterbus serve: {len(session.devices)} devices as {where}; commands {commands}", flush=True)
             if broker_proc is not None:
                 print(
                     "  embedded broker: a local mosquitto for trying it out, not for production\n"

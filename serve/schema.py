@@ -103,27 +103,28 @@ def _build() -> tuple[Any, Any]:
 Payload, DESCRIPTOR = _build()
 
 
+_FIELDS: dict[int, str] = {
+    **{t.value: "int_value" for t in INT_TYPES},
+    **{t.value: "long_value" for t in LONG_TYPES},
+    DataType.FLOAT.value: "float_value",
+    DataType.DOUBLE.value: "double_value",
+    DataType.BOOLEAN.value: "boolean_value",
+    DataType.STRING.value: "string_value",
+    DataType.TEXT.value: "string_value",
+}
+_MASKS = {t.value: (1 << WIDTH.get(t, 32 if t in INT_TYPES else 64)) - 1 for t in INT_TYPES | LONG_TYPES}
+
+
 def value_field(datatype: int) -> str:
     """The Metric/PropertyValue field that carries a value of this data type."""
-    if datatype in INT_TYPES:
-        return "int_value"
-    if datatype in LONG_TYPES:
-        return "long_value"
-    return {
-        DataType.FLOAT: "float_value",
-        DataType.DOUBLE: "double_value",
-        DataType.BOOLEAN: "boolean_value",
-        DataType.STRING: "string_value",
-        DataType.TEXT: "string_value",
-    }[DataType(datatype)]
+    return _FIELDS[datatype]
 
 
 def to_wire(datatype: int, value: object) -> object:
     """A Python value as its field holds it: signed integers wrap modulo 2^width (two's complement)."""
-    if datatype in INT_TYPES or datatype in LONG_TYPES:
-        number = int(value)  # type: ignore[call-overload]
-        bits = WIDTH.get(DataType(datatype), 32 if datatype in INT_TYPES else 64)
-        return number & ((1 << bits) - 1)
+    mask = _MASKS.get(datatype)
+    if mask is not None:
+        return int(value) & mask  # type: ignore[call-overload]
     if datatype == DataType.BOOLEAN:
         return bool(value)
     if datatype in (DataType.FLOAT, DataType.DOUBLE):

@@ -22,6 +22,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from starterbus.core.status import Command
+from starterbus.fleet.config import FleetConfig
 from starterbus.fleet.poller import Sample
 from starterbus.serve.metrics import (
     BDSEQ,
@@ -31,10 +32,13 @@ from starterbus.serve.metrics import (
     NODE_REFUSED,
     REBIRTH,
     REFUSED,
+    Aliases,
     MetricSet,
     Scalar,
     changed,
+    device_metrics,
     initial_values,
+    node_metrics,
     sample_values,
 )
 from starterbus.serve.payloads import (
@@ -118,10 +122,23 @@ class EdgeSession:
         self.buffer: deque[tuple[str, list[Entry]]] = deque()
         self.dropped = 0
         self.refused = 0
+        self.online = 0  # devices online now
         self.published = 0
         self.commands_allowed = options.commands_allowed
         self.topic_prefix = f"{NAMESPACE}/{options.group}"
         self._node_reported: dict[str, Scalar | None] = {}
+
+    @classmethod
+    def for_fleet(
+        cls, config: FleetConfig, options: SessionOptions, *, deadband_steps: float = 1.0, bdseq: int = -1
+    ) -> EdgeSession:
+        """The node and one Sparkplug device per fleet device, described from their profiles."""
+        from starterbus.core.registry import get_profile
+
+        aliases = Aliases()
+        node = node_metrics(aliases)
+        devices = {d.name: device_metrics(d, get_profile(d.model), aliases, deadband_steps) for d in config.devices}
+        return cls(options, node, devices, bdseq=bdseq)
 
     # -- topics -------------------------------------------------------------------------------------------
 
@@ -171,7 +188,7 @@ class EdgeSession:
         return {
             BDSEQ: self.bdseq,
             REBIRTH: False,
-            NODE_DEVICES_ONLINE: sum(1 for d in self.devices.values() if d.online),
+            NODE_DEVICES_ONLINE: self.online,
             NODE_DROPPED: self.dropped,
             NODE_REFUSED: self.refused,
         }
@@ -222,6 +239,8 @@ class EdgeSession:
         if dev is None:
             return []
         out: list[Action] = []
+        if dev.online != sample.online:
+            self.online += 1 if sample.online else -1
         dev.online = sample.online
         if not sample.online:
             if dev.born:
