@@ -77,7 +77,7 @@ async def _serve(args: argparse.Namespace) -> int:
             demo = await asyncio.to_thread(start_demo_fleet, 1.0)
             config = demo.config
         else:
-            config = load_fleet(args.fleet)
+            config = await asyncio.to_thread(load_fleet, args.fleet)
         if args.mqtt is None:
             from starterbus.serve.embedded import start_mosquitto
 

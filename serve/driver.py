@@ -188,13 +188,15 @@ class EdgeNodeDriver:
                 await asyncio.sleep(self.retry_delay)
                 continue
             self._client = client
+            sessions = self.connections
             client.loop_start()
             await self._lost.wait()  # cancelled on stop: _stop_cleanly says goodbye with this client
             self.session.on_disconnected()
             self._client = None
             await asyncio.to_thread(self._close, client)
-            log.warning("connection to %s lost; reconnecting", b.describe())
-            await asyncio.sleep(min(self.retry_delay, 0.5))
+            established = self.connections > sessions
+            log.warning("connection to %s %s; reconnecting", b.describe(), "lost" if established else "refused")
+            await asyncio.sleep(min(self.retry_delay, 0.5) if established else self.retry_delay)
 
     @staticmethod
     def _close(client: mqtt.Client) -> None:

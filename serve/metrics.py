@@ -8,7 +8,7 @@ profile's unit, range, resolution, English and Chinese names as metric propertie
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from starterbus.core.model import PointDef
@@ -162,21 +162,8 @@ def changed(defn: MetricDef, old: Scalar | None, new: Scalar | None) -> bool:
     return abs(float(new) - float(old)) >= defn.deadband * (1 - 1e-9) and new != old
 
 
-def initial_values(metrics: MetricSet) -> Mapping[str, Scalar | None]:
+def initial_values() -> Mapping[str, Scalar | None]:
+    """What a device's control metrics say before any command."""
     values: dict[str, Scalar | None] = {name: False for name in COMMAND_METRICS}
     values.update({LAST_COMMAND: "", REFUSED: 0})
     return values
-
-
-__all__: Sequence[str] = [
-    "COMMAND_METRICS",
-    "LAST_COMMAND",
-    "REBIRTH",
-    "REFUSED",
-    "Aliases",
-    "MetricDef",
-    "MetricSet",
-    "device_metrics",
-    "node_metrics",
-    "sample_values",
-]

@@ -112,7 +112,7 @@ class EdgeSession:
         self.node = node
         self.devices = {name: _Device(name, metrics) for name, metrics in devices.items()}
         for dev in self.devices.values():
-            dev.current = {k: (v, 0) for k, v in initial_values(dev.metrics).items()}
+            dev.current = {k: (v, 0) for k, v in initial_values().items()}
         self.bdseq = bdseq  # the value of the current (or last) connection; -1 before the first
         self.seq = 0
         self.connected = False  # subscriptions acknowledged
