@@ -117,7 +117,8 @@ async def _serve(args: argparse.Namespace) -> int:
             if broker_proc is not None:
                 print(
                     "  embedded broker: a local mosquitto for trying it out, not for production\n"
-                    f"  watch the traffic: mosquitto_sub -h 127.0.0.1 -p {port} -t 'spBv1.0/#' -v",
+                    f"  watch the traffic: mosquitto_sub -h 127.0.0.1 -p {port} -t 'spBv1.0/#' -v"
+                    "   (payloads are Sparkplug B protobuf)",
                     flush=True,
                 )
             if args.metrics:

@@ -18,7 +18,7 @@ import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
 from starterbus.aio import AsyncFleet
-from starterbus.core.errors import StarterbusError
+from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.guarded import GuardedOperationError, Outcome
 from starterbus.fleet.poller import Sample
 from starterbus.serve.broker import BrokerOptions
@@ -84,7 +84,11 @@ class EdgeNodeDriver:
         if b.username:
             client.username_pw_set(b.username, b.password)
         if b.tls:
-            client.tls_set(ca_certs=b.ca_file, certfile=b.cert_file, keyfile=b.key_file)
+            try:
+                client.tls_set(ca_certs=b.ca_file, certfile=b.cert_file, keyfile=b.key_file)
+            except (OSError, ValueError) as exc:  # ssl.SSLError is an OSError
+                files = ", ".join(f for f in (b.ca_file, b.cert_file, b.key_file) if f) or "system CAs"
+                raise ConfigurationError(f"TLS setup ({files}): {exc}") from None
         session = self.session
         subs = session.subscriptions()
 
@@ -217,12 +221,17 @@ class EdgeNodeDriver:
         await asyncio.to_thread(self._close, client)
 
     async def run(self, stop: asyncio.Event) -> None:
+        """Until ``stop`` is set; a failing part (e.g. TLS files that cannot be read) ends it with its error."""
         self._loop = asyncio.get_running_loop()
         jobs = [asyncio.create_task(c) for c in (self._samples(), self._ticks(), self._connections())]
+        stopped = asyncio.create_task(stop.wait())
         try:
-            await stop.wait()
+            await asyncio.wait([stopped, *jobs], return_when=asyncio.FIRST_COMPLETED)
         finally:
-            for job in jobs:
+            for job in (*jobs, stopped):
                 job.cancel()
-            await asyncio.gather(*jobs, return_exceptions=True)
+            results = await asyncio.gather(*jobs, return_exceptions=True)
             await self._stop_cleanly()
+        for result in results:
+            if isinstance(result, Exception) and not isinstance(result, asyncio.CancelledError):
+                raise result

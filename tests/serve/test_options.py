@@ -68,3 +68,15 @@ def test_state_file(tmp_path: Path) -> None:
     path.write_text("not json", encoding="utf-8")
     with pytest.raises(ConfigurationError, match="state file"):
         load_bdseq(path)
+
+
+def test_unreadable_tls_files_end_serve_with_one_line(
+    fleet_toml: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from starterbus.cli.main import main
+
+    missing = str(tmp_path / "no-ca.pem")
+    args = ["serve", str(fleet_toml), "--mqtt", "mqtts://127.0.0.1:1", "--ca-file", missing]
+    assert main([*args, "--state-file", str(tmp_path / "s.json"), "--duration", "30"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"starterbus: error: TLS setup ({missing}): [Errno 2] No such file or directory"
