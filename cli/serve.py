@@ -33,7 +33,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p.add_argument("--allow-plaintext-commands", action="store_true", help="accept DCMDs on a connection without TLS")
     p.add_argument("--state-file", type=Path, help="where bdSeq persists (default ~/.local/state/starterbus/)")
     p.add_argument("--refresh", type=float, default=60.0, help="republish every value this often, s (0: never)")
-    p.add_argument("--deadband", type=float, default=1.0, help="report changes of at least this many resolution steps")
+    p.add_argument(
+        "--deadband",
+        metavar="[KEY=]STEPS",
+        action="append",
+        default=[],
+        help="report a value once it moved this many resolution steps (default 1); KEY=STEPS for one point; repeatable",
+    )
     p.add_argument("--buffer-messages", type=int, default=10_000, help="DDATA kept while the broker is away")
     p.add_argument("--buffer-age", type=float, default=3600.0, help="oldest buffered DDATA kept, s")
     p.add_argument("--command-max-age", type=float, default=10.0, help="refuse DCMDs older than this, s")
@@ -103,7 +109,8 @@ async def _serve(args: argparse.Namespace) -> int:
         )
         state_file = args.state_file or default_state_file(args.group, node)
         bdseq = await asyncio.to_thread(load_bdseq, state_file)
-        session = EdgeSession.for_fleet(config, options, deadband_steps=args.deadband, bdseq=bdseq)
+        steps, per_key = parse_deadbands(args.deadband)
+        session = EdgeSession.for_fleet(config, options, deadband_steps=steps, deadband_per_key=per_key, bdseq=bdseq)
         collector = FleetCollector(session)
         async with AsyncFleet(config) as fleet:
             collector.poller = fleet.poller
@@ -139,6 +146,24 @@ async def _serve(args: argparse.Namespace) -> int:
         if demo is not None:
             demo.close()
     return 0
+
+
+def parse_deadbands(items: list[str]) -> tuple[float, dict[str, float]]:
+    """``["2", "phase_a_current=5"]`` -> (2.0, {"phase_a_current": 5.0}); steps are >= 0."""
+    steps, per_key = 1.0, {}
+    for item in items:
+        key, _, text = item.rpartition("=")
+        try:
+            value = float(text)
+        except ValueError:
+            value = -1.0
+        if not value >= 0:
+            raise ConfigurationError(f"--deadband {item!r}: expected STEPS or KEY=STEPS with STEPS >= 0")
+        if key:
+            per_key[key] = value
+        else:
+            steps = value
+    return steps, per_key
 
 
 def _run_demo_scenario(poller: object, demo: object, stop: asyncio.Event, loop: asyncio.AbstractEventLoop) -> None:

@@ -116,10 +116,23 @@ def _point_metric(prefix: str, point: PointDef, aliases: Aliases, deadband_steps
     )
 
 
-def device_metrics(config: DeviceConfig, profile: Profile, aliases: Aliases, deadband_steps: float = 1.0) -> MetricSet:
+def device_metrics(
+    config: DeviceConfig,
+    profile: Profile,
+    aliases: Aliases,
+    deadband_steps: float = 1.0,
+    per_key: Mapping[str, float] | None = None,
+) -> MetricSet:
+    """``deadband_steps``: resolution steps a value must move to be reported; ``per_key`` overrides it by key."""
+    per_key = per_key or {}
+
+    def point(prefix: str, key: str) -> MetricDef:
+        p = profile.point(key)
+        return _point_metric(prefix, p, aliases, per_key.get(p.key, deadband_steps))
+
     defs = [MetricDef(name, datatype, aliases.take()) for name, datatype in _STATUS_METRICS]
-    defs += [_point_metric("Measurements", profile.point(k), aliases, deadband_steps) for k in config.measurements]
-    defs += [_point_metric("Parameters", profile.point(k), aliases, deadband_steps) for k in config.parameters]
+    defs += [point("Measurements", k) for k in config.measurements]
+    defs += [point("Parameters", k) for k in config.parameters]
     defs += [MetricDef(name, DataType.BOOLEAN, aliases.take(), command=cmd) for name, cmd in COMMAND_METRICS.items()]
     defs += [
         MetricDef(LAST_COMMAND, DataType.STRING, aliases.take()),

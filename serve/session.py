@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import json
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+from starterbus.core.errors import ConfigurationError
 from starterbus.core.status import Command
 from starterbus.fleet.config import FleetConfig
 from starterbus.fleet.poller import Sample
@@ -130,14 +131,31 @@ class EdgeSession:
 
     @classmethod
     def for_fleet(
-        cls, config: FleetConfig, options: SessionOptions, *, deadband_steps: float = 1.0, bdseq: int = -1
+        cls,
+        config: FleetConfig,
+        options: SessionOptions,
+        *,
+        deadband_steps: float = 1.0,
+        deadband_per_key: Mapping[str, float] | None = None,
+        bdseq: int = -1,
     ) -> EdgeSession:
-        """The node and one Sparkplug device per fleet device, described from their profiles."""
+        """The node and one Sparkplug device per fleet device, described from their profiles.
+
+        ``deadband_per_key`` (point key -> resolution steps) overrides ``deadband_steps``; a key that no device
+        of the fleet publishes is a :class:`ConfigurationError`.
+        """
         from starterbus.core.registry import get_profile
 
         aliases = Aliases()
         node = node_metrics(aliases)
-        devices = {d.name: device_metrics(d, get_profile(d.model), aliases, deadband_steps) for d in config.devices}
+        per_key = dict(deadband_per_key or {})
+        devices = {
+            d.name: device_metrics(d, get_profile(d.model), aliases, deadband_steps, per_key) for d in config.devices
+        }
+        published = {m.point.key for ms in devices.values() for m in ms.defs if m.point is not None}
+        unknown = sorted(set(per_key) - published)
+        if unknown:
+            raise ConfigurationError(f"--deadband: no device of {config.source} publishes {', '.join(unknown)}")
         return cls(options, node, devices, bdseq=bdseq)
 
     # -- topics -------------------------------------------------------------------------------------------

@@ -80,3 +80,16 @@ def test_unreadable_tls_files_end_serve_with_one_line(
     assert main([*args, "--state-file", str(tmp_path / "s.json"), "--duration", "30"]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1] == f"starterbus: error: TLS setup ({missing}): [Errno 2] No such file or directory"
+
+
+def test_deadband_options() -> None:
+    from starterbus.cli.serve import parse_deadbands
+
+    assert parse_deadbands([]) == (1.0, {})
+    assert parse_deadbands(["2", "phase_a_current=5", "ramp_time=0"]) == (
+        2.0,
+        {"phase_a_current": 5.0, "ramp_time": 0.0},
+    )
+    for bad in ("x", "-1", "k=", "k=nan"):
+        with pytest.raises(ConfigurationError, match="expected STEPS or KEY=STEPS"):
+            parse_deadbands([bad])

@@ -206,3 +206,22 @@ def test_primary_host_state_gates_the_births() -> None:
     assert s.on_message("spBv1.0/STATE/scada", state(False, 4), T0) == []  # older: ignored
     out = s.on_message("spBv1.0/STATE/scada", state(False, 7), T0)
     assert kinds(out) == ["NDEATH"] and isinstance(out[-1], Reconnect) and not s.born
+
+
+def test_deadband_per_key_and_unknown_keys() -> None:
+    from starterbus.core.errors import ConfigurationError
+    from starterbus.fleet.config import parse_fleet
+
+    config = parse_fleet(
+        '[[bus]]\nname = "l"\nurl = "modbus-rtu:///dev/null"\n[[bus.device]]\nname = "pump"\nmodel = "jjr5000"\n'
+        'address = 2\nmeasurements = ["phase_a_current", "phase_b_current"]\n',
+        "f.toml",
+    )
+    s = EdgeSession.for_fleet(
+        config, SessionOptions("g", "n"), deadband_steps=3, deadband_per_key={"phase_b_current": 0}
+    )
+    by_name = s.devices["pump"].metrics.by_name
+    assert by_name["Measurements/phase_a_current"].deadband == pytest.approx(0.3)
+    assert by_name["Measurements/phase_b_current"].deadband == 0
+    with pytest.raises(ConfigurationError, match="no device of f.toml publishes ramp_time"):
+        EdgeSession.for_fleet(config, SessionOptions("g", "n"), deadband_per_key={"ramp_time": 2})
