@@ -8,6 +8,7 @@ its CONNECT; paho's own reconnect is off, because it would reuse the old Will (S
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import time
 from collections.abc import Callable
@@ -17,9 +18,9 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from starterbus.aio import AsyncFleet
-from starterbus.core.errors import ConfigurationError, StarterbusError
-from starterbus.core.guarded import GuardedOperationError, Outcome
+from starterbus.aio import AsyncFleet, RemoteNotAllowed
+from starterbus.core.errors import ConfigurationError, ValidationError
+from starterbus.core.guarded import ConfirmationRefused, GuardedOperationError, Outcome
 from starterbus.fleet.poller import Sample
 from starterbus.serve.broker import BrokerOptions
 from starterbus.serve.session import Action, CommandRequest, EdgeSession, Publish, Reconnect
@@ -154,15 +155,17 @@ class EdgeNodeDriver:
             else:
                 outcomes = await self.fleet.remote_write(req.device, req.writes, actor=self.actor)
                 text, ok = describe_outcomes(outcomes), all(o.ok for o in outcomes)
-        except GuardedOperationError as exc:
-            text, ok = f"{exc} [{describe_outcomes(exc.outcomes)}]", False
-        except StarterbusError as exc:
-            text, ok = str(exc), False
+            failed = not ok
+        except (RemoteNotAllowed, ValidationError, ConfirmationRefused) as exc:  # nothing was sent
+            text, ok, failed = str(exc), False, False
+        except GuardedOperationError as exc:  # sent, but not as asked (not reached, read-back mismatch)
+            text, ok, failed = f"{exc} [{describe_outcomes(exc.outcomes)}]", False, True
+        except Exception as exc:  # transport errors and anything unforeseen: reported, never silent
+            text, ok, failed = f"{type(exc).__name__}: {exc}", False, True
         log.info("DCMD %s %s: %s", req.device, req.command.value if req.command else req.writes, text)
         now = time.time()
-        self._apply(
-            self.session.command_done(req.device, text, now) if ok else self.session.refuse(req.device, text, now)
-        )
+        done = self.session.command_done if ok else functools.partial(self.session.refuse, failed=failed)
+        self._apply(done(req.device, text, now))
 
     # -- tasks ---------------------------------------------------------------------------------------------
 

@@ -393,12 +393,12 @@ class EdgeSession:
             return []
         return [CommandRequest(name, command, writes)]
 
-    def refuse(self, name: str, reason: str, now: float) -> list[Action]:
-        """Report a refused or failed command in the device's DDATA (and count it)."""
+    def refuse(self, name: str, reason: str, now: float, *, failed: bool = False) -> list[Action]:
+        """Report a refused (nothing sent) or failed (sent, not as asked) command in the device's DDATA."""
         dev = self.devices[name]
         dev.refused += 1
         self.refused += 1
-        return self.command_done(name, f"refused: {reason}", now, count=True)
+        return self.command_done(name, f"{'failed' if failed else 'refused'}: {reason}", now, count=True)
 
     def command_done(self, name: str, text: str, now: float, *, count: bool = False) -> list[Action]:
         dev = self.devices[name]
