@@ -1,8 +1,11 @@
 """The thin driver: runs an :class:`EdgeSession` on asyncio with paho-mqtt and an :class:`AsyncFleet`.
 
-paho's network loop runs in its own thread; its callbacks hand every event to the event loop, which owns the
-session. A new paho client is made for every connection, with the Will (NDEATH with the new bdSeq) set before
-its CONNECT; paho's own reconnect is off, because it would reuse the old Will (SPARKPLUG.md pitfalls).
+paho runs on the event loop through its external-loop hooks: its socket, non-blocking once connected, is
+watched with ``add_reader``/``add_writer`` and ``loop_read``/``loop_write``/``loop_misc`` do the work, so a
+burst of publishes costs no thread hand-off. Only ``connect`` (TCP and the TLS handshake, which block) runs in
+a worker thread. A new paho client is made for every connection, with the Will (NDEATH with the new bdSeq) set
+before its CONNECT; paho's own reconnect is not used, because it would reuse the old Will (SPARKPLUG.md
+pitfalls).
 """
 
 from __future__ import annotations
@@ -10,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import functools
 import logging
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -63,13 +67,20 @@ class EdgeNodeDriver:
         self._client: mqtt.Client | None = None
         self._lost = asyncio.Event()
         self._tasks: set[asyncio.Task[None]] = set()
+        self._watched: dict[int, tuple[int, asyncio.Task[None]]] = {}  # id(socket) -> (fileno, keepalive task)
+        self._loop_thread = 0
         self.connections = 0  # sessions established (births sent at least once)
 
     # -- paho thread -> event loop -------------------------------------------------------------------------
 
     def _call(self, fn: Callable[..., None], *args: object) -> None:
+        """Run ``fn`` on the event loop: at once from the loop's own thread, else handed over."""
         loop = self._loop
-        if loop is not None and not loop.is_closed():
+        if loop is None or loop.is_closed():
+            return
+        if threading.get_ident() == self._loop_thread:
+            fn(*args)
+        else:
             loop.call_soon_threadsafe(fn, *args)
 
     def _make_client(self, will: Publish) -> mqtt.Client:
@@ -115,7 +126,50 @@ class EdgeNodeDriver:
         client.on_subscribe = on_subscribe
         client.on_message = on_message
         client.on_disconnect = on_disconnect
+        client.on_socket_open = lambda c, _u, sock: self._call(self._watch, c, sock)
+        client.on_socket_close = lambda _c, _u, sock: self._call(self._unwatch, sock)
+        client.on_socket_register_write = lambda c, _u, sock: self._call(self._want_write, c, sock)
+        client.on_socket_unregister_write = lambda _c, _u, sock: self._call(self._unwatch_write, sock)
         return client
+
+    # -- paho's socket on the event loop -------------------------------------------------------------------
+
+    def _watch(self, client: mqtt.Client, sock: Any) -> None:
+        loop = asyncio.get_running_loop()
+
+        def read() -> None:
+            client.loop_read()
+            while client.socket() is sock and getattr(sock, "pending", lambda: 0)():  # TLS: decrypted, buffered
+                client.loop_read()
+
+        fileno = sock.fileno()
+        if fileno < 0:  # closed again before the loop got here
+            return
+        loop.add_reader(fileno, read)
+        self._watched[id(sock)] = (fileno, loop.create_task(self._misc(client)))
+
+    def _unwatch(self, sock: Any) -> None:
+        watched = self._watched.pop(id(sock), None)
+        if watched is not None:
+            fileno, task = watched
+            loop = asyncio.get_running_loop()
+            loop.remove_reader(fileno)
+            loop.remove_writer(fileno)
+            task.cancel()
+
+    def _want_write(self, client: mqtt.Client, sock: Any) -> None:
+        if sock.fileno() >= 0:
+            asyncio.get_running_loop().add_writer(sock, client.loop_write)
+
+    def _unwatch_write(self, sock: Any) -> None:
+        if sock.fileno() >= 0:
+            asyncio.get_running_loop().remove_writer(sock)
+
+    @staticmethod
+    async def _misc(client: mqtt.Client) -> None:
+        """Keepalive pings and the detection of a silent broker, once a second."""
+        while client.loop_misc() == mqtt.MQTT_ERR_SUCCESS:
+            await asyncio.sleep(1.0)
 
     # -- event loop side -----------------------------------------------------------------------------------
 
@@ -188,27 +242,31 @@ class EdgeNodeDriver:
                 await asyncio.to_thread(save_bdseq, self.state_file, self.session.bdseq)
             client = self._make_client(will)
             self._lost.clear()
+            # current before CONNECT: its CONNACK and SUBACK may be read before this coroutine resumes
+            self._client = client
+            sessions = self.connections
             try:
                 await asyncio.to_thread(client.connect, b.host, b.port, b.keepalive)
             except (OSError, ValueError) as exc:
+                self._client = None
                 log.warning("broker %s unreachable: %s; retrying in %g s", b.describe(), exc, self.retry_delay)
                 await asyncio.sleep(self.retry_delay)
                 continue
-            self._client = client
-            sessions = self.connections
-            client.loop_start()
             await self._lost.wait()  # cancelled on stop: _stop_cleanly says goodbye with this client
             self.session.on_disconnected()
             self._client = None
-            await asyncio.to_thread(self._close, client)
+            await self._close(client)
             established = self.connections > sessions
             log.warning("connection to %s %s; reconnecting", b.describe(), "lost" if established else "refused")
             await asyncio.sleep(min(self.retry_delay, 0.5) if established else self.retry_delay)
 
     @staticmethod
-    def _close(client: mqtt.Client) -> None:
+    async def _close(client: mqtt.Client, timeout: float = 2.0) -> None:
+        """DISCONNECT (written by the loop's writer), then wait until paho closed the socket."""
         client.disconnect()
-        client.loop_stop()
+        deadline = time.monotonic() + timeout
+        while client.socket() is not None and time.monotonic() < deadline:
+            await asyncio.sleep(0.01)
 
     async def _stop_cleanly(self) -> None:
         """Intentional stop: NDEATH (QoS 1), wait for its PUBACK, then DISCONNECT (intentional-disconnect-*)."""
@@ -219,13 +277,16 @@ class EdgeNodeDriver:
         if self.session.born:
             death = self.session.ndeath()
             info = client.publish(death.topic, death.payload, qos=1, retain=False)
-            await asyncio.to_thread(info.wait_for_publish, 2.0)
+            deadline = time.monotonic() + 2.0
+            while not info.is_published() and client.socket() is not None and time.monotonic() < deadline:
+                await asyncio.sleep(0.01)  # the PUBACK arrives through the loop's reader
         self.session.on_disconnected()
-        await asyncio.to_thread(self._close, client)
+        await self._close(client)
 
     async def run(self, stop: asyncio.Event) -> None:
         """Until ``stop`` is set; a failing part (e.g. TLS files that cannot be read) ends it with its error."""
         self._loop = asyncio.get_running_loop()
+        self._loop_thread = threading.get_ident()
         jobs = [asyncio.create_task(c) for c in (self._samples(), self._ticks(), self._connections())]
         stopped = asyncio.create_task(stop.wait())
         try:
