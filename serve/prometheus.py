@@ -1,8 +1,9 @@
 """``--metrics HOST:PORT``: the fleet and the edge node for Prometheus (prometheus-client, collected at scrape).
 
 Per device: online, state (one series per state, 1 for the current one), fault code and every polled value.
-Per line: transactions and offline devices from the poller; requests, retries, timeouts and utilisation when
-the poller's bus workers count them (``requests``, ``retries``, ``timeouts``, ``utilisation`` attributes).
+Per line: transactions and offline devices from the poller; requests, retries, timeouts, errors and
+utilisation when the poller counts them (``FleetPoller.line_stats()``: each line's ``wire`` counters and
+``utilisation``; else same-named attributes of the bus workers). A poller without them: those series are absent.
 """
 
 from __future__ import annotations
@@ -21,7 +22,12 @@ from starterbus.fleet.poller import FleetPoller, Sample
 if TYPE_CHECKING:
     from starterbus.serve.session import EdgeSession
 
-_LINE_COUNTERS = (("requests", "requests sent"), ("retries", "requests retried"), ("timeouts", "requests timed out"))
+_LINE_COUNTERS = (
+    ("requests", "requests sent, retries included"),
+    ("retries", "requests retried"),
+    ("timeouts", "transactions without an answer"),
+    ("errors", "transactions that failed"),
+)
 
 
 class FleetCollector(Collector):
@@ -69,15 +75,19 @@ class FleetCollector(Collector):
         offline = GaugeMetricFamily("starterbus_line_offline_devices", "devices not answering", labels=["line"])
         util = GaugeMetricFamily("starterbus_line_utilisation", "busy fraction of the line (0..1)", labels=["line"])
         counters = {n: CounterMetricFamily(f"starterbus_line_{n}", h, labels=["line"]) for n, h in _LINE_COUNTERS}
+        line_stats = getattr(poller, "line_stats", None)
+        stats = line_stats() if callable(line_stats) else {}
         for worker in poller.workers:
             line = worker.bus.name
             transactions.add_metric([line], float(worker.transactions))
             offline.add_metric([line], float(sum(1 for r in worker.devices if r.online is False)))
+            line_stat = stats.get(line)
+            wire = getattr(line_stat, "wire", worker)
             for name, family in counters.items():
-                count = getattr(worker, name, None)
+                count = getattr(wire, name, None)
                 if isinstance(count, (int, float)):
                     family.add_metric([line], float(count))
-            busy = getattr(worker, "utilisation", None)
+            busy = getattr(line_stat if line_stat is not None else worker, "utilisation", None)
             if callable(busy):
                 busy = busy()
             if isinstance(busy, (int, float)):

@@ -104,4 +104,10 @@ def test_guarded_commands_rebirth_ddeath_and_prometheus_over_tls(
     assert states["starting"] + states["running"] == 1.0
     assert any(s.labels["key"] == "phase_a_current" for s in families["starterbus_device_value"].samples)
     assert families["starterbus_line_transactions"].samples[0].value > 0
+    if "starterbus_line_requests" in families:  # a poller that counts its wire (FleetPoller.line_stats)
+        assert (
+            families["starterbus_line_requests"].samples[0].value
+            >= families["starterbus_line_transactions"].samples[0].value
+        )
+        assert 0 < families["starterbus_line_utilisation"].samples[0].value <= 1
     assert families["starterbus_serve_commands_refused"].samples[0].value == 2
