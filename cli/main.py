@@ -206,6 +206,7 @@ _EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser],
     _lazy("watch", "watch one device: status and chosen points, refreshed in place"),
     _lazy("validate", "check fleet files without opening any port or bus"),
     _lazy("completion", "print a shell completion script (bash, zsh, fish)"),
+    _lazy_group("serve", {"serve": "the fleet on an MQTT broker as a Sparkplug B edge node, Prometheus metrics"}),
     _lazy_group(
         "ops_cmds",
         {

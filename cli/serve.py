@@ -1,0 +1,188 @@
+"""``starterbus serve FLEET.toml --mqtt URL --group G --node N``: the fleet as a Sparkplug B edge node."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import signal
+import socket
+import sys
+import threading
+from pathlib import Path
+
+from starterbus.core.errors import ConfigurationError
+
+
+def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted: str) -> None:
+    p = sub.add_parser("serve", help="publish the fleet as a Sparkplug B edge node (MQTT), optional Prometheus")
+    p.add_argument("fleet", metavar="FLEET.toml", nargs="?", help="fleet file (or --demo)")
+    p.add_argument("--demo", action="store_true", help="serve the simulated demo fleet (no hardware)")
+    p.add_argument("--mqtt", metavar="URL", help="broker: mqtt://HOST[:PORT] or mqtts://HOST[:PORT]")
+    p.add_argument("--group", default="starterbus", help="Sparkplug group id (default starterbus)")
+    p.add_argument("--node", default=None, help="Sparkplug edge node id (default: the host name)")
+    p.add_argument("--client-id", default=None, help="MQTT client id (default starterbus-GROUP-NODE)")
+    p.add_argument("--ca-file", help="CA certificate(s) to verify the broker (mqtts)")
+    p.add_argument("--cert-file", help="client certificate (mqtts)")
+    p.add_argument("--key-file", help="client certificate's key (mqtts)")
+    p.add_argument(
+        "--credentials",
+        metavar="FILE",
+        help="user name (line 1) and password (line 2); default $STARTERBUS_MQTT_USERNAME/$STARTERBUS_MQTT_PASSWORD",
+    )
+    p.add_argument("--allow-plaintext-commands", action="store_true", help="accept DCMDs on a connection without TLS")
+    p.add_argument("--state-file", type=Path, help="where bdSeq persists (default ~/.local/state/starterbus/)")
+    p.add_argument("--refresh", type=float, default=60.0, help="republish every value this often, s (0: never)")
+    p.add_argument(
+        "--deadband",
+        metavar="[KEY=]STEPS",
+        action="append",
+        default=[],
+        help="report a value once it moved this many resolution steps (default 1); KEY=STEPS for one point; repeatable",
+    )
+    p.add_argument("--buffer-messages", type=int, default=10_000, help="DDATA kept while the broker is away")
+    p.add_argument("--buffer-age", type=float, default=3600.0, help="oldest buffered DDATA kept, s")
+    p.add_argument("--command-max-age", type=float, default=10.0, help="refuse DCMDs older than this, s")
+    p.add_argument("--primary-host", metavar="ID", help="publish only while this primary host's STATE is online")
+    p.add_argument("--metrics", metavar="HOST:PORT", help="Prometheus endpoint, e.g. 127.0.0.1:9477")
+    p.add_argument("--reconnect-delay", type=float, default=2.0, help="wait between connection attempts, s")
+    p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    p.add_argument("-v", "--verbose", action="store_true", help="log every connection event")
+    p.set_defaults(handler=cmd_serve)
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    logging.basicConfig(
+        level=logging.INFO if args.verbose else logging.WARNING,
+        format="starterbus serve: %(message)s",
+        stream=sys.stderr,
+    )
+    logging.getLogger("starterbus.serve").setLevel(logging.INFO if args.verbose else logging.WARNING)
+    if args.demo == bool(args.fleet):
+        raise ConfigurationError("serve: give a FLEET.toml or --demo (one of them)")
+    if args.mqtt is None and not args.demo:
+        raise ConfigurationError("serve: --mqtt URL is required (only --demo starts a broker of its own)")
+    return asyncio.run(_serve(args))
+
+
+async def _serve(args: argparse.Namespace) -> int:
+    from starterbus.aio import AsyncFleet
+    from starterbus.fleet.config import load_fleet
+    from starterbus.serve.broker import BrokerOptions, load_credentials, parse_broker_url
+    from starterbus.serve.driver import EdgeNodeDriver
+    from starterbus.serve.prometheus import FleetCollector, start_metrics_server
+    from starterbus.serve.session import EdgeSession, SessionOptions
+    from starterbus.serve.state import default_state_file, load_bdseq
+
+    demo = broker_proc = None
+    node = args.node or socket.gethostname().split(".")[0]
+    try:
+        if args.demo:
+            from starterbus.fleet.demo import start_demo_fleet
+
+            demo = await asyncio.to_thread(start_demo_fleet, 1.0)
+            config = demo.config
+        else:
+            config = await asyncio.to_thread(load_fleet, args.fleet)
+        if args.mqtt is None:
+            from starterbus.serve.embedded import start_mosquitto
+
+            broker_proc = await asyncio.to_thread(start_mosquitto)
+            url = broker_proc.url
+        else:
+            url = args.mqtt
+        host, port, tls = parse_broker_url(url)
+        username, password = load_credentials(args.credentials)
+        broker = BrokerOptions(
+            host, port, tls, args.ca_file, args.cert_file, args.key_file, username, password,
+            client_id=args.client_id or f"starterbus-{args.group}-{node}",
+        )  # fmt: skip
+        options = SessionOptions(
+            group=args.group,
+            node=node,
+            refresh=args.refresh,
+            buffer_messages=args.buffer_messages,
+            buffer_age=args.buffer_age,
+            command_max_age=args.command_max_age,
+            commands_allowed=tls or args.allow_plaintext_commands,
+            primary_host=args.primary_host,
+        )
+        state_file = args.state_file or default_state_file(args.group, node)
+        bdseq = await asyncio.to_thread(load_bdseq, state_file)
+        steps, per_key = parse_deadbands(args.deadband)
+        session = EdgeSession.for_fleet(config, options, deadband_steps=steps, deadband_per_key=per_key, bdseq=bdseq)
+        collector = FleetCollector(session)
+        async with AsyncFleet(config) as fleet:
+            collector.poller = fleet.poller
+            driver = EdgeNodeDriver(
+                fleet, session, broker, state_file=state_file, on_sample=collector.observe,
+                retry_delay=args.reconnect_delay,
+            )  # fmt: skip
+            commands = "as the fleet file allows" if options.commands_allowed else "refused (plaintext)"
+            where = f"{session.topic_prefix}/+/{node} on {broker.describe()}"
+            print(f"starterbus serve: {len(session.devices)} devices as {where}; commands {commands}", flush=True)
+            if broker_proc is not None:
+                print(
+                    "  embedded broker: a local mosquitto for trying it out, not for production\n"
+                    f"  watch the traffic: mosquitto_sub -h 127.0.0.1 -p {port} -t 'spBv1.0/#' -v"
+                    "   (payloads are Sparkplug B protobuf)",
+                    flush=True,
+                )
+            if args.metrics:
+                mhost, mport, _server = start_metrics_server(args.metrics, collector)
+                print(f"  Prometheus metrics: http://{mhost}:{mport}/metrics", flush=True)
+            stop = asyncio.Event()
+            loop = asyncio.get_running_loop()
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                loop.add_signal_handler(sig, stop.set)
+            if args.duration is not None:
+                loop.call_later(args.duration, stop.set)
+            if demo is not None:
+                _run_demo_scenario(fleet.poller, demo, stop, loop)
+            await driver.run(stop)
+    finally:
+        if broker_proc is not None:
+            broker_proc.close()
+        if demo is not None:
+            demo.close()
+    return 0
+
+
+def parse_deadbands(items: list[str]) -> tuple[float, dict[str, float]]:
+    """``["2", "phase_a_current=5"]`` -> (2.0, {"phase_a_current": 5.0}); steps are >= 0."""
+    steps, per_key = 1.0, {}
+    for item in items:
+        key, _, text = item.rpartition("=")
+        try:
+            value = float(text)
+        except ValueError:
+            value = -1.0
+        if not value >= 0:
+            raise ConfigurationError(f"--deadband {item!r}: expected STEPS or KEY=STEPS with STEPS >= 0")
+        if key:
+            per_key[key] = value
+        else:
+            steps = value
+    return steps, per_key
+
+
+def _run_demo_scenario(poller: object, demo: object, stop: asyncio.Event, loop: asyncio.AbstractEventLoop) -> None:
+    """The demo's scripted starts, faults, resets and stops, over and over, so the broker sees changes."""
+    import time
+
+    from starterbus.fleet.demo import DemoFleet, scenario
+    from starterbus.fleet.poller import FleetPoller
+
+    assert isinstance(poller, FleetPoller) and isinstance(demo, DemoFleet)
+
+    def run() -> None:
+        while not poller.stopping.is_set():
+            start = time.monotonic()
+            for at, _what, action in scenario(30.0):
+                if poller.stopping.wait(max(0.0, start + at - time.monotonic())):
+                    return
+                action(poller, demo)
+            if poller.stopping.wait(max(0.0, start + 32 - time.monotonic())):
+                return
+
+    threading.Thread(target=run, name="demo-scenario", daemon=True).start()

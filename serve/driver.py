@@ -1,0 +1,301 @@
+"""The thin driver: runs an :class:`EdgeSession` on asyncio with paho-mqtt and an :class:`AsyncFleet`.
+
+paho runs on the event loop through its external-loop hooks: its socket, non-blocking once connected, is
+watched with ``add_reader``/``add_writer`` and ``loop_read``/``loop_write``/``loop_misc`` do the work, so a
+burst of publishes costs no thread hand-off. Only ``connect`` (TCP and the TLS handshake, which block) runs in
+a worker thread. A new paho client is made for every connection, with the Will (NDEATH with the new bdSeq) set
+before its CONNECT; paho's own reconnect is not used, because it would reuse the old Will (SPARKPLUG.md
+pitfalls).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import functools
+import logging
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import paho.mqtt.client as mqtt
+from paho.mqtt.enums import CallbackAPIVersion
+
+from starterbus.aio import AsyncFleet, RemoteNotAllowed
+from starterbus.core.errors import ConfigurationError, ValidationError
+from starterbus.core.guarded import ConfirmationRefused, GuardedOperationError, Outcome
+from starterbus.fleet.poller import Sample
+from starterbus.serve.broker import BrokerOptions
+from starterbus.serve.session import Action, CommandRequest, EdgeSession, Publish, Reconnect
+from starterbus.serve.state import save_bdseq
+
+log = logging.getLogger("starterbus.serve")
+
+
+def describe_outcomes(outcomes: list[Outcome]) -> str:
+    parts = []
+    for o in outcomes:
+        if o.key is not None:
+            shown = o.read_back.text() if o.read_back is not None else "?"
+            parts.append(f"{o.key}: {o.result} (read back {shown})")
+        else:
+            reached = o.reached.state.value if o.reached is not None else "unknown"
+            parts.append(f"{o.action}: {o.result} (reached {reached})")
+    return "; ".join(parts)
+
+
+class EdgeNodeDriver:
+    def __init__(
+        self,
+        fleet: AsyncFleet,
+        session: EdgeSession,
+        broker: BrokerOptions,
+        *,
+        state_file: Path | None = None,
+        on_sample: Callable[[Sample], None] | None = None,
+        retry_delay: float = 2.0,
+    ) -> None:
+        self.fleet = fleet
+        self.session = session
+        self.broker = broker
+        self.state_file = state_file
+        self.on_sample = on_sample
+        self.retry_delay = retry_delay
+        self.actor = f"mqtt:{broker.username or broker.client_id}@{broker.host}:{broker.port}"
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._client: mqtt.Client | None = None
+        self._lost = asyncio.Event()
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._watched: dict[int, tuple[int, asyncio.Task[None]]] = {}  # id(socket) -> (fileno, keepalive task)
+        self._loop_thread = 0
+        self.connections = 0  # sessions established (births sent at least once)
+
+    # -- paho thread -> event loop -------------------------------------------------------------------------
+
+    def _call(self, fn: Callable[..., None], *args: object) -> None:
+        """Run ``fn`` on the event loop: at once from the loop's own thread, else handed over."""
+        loop = self._loop
+        if loop is None or loop.is_closed():
+            return
+        if threading.get_ident() == self._loop_thread:
+            fn(*args)
+        else:
+            loop.call_soon_threadsafe(fn, *args)
+
+    def _make_client(self, will: Publish) -> mqtt.Client:
+        b = self.broker
+        client = mqtt.Client(
+            CallbackAPIVersion.VERSION2,
+            client_id=b.client_id,
+            clean_session=True,
+            protocol=mqtt.MQTTv311,
+            reconnect_on_failure=False,
+        )
+        client.will_set(will.topic, will.payload, qos=1, retain=False)
+        if b.username:
+            client.username_pw_set(b.username, b.password)
+        if b.tls:
+            try:
+                client.tls_set(ca_certs=b.ca_file, certfile=b.cert_file, keyfile=b.key_file)
+            except (OSError, ValueError) as exc:  # ssl.SSLError is an OSError
+                files = ", ".join(f for f in (b.ca_file, b.cert_file, b.key_file) if f) or "system CAs"
+                raise ConfigurationError(f"TLS setup ({files}): {exc}") from None
+        session = self.session
+        subs = session.subscriptions()
+
+        def on_connect(c: mqtt.Client, _u: Any, _f: Any, reason: Any, _p: Any) -> None:
+            if reason.is_failure:
+                log.warning("broker %s refused the connection: %s", b.describe(), reason)
+                self._call(self._lost.set)
+            else:
+                c.subscribe(subs)
+
+        def on_subscribe(_c: mqtt.Client, _u: Any, _mid: int, reasons: Any, _p: Any) -> None:
+            if any(r.is_failure for r in reasons):
+                log.warning("broker %s refused a subscription: %s", b.describe(), reasons)
+            self._call(self._subscribed, client)
+
+        def on_message(_c: mqtt.Client, _u: Any, msg: mqtt.MQTTMessage) -> None:
+            self._call(self._message, client, msg.topic, bytes(msg.payload))
+
+        def on_disconnect(_c: mqtt.Client, _u: Any, _f: Any, reason: Any, _p: Any) -> None:
+            self._call(self._disconnected, client)
+
+        client.on_connect = on_connect
+        client.on_subscribe = on_subscribe
+        client.on_message = on_message
+        client.on_disconnect = on_disconnect
+        client.on_socket_open = lambda c, _u, sock: self._call(self._watch, c, sock)
+        client.on_socket_close = lambda _c, _u, sock: self._call(self._unwatch, sock)
+        client.on_socket_register_write = lambda c, _u, sock: self._call(self._want_write, c, sock)
+        client.on_socket_unregister_write = lambda _c, _u, sock: self._call(self._unwatch_write, sock)
+        return client
+
+    # -- paho's socket on the event loop -------------------------------------------------------------------
+
+    def _watch(self, client: mqtt.Client, sock: Any) -> None:
+        loop = asyncio.get_running_loop()
+
+        def read() -> None:
+            client.loop_read()
+            while client.socket() is sock and getattr(sock, "pending", lambda: 0)():  # TLS: decrypted, buffered
+                client.loop_read()
+
+        fileno = sock.fileno()
+        if fileno < 0:  # closed again before the loop got here
+            return
+        loop.add_reader(fileno, read)
+        self._watched[id(sock)] = (fileno, loop.create_task(self._misc(client)))
+
+    def _unwatch(self, sock: Any) -> None:
+        watched = self._watched.pop(id(sock), None)
+        if watched is not None:
+            fileno, task = watched
+            loop = asyncio.get_running_loop()
+            loop.remove_reader(fileno)
+            loop.remove_writer(fileno)
+            task.cancel()
+
+    def _want_write(self, client: mqtt.Client, sock: Any) -> None:
+        if sock.fileno() >= 0:
+            asyncio.get_running_loop().add_writer(sock, client.loop_write)
+
+    def _unwatch_write(self, sock: Any) -> None:
+        if sock.fileno() >= 0:
+            asyncio.get_running_loop().remove_writer(sock)
+
+    @staticmethod
+    async def _misc(client: mqtt.Client) -> None:
+        """Keepalive pings and the detection of a silent broker, once a second."""
+        while client.loop_misc() == mqtt.MQTT_ERR_SUCCESS:
+            await asyncio.sleep(1.0)
+
+    # -- event loop side -----------------------------------------------------------------------------------
+
+    def _subscribed(self, client: mqtt.Client) -> None:
+        if client is self._client:
+            self.connections += 1
+            self._apply(self.session.on_connected(time.time()))
+
+    def _disconnected(self, client: mqtt.Client) -> None:
+        if client is self._client:
+            self.session.on_disconnected()
+            self._lost.set()
+
+    def _message(self, client: mqtt.Client, topic: str, payload: bytes) -> None:
+        if client is self._client:
+            self._apply(self.session.on_message(topic, payload, time.time()))
+
+    def _apply(self, actions: list[Action]) -> None:
+        client = self._client
+        for action in actions:
+            if isinstance(action, Publish):
+                if client is not None:
+                    client.publish(action.topic, action.payload, qos=action.qos, retain=False)
+            elif isinstance(action, CommandRequest):
+                task = asyncio.get_running_loop().create_task(self._execute(action))
+                self._tasks.add(task)
+                task.add_done_callback(self._tasks.discard)
+            elif isinstance(action, Reconnect) and client is not None:
+                client.disconnect()
+
+    async def _execute(self, req: CommandRequest) -> None:
+        try:
+            if req.command is not None:
+                outcome = await self.fleet.remote_command(req.device, req.command, actor=self.actor)
+                text = describe_outcomes([outcome])
+                ok = outcome.ok
+            else:
+                outcomes = await self.fleet.remote_write(req.device, req.writes, actor=self.actor)
+                text, ok = describe_outcomes(outcomes), all(o.ok for o in outcomes)
+            failed = not ok
+        except (RemoteNotAllowed, ValidationError, ConfirmationRefused) as exc:  # nothing was sent
+            text, ok, failed = str(exc), False, False
+        except GuardedOperationError as exc:  # sent, but not as asked (not reached, read-back mismatch)
+            text, ok, failed = f"{exc} [{describe_outcomes(exc.outcomes)}]", False, True
+        except Exception as exc:  # transport errors and anything unforeseen: reported, never silent
+            text, ok, failed = f"{type(exc).__name__}: {exc}", False, True
+        log.info("DCMD %s %s: %s", req.device, req.command.value if req.command else req.writes, text)
+        now = time.time()
+        done = self.session.command_done if ok else functools.partial(self.session.refuse, failed=failed)
+        self._apply(done(req.device, text, now))
+
+    # -- tasks ---------------------------------------------------------------------------------------------
+
+    async def _samples(self) -> None:
+        async for sample in self.fleet.samples():
+            if self.on_sample is not None:
+                self.on_sample(sample)
+            self._apply(self.session.on_sample(sample, time.time()))
+
+    async def _ticks(self) -> None:
+        while True:
+            await asyncio.sleep(1.0)
+            self._apply(self.session.on_tick(time.time()))
+
+    async def _connections(self) -> None:
+        b = self.broker
+        while True:
+            will = self.session.next_will()
+            if self.state_file is not None:
+                await asyncio.to_thread(save_bdseq, self.state_file, self.session.bdseq)
+            client = self._make_client(will)
+            self._lost.clear()
+            # current before CONNECT: its CONNACK and SUBACK may be read before this coroutine resumes
+            self._client = client
+            sessions = self.connections
+            try:
+                await asyncio.to_thread(client.connect, b.host, b.port, b.keepalive)
+            except (OSError, ValueError) as exc:
+                self._client = None
+                log.warning("broker %s unreachable: %s; retrying in %g s", b.describe(), exc, self.retry_delay)
+                await asyncio.sleep(self.retry_delay)
+                continue
+            await self._lost.wait()  # cancelled on stop: _stop_cleanly says goodbye with this client
+            self.session.on_disconnected()
+            self._client = None
+            await self._close(client)
+            established = self.connections > sessions
+            log.warning("connection to %s %s; reconnecting", b.describe(), "lost" if established else "refused")
+            await asyncio.sleep(min(self.retry_delay, 0.5) if established else self.retry_delay)
+
+    @staticmethod
+    async def _close(client: mqtt.Client, timeout: float = 2.0) -> None:
+        """DISCONNECT (written by the loop's writer), then wait until paho closed the socket."""
+        client.disconnect()
+        deadline = time.monotonic() + timeout
+        while client.socket() is not None and time.monotonic() < deadline:
+            await asyncio.sleep(0.01)
+
+    async def _stop_cleanly(self) -> None:
+        """Intentional stop: NDEATH (QoS 1), wait for its PUBACK, then DISCONNECT (intentional-disconnect-*)."""
+        client = self._client
+        if client is None:
+            return
+        self._client = None
+        if self.session.born:
+            death = self.session.ndeath()
+            info = client.publish(death.topic, death.payload, qos=1, retain=False)
+            deadline = time.monotonic() + 2.0
+            while not info.is_published() and client.socket() is not None and time.monotonic() < deadline:
+                await asyncio.sleep(0.01)  # the PUBACK arrives through the loop's reader
+        self.session.on_disconnected()
+        await self._close(client)
+
+    async def run(self, stop: asyncio.Event) -> None:
+        """Until ``stop`` is set; a failing part (e.g. TLS files that cannot be read) ends it with its error."""
+        self._loop = asyncio.get_running_loop()
+        self._loop_thread = threading.get_ident()
+        jobs = [asyncio.create_task(c) for c in (self._samples(), self._ticks(), self._connections())]
+        stopped = asyncio.create_task(stop.wait())
+        try:
+            await asyncio.wait([stopped, *jobs], return_when=asyncio.FIRST_COMPLETED)
+        finally:
+            for job in (*jobs, stopped):
+                job.cancel()
+            results = await asyncio.gather(*jobs, return_exceptions=True)
+            await self._stop_cleanly()
+        for result in results:
+            if isinstance(result, Exception) and not isinstance(result, asyncio.CancelledError):
+                raise result

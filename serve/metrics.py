@@ -1,0 +1,182 @@
+"""Which Sparkplug metrics a node and each fleet device publish, typed, aliased and described from the profile.
+
+A device publishes its decoded status (``Status/*``), its configured measurements (``Measurements/<key>``) and
+parameters (``Parameters/<key>``), and offers ``Device Control/Start|Stop|Reset`` for DCMD; the outcome of the
+last command, refusals included, is ``Device Control/Last Command``. Each measurement or parameter carries the
+profile's unit, range, resolution, English and Chinese names as metric properties in the DBIRTH.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from starterbus.core.model import PointDef
+from starterbus.core.profile import Profile
+from starterbus.core.status import Command
+from starterbus.fleet.config import DeviceConfig
+from starterbus.fleet.poller import Sample
+from starterbus.serve.schema import DataType
+
+Scalar = float | int | bool | str
+Property = tuple[str, DataType, Scalar]
+
+REBIRTH = "Node Control/Rebirth"
+BDSEQ = "bdSeq"
+LAST_COMMAND = "Device Control/Last Command"
+REFUSED = "Device Control/Commands Refused"
+COMMAND_METRICS = {
+    "Device Control/Start": Command.START,
+    "Device Control/Stop": Command.SOFT_STOP,
+    "Device Control/Reset": Command.FAULT_RESET,
+}
+NODE_DEVICES_ONLINE = "Node Info/Devices Online"
+NODE_DROPPED = "Node Info/Buffered Messages Dropped"
+NODE_REFUSED = "Node Info/Commands Refused"
+
+_STATUS_METRICS: tuple[tuple[str, DataType], ...] = (
+    ("Status/State", DataType.STRING),
+    ("Status/Fault", DataType.BOOLEAN),
+    ("Status/Fault Code", DataType.INT32),
+    ("Status/Fault Text", DataType.STRING),
+    ("Status/Ready", DataType.BOOLEAN),
+    ("Status/Bus Control", DataType.BOOLEAN),
+    ("Status/Starting", DataType.BOOLEAN),
+    ("Status/Running", DataType.BOOLEAN),
+    ("Status/Stopping", DataType.BOOLEAN),
+)
+
+
+@dataclass(frozen=True, slots=True)
+class MetricDef:
+    name: str
+    datatype: DataType
+    alias: int | None
+    properties: tuple[Property, ...] = ()
+    deadband: float = 0.0  # a numeric change smaller than this is not reported (0: every change)
+    point: PointDef | None = None  # the measurement or parameter behind it
+    command: Command | None = None  # a Device Control metric: true in a DCMD asks for this command
+
+    @property
+    def writable(self) -> bool:
+        return self.point is not None and self.point.writable
+
+
+@dataclass(slots=True)
+class MetricSet:
+    """The metrics of the node or of one device, found by name or by alias."""
+
+    defs: list[MetricDef]
+    by_name: dict[str, MetricDef] = field(default_factory=dict)
+    by_alias: dict[int, MetricDef] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.by_name = {d.name: d for d in self.defs}
+        self.by_alias = {d.alias: d for d in self.defs if d.alias is not None}
+
+
+class Aliases:
+    """Aliases unique across the node and its devices (payloads-alias-uniqueness), stable over rebirths."""
+
+    def __init__(self) -> None:
+        self._next = 1
+
+    def take(self) -> int:
+        alias, self._next = self._next, self._next + 1
+        return alias
+
+
+def node_metrics(aliases: Aliases) -> MetricSet:
+    return MetricSet(
+        [
+            MetricDef(BDSEQ, DataType.INT64, None),
+            MetricDef(REBIRTH, DataType.BOOLEAN, None),  # never aliased (rebirth-name-aliases)
+            MetricDef(NODE_DEVICES_ONLINE, DataType.INT32, aliases.take()),
+            MetricDef(NODE_DROPPED, DataType.INT64, aliases.take()),
+            MetricDef(NODE_REFUSED, DataType.INT64, aliases.take()),
+        ]
+    )
+
+
+def _point_metric(prefix: str, point: PointDef, aliases: Aliases, deadband_steps: float) -> MetricDef:
+    integral = point.enum is not None or point.scale == 1
+    datatype = DataType.INT32 if integral else DataType.DOUBLE
+    props: list[Property] = [
+        ("engUnit", DataType.STRING, point.unit),
+        ("engLow", DataType.DOUBLE, float(point.to_engineering(point.raw_min))),
+        ("engHigh", DataType.DOUBLE, float(point.to_engineering(point.raw_max))),
+        ("resolution", DataType.DOUBLE, float(point.scale)),
+        ("nameEn", DataType.STRING, point.name_en),
+        ("nameZh", DataType.STRING, point.name_zh),
+        ("address", DataType.STRING, point.address),
+        ("writable", DataType.BOOLEAN, point.writable),
+    ]
+    return MetricDef(
+        f"{prefix}/{point.key}", datatype, aliases.take(), tuple(props), deadband_steps * point.scale, point
+    )
+
+
+def device_metrics(
+    config: DeviceConfig,
+    profile: Profile,
+    aliases: Aliases,
+    deadband_steps: float = 1.0,
+    per_key: Mapping[str, float] | None = None,
+) -> MetricSet:
+    """``deadband_steps``: resolution steps a value must move to be reported; ``per_key`` overrides it by key."""
+    per_key = per_key or {}
+
+    def point(prefix: str, key: str) -> MetricDef:
+        p = profile.point(key)
+        return _point_metric(prefix, p, aliases, per_key.get(p.key, deadband_steps))
+
+    defs = [MetricDef(name, datatype, aliases.take()) for name, datatype in _STATUS_METRICS]
+    defs += [point("Measurements", k) for k in config.measurements]
+    defs += [point("Parameters", k) for k in config.parameters]
+    defs += [MetricDef(name, DataType.BOOLEAN, aliases.take(), command=cmd) for name, cmd in COMMAND_METRICS.items()]
+    defs += [
+        MetricDef(LAST_COMMAND, DataType.STRING, aliases.take()),
+        MetricDef(REFUSED, DataType.INT64, aliases.take()),
+    ]
+    return MetricSet(defs)
+
+
+def sample_values(sample: Sample, metrics: MetricSet) -> dict[str, Scalar | None]:
+    """The metric values one good poll tells (None: this path does not tell); empty for a failed poll."""
+    out: dict[str, Scalar | None] = {}
+    status = sample.status
+    if status is not None:
+        out.update(
+            {
+                "Status/State": status.state.value,
+                "Status/Fault": status.fault,
+                "Status/Fault Code": status.fault_code or 0,
+                "Status/Fault Text": status.fault_text or "",
+                "Status/Ready": status.ready,
+                "Status/Bus Control": status.bus_control,
+                "Status/Starting": status.starting,
+                "Status/Running": status.running,
+                "Status/Stopping": status.stopping,
+            }
+        )
+    for key, value in sample.values.items():
+        for prefix in ("Measurements", "Parameters"):
+            name = f"{prefix}/{key}"
+            if name in metrics.by_name:
+                integral = metrics.by_name[name].datatype is DataType.INT32
+                out[name] = round(value.value) if integral else float(value.value)
+    return out
+
+
+def changed(defn: MetricDef, old: Scalar | None, new: Scalar | None) -> bool:
+    """Report by exception: a numeric value outside the deadband, any other change."""
+    if old is None or new is None or isinstance(new, (bool, str)) or isinstance(old, (bool, str)):
+        return old != new or (old is None) != (new is None)
+    return abs(float(new) - float(old)) >= defn.deadband * (1 - 1e-9) and new != old
+
+
+def initial_values() -> Mapping[str, Scalar | None]:
+    """What a device's control metrics say before any command."""
+    values: dict[str, Scalar | None] = {name: False for name in COMMAND_METRICS}
+    values.update({LAST_COMMAND: "", REFUSED: 0})
+    return values

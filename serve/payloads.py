@@ -1,0 +1,106 @@
+"""Encoding the edge node's payloads and reading the host's commands (Sparkplug B section 4, 6, 8)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from starterbus.serve.metrics import BDSEQ, MetricDef, Scalar
+from starterbus.serve.schema import DataType, Payload, from_wire, to_wire, value_field
+
+#: one metric value to publish: its definition, the value (None: null) and its acquisition time in ms
+Entry = tuple[MetricDef, "Scalar | None", int]
+
+
+def _set_value(target: Any, datatype: DataType, value: Scalar | None) -> None:
+    if value is None:
+        target.is_null = True
+    else:
+        setattr(target, value_field(datatype), to_wire(datatype, value))
+
+
+def encode(
+    entries: Iterable[Entry], *, timestamp: int, seq: int | None, birth: bool, historical: bool = False
+) -> bytes:
+    """A payload: in a BIRTH every metric has name, alias, datatype and properties; in DATA only the alias."""
+    payload = Payload(timestamp=timestamp)
+    if seq is not None:
+        payload.seq = seq
+    for defn, value, ts in entries:
+        metric = payload.metrics.add(timestamp=ts)
+        if birth or defn.alias is None:
+            metric.name = defn.name
+        if defn.alias is not None:
+            metric.alias = defn.alias
+        if birth:
+            metric.datatype = int(defn.datatype)
+            if defn.properties:
+                props = metric.properties
+                for key, ptype, pvalue in defn.properties:
+                    props.keys.append(key)
+                    _set_value(props.values.add(type=int(ptype)), ptype, pvalue)
+        if historical:
+            metric.is_historical = True
+        _set_value(metric, defn.datatype, value)
+    return bytes(payload.SerializeToString())
+
+
+def encode_ndeath(bdseq: int) -> bytes:
+    """The Will: exactly one metric, bdSeq as Int64, no seq (topics-ndeath-payload)."""
+    payload = Payload()
+    payload.metrics.add(name=BDSEQ, datatype=int(DataType.INT64), long_value=bdseq)
+    return bytes(payload.SerializeToString())
+
+
+@dataclass(frozen=True, slots=True)
+class CommandMetric:
+    """One metric of an NCMD/DCMD: how it was named, its timestamp (ms, or None) and its value."""
+
+    name: str | None
+    alias: int | None
+    timestamp: int | None
+    field: str | None  # which value field the sender set (None: is_null or nothing)
+    raw: object
+
+
+@dataclass(frozen=True, slots=True)
+class CommandPayload:
+    timestamp: int | None
+    metrics: tuple[CommandMetric, ...]
+
+
+class BadCommandPayload(ValueError):
+    """A command payload that is not a Sparkplug B payload."""
+
+
+def decode_command(data: bytes) -> CommandPayload:
+    payload = Payload()
+    try:
+        payload.ParseFromString(data)
+    except Exception as exc:  # protobuf's DecodeError has no stable public home across versions
+        raise BadCommandPayload(f"not a Sparkplug B payload ({len(data)} bytes): {exc}") from None
+    metrics = []
+    for m in payload.metrics:
+        which = m.WhichOneof("value")
+        metrics.append(
+            CommandMetric(
+                name=m.name if m.HasField("name") else None,
+                alias=m.alias if m.HasField("alias") else None,
+                timestamp=m.timestamp if m.HasField("timestamp") else None,
+                field=None if m.is_null else which,
+                raw=getattr(m, which) if which else None,
+            )
+        )
+    return CommandPayload(payload.timestamp if payload.HasField("timestamp") else None, tuple(metrics))
+
+
+def command_value(defn: MetricDef, metric: CommandMetric) -> Scalar:
+    """The value a command metric carries, checked against the metric's type in the BIRTH (commands-*-value)."""
+    expected = value_field(defn.datatype)
+    if metric.field != expected:
+        got = metric.field or "no value"
+        raise ValueError(f"{defn.name}: expected {defn.datatype.name.lower()} in {expected}, got {got}")
+    value = from_wire(defn.datatype, metric.raw)
+    assert isinstance(value, (bool, int, float, str))
+    return value
