@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import logging
 import signal
 import socket
@@ -45,6 +46,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p.add_argument("--command-max-age", type=float, default=10.0, help="refuse DCMDs older than this, s")
     p.add_argument("--primary-host", metavar="ID", help="publish only while this primary host's STATE is online")
     p.add_argument("--metrics", metavar="HOST:PORT", help="Prometheus endpoint, e.g. 127.0.0.1:9477")
+    p.add_argument("--opcua", metavar="URL", help="also serve the fleet over OPC UA here, e.g. opc.tcp://0.0.0.0:4840")
+    p.add_argument("--opcua-users", metavar="FILE", help="OPC UA users file (see `starterbus opcua-user`)")
+    p.add_argument("--opcua-pki", metavar="DIR", default="pki", help="OPC UA server certificate directory")
+    p.add_argument("--opcua-anonymous", action="store_true", help="let anonymous OPC UA clients read (never write)")
+    p.add_argument("--opcua-allow-insecure", action="store_true", help="also offer OPC UA security None (trials only)")
     p.add_argument("--reconnect-delay", type=float, default=2.0, help="wait between connection attempts, s")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("-v", "--verbose", action="store_true", help="log every connection event")
@@ -61,8 +67,33 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if args.demo == bool(args.fleet):
         raise ConfigurationError("serve: give a FLEET.toml or --demo (one of them)")
     if args.mqtt is None and not args.demo:
-        raise ConfigurationError("serve: --mqtt URL is required (only --demo starts a broker of its own)")
+        raise ConfigurationError(
+            "serve: --mqtt URL is required (only --demo starts a broker of its own; "
+            "for OPC UA alone, `starterbus opcua FLEET.toml`)"
+        )
     return asyncio.run(_serve(args))
+
+
+def _opcua_server(args: argparse.Namespace, fleet: object) -> contextlib.AbstractAsyncContextManager[object]:
+    """The OPC UA server of ``serve --opcua``: the same server as ``starterbus opcua``, on the same fleet."""
+    if not args.opcua:
+        return contextlib.nullcontext()
+    from starterbus.cli.opcua_cmd import _need_asyncua
+
+    _need_asyncua()
+    from starterbus.opcua.server import OpcUaServer, OpcUaSettings
+    from starterbus.opcua.users import load_users
+
+    settings = OpcUaSettings(
+        endpoint=args.opcua,
+        pki_dir=args.opcua_pki,
+        users=load_users(args.opcua_users) if args.opcua_users else {},
+        anonymous=args.opcua_anonymous,
+        allow_insecure=args.opcua_allow_insecure,
+    )
+    settings.check()
+    server: contextlib.AbstractAsyncContextManager[object] = OpcUaServer(fleet, settings)  # type: ignore[arg-type]
+    return server
 
 
 async def _serve(args: argparse.Namespace) -> int:
@@ -139,7 +170,10 @@ async def _serve(args: argparse.Namespace) -> int:
                 loop.call_later(args.duration, stop.set)
             if demo is not None:
                 _run_demo_scenario(fleet.poller, demo, stop, loop)
-            await driver.run(stop)
+            async with _opcua_server(args, fleet):
+                if args.opcua:
+                    print(f"  OPC UA: {args.opcua}", flush=True)
+                await driver.run(stop)
     finally:
         if broker_proc is not None:
             broker_proc.close()
