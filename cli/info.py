@@ -100,6 +100,28 @@ def _weakest(point: PointDef) -> Certainty:
     return max(found, key=_ORDER.index)
 
 
+RANGE_WIDTH = 96  # the table's range column; the whole text is in --json and in the footnotes
+
+
+def _short(text: str, width: int = RANGE_WIDTH) -> str:
+    """A long list of choices, cut at a choice boundary with the count of the rest."""
+    if len(text) <= width:
+        return text
+    parts, shown = text.split(", "), ""
+    for i, part in enumerate(parts):
+        more = f", … (+{len(parts) - i}, see --json)"
+        if len(shown) + len(part) + 2 + len(more) > width and shown:
+            return shown + more
+        shown = f"{shown}, {part}" if shown else part
+    return shown
+
+
+def _address_text(address: object) -> str:
+    if address is None:
+        return ""
+    return f"0x{address:04X}" if isinstance(address, int) else str(address)
+
+
 def _range_text(point: PointDef) -> str:
     if point.enum is not None:
         parts = []
@@ -181,8 +203,8 @@ def cmd_params(args: argparse.Namespace) -> int:
                     p.key,
                     p.name_en,
                     p.name_zh,
-                    *[f"0x{p.addresses[x]:04X}" if x in p.addresses else "" for x in protos],
-                    _range_text(p),
+                    *[_address_text(p.addresses.get(x)) for x in protos],
+                    _short(_range_text(p)),
                     p.access.value,
                     _weakest(p).value,
                 ]

@@ -78,3 +78,11 @@ def test_unknown_model_is_one_line_error(capsys: pytest.CaptureFixture[str]) -> 
     assert main(["params", "jjr9999"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "jjr9999" in err
+
+
+def test_params_table_stays_readable(capsys: pytest.CaptureFixture[str]) -> None:
+    """Long lists of choices are cut at a choice with the count of the rest (the whole list is in --json)."""
+    assert main(["params", "jjr8000"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line[:1] in "pm" and "  " in line]
+    assert rows and max(len(line) for line in rows) < 260
+    assert any("see --json)" in line for line in rows)
