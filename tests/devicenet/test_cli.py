@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from can.interfaces import virtual
 
 from starterbus.cli import simulate as simulate_command
 from starterbus.cli.main import main
@@ -108,6 +109,7 @@ def test_simulate_command_in_process(
     runner = threading.Thread(target=lambda: result.append(main(args)))
     runner.start()
     try:
+        assert until(lambda: bool(virtual.channels.get(channel)), 30.0), "the simulator's bus did not open"
         with open_device(f"devicenet://virtual/{channel}?mac=6&{FAST}&timeout=1", "jjr8000") as device:
             assert device.status().source == "devicenet"
     finally:
