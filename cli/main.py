@@ -44,14 +44,18 @@ def _device_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--model", default=None, help="device model (jjr5000, ssd1, jjr8000) or a profile .toml; required with a URL"
     )
+    _fleet_arg(p)
+    p.set_defaults(resolve_target=True)
+    _json_flag(p)
+
+
+def _fleet_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--fleet",
         metavar="FILE",
         default=None,
         help="fleet file for device names (default $STARTERBUS_FLEET, or `fleet` in ~/.config/starterbus/config.toml)",
     )
-    p.set_defaults(resolve_target=True)
-    _json_flag(p)
 
 
 def _guard_args(p: argparse.ArgumentParser) -> None:

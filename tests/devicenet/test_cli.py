@@ -48,6 +48,19 @@ def test_status_read_identify(channel: str, simulated: SimulatedStarter, capsys:
     assert "cannot read parameters" in capsys.readouterr().err
 
 
+def test_identify_by_device_name(
+    channel: str, simulated: SimulatedStarter, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    plant = tmp_path / "plant.toml"
+    plant.write_text(
+        f'[[bus]]\nname = "dn"\nurl = "devicenet://virtual/{channel}?dup_mac_wait=0.05&timeout=0.5"\n'
+        'device = [{ name = "crusher", model = "jjr8000", address = 5 }]\n',
+        encoding="utf-8",
+    )
+    assert main(["identify", "crusher", "--fleet", str(plant), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["identity"]["product_name"] == "JJR8000"
+
+
 def test_commands(
     channel: str, simulated: SimulatedStarter, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
