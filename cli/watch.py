@@ -23,9 +23,6 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: 
         help="watch one device: status and chosen points, refreshed in place",
         description="Poll one device and show its status and points, refreshed in place on a terminal "
         "(one block per poll on a pipe, one JSON object per poll with --json).",
-        epilog="examples:\n  starterbus watch conveyor-1 --fleet plant.toml\n"
-        "  starterbus watch 'modbus-rtu:///dev/ttyUSB0?unit=2' --model jjr5000 current_limit ramp_time --once",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     _device_args(p)
     p.add_argument("keys", nargs="*", metavar="KEY", help="points to show besides the status (default: measurements)")
