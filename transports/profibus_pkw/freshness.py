@@ -45,7 +45,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from starterbus.transports.profibus_pkw.telegram import NO_TASK, PkwRequest, PkwResponse, ResponseCode, TaskCode
+from starterbus.transports.profibus_pkw.telegram import (
+    NO_TASK,
+    PkwRequest,
+    PkwResponse,
+    ResponseCode,
+    TaskCode,
+    hex_text,
+)
 
 
 class Mark(NamedTuple):
@@ -64,6 +71,11 @@ class IndexRecord:
     basis: Mark  # its answers were acceptable from here (fresh after it)
     ended: Mark  # the master stopped sending it
     answered: Mark | None  # its verified answer was seen here; None: an orphan
+
+
+def pkw_bytes(pkw: PkwRequest | PkwResponse) -> bytes:
+    """The four PKW bytes (IND, PWE big-endian), as on the wire and in messages."""
+    return bytes([(pkw.ind >> 8) & 0xFF, pkw.ind & 0xFF, (pkw.pwe >> 8) & 0xFF, pkw.pwe & 0xFF])
 
 
 def answers(request: PkwRequest, response: PkwResponse) -> bool:
@@ -154,6 +166,19 @@ class Freshness:
             rec.request, rec.basis, rec.ended, rec.answered = request, basis, obs, obs
         self.accepted = obs
         self.accepted_indl = indl
+
+    def why_blocked(self, indl: int) -> str | None:
+        """Why INDL ``indl`` is quarantined, for a timeout message; None if it is not."""
+        orphan = self.orphan(indl)
+        if orphan is None:
+            return None
+        if orphan.request != NO_TASK:
+            return f"an earlier task on it [{hex_text(pkw_bytes(orphan.request))}] got no verified answer"
+        text = "nothing has been verifiably answered yet in this session "
+        text += f"({self.chain} of {self.inherited + 1} start fence reads answered)"
+        if self.fence_indl(indl) is None:
+            text += "; every INDL has had a lost fence read: reopen the session"
+        return text
 
     def fenced(self, request: PkwRequest, basis: Mark, obs: Mark) -> None:
         """A fence read's answer was seen at ``obs`` (fresh after ``basis``, echoing it). In the start chain

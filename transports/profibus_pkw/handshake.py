@@ -16,7 +16,8 @@ answer, broken channel) leaves its INDL quarantined, in both data areas: the nex
 another exchange is verifiably answered; the engine forces one with a *fence*, a read of another INDL, unless
 the orphan's own late answer shows first. "No response" alone never lifts it: a slave still working on the old
 task shows "no response" too. With ``Limits.verify_start`` (what the transport uses) the unknown past before the
-session counts as such a task on every INDL: the session's first task is preceded by a fence.
+session counts as such a task on every INDL: the session's first task is preceded by the *start chain*,
+``Limits.inherited + 1`` fence reads on INDLs of their own (why that suffices: ``freshness.py``).
 
 Outcomes of a job (each a defined state, never a hang):
 
@@ -27,7 +28,7 @@ Outcomes of a job (each a defined state, never a hang):
   a value);
 - responses with another INDL (``job.foreign``), not fresh (``job.stale``) or not echoing the task
   (``job.mismatched``: response 2 to a read, a write echo with another value) are ignored;
-- no answer within ``max_cycles`` exchanges (clearing included; fence reads have ``max_cycles`` of their own)
+- no answer within ``max_cycles`` exchanges (clearing included; each fence read has ``max_cycles`` of its own)
   or ``timeout`` seconds (everything included): :class:`~starterbus.core.errors.TimeoutError`;
 - the channel failing: the driver calls :meth:`PkwEngine.fail` with its :class:`TransportError`.
 
@@ -43,7 +44,7 @@ from dataclasses import dataclass, field
 
 from starterbus.core.errors import DecodeError, RemoteDeviceError, StarterbusError, TimeoutError
 from starterbus.core.model import Label
-from starterbus.transports.profibus_pkw.freshness import Freshness, Mark, answers
+from starterbus.transports.profibus_pkw.freshness import Freshness, Mark, answers, pkw_bytes
 from starterbus.transports.profibus_pkw.telegram import (
     NO_TASK,
     PROTOCOL,
@@ -255,7 +256,7 @@ class PkwEngine:
             job.response = response  # the common case first: a value that answers the task
             book.answered(request, self._basis, obs)
             return self._finish(job, JobState.DONE, now)
-        raw = _pkw_bytes(response)
+        raw = pkw_bytes(response)
         if code > ResponseCode.CANNOT_EXECUTE:
             job.error = DecodeError(
                 f"unknown response code {code} (INDH) to {job.describe()}; no value taken", raw, "INDH"
@@ -365,21 +366,9 @@ class PkwEngine:
             return None
         stage = ""
         if job.state is JobState.CLEARING:
-            orphan = self._book.orphan(job.request.indl)
-            if orphan is not None:
-                book = self._book
-                earlier = (
-                    "nothing has been verifiably answered yet in this session "
-                    f"({book.chain} of {book.inherited + 1} start fence reads answered)"
-                    + (
-                        "; every INDL has had a lost fence read: reopen the session"
-                        if book.fence_indl(job.request.indl) is None
-                        else ""
-                    )
-                    if orphan.request == NO_TASK
-                    else f"an earlier task on it [{hex_text(_pkw_bytes(orphan.request))}] got no verified answer"
-                )
-                stage = f"INDL {job.request.indl:#04x} is quarantined: {earlier}" + (
+            blocked = self._book.why_blocked(job.request.indl)
+            if blocked is not None:
+                stage = f"INDL {job.request.indl:#04x} is quarantined: {blocked}" + (
                     f", and {job.fences} fence read(s) of another INDL got none either" if job.fences else ""
                 )
             else:
@@ -390,7 +379,7 @@ class PkwEngine:
         if job.mismatched:  # a fresh answer that is not this task's: a typed error, never a value
             job.error = DecodeError(
                 f"{PROTOCOL}: {job.describe()}: the slave showed {hex_text(job.last_mismatch)} "
-                f"{job.mismatched} time(s), which does not echo the task [{hex_text(_pkw_bytes(job.request))}] "
+                f"{job.mismatched} time(s), which does not echo the task [{hex_text(pkw_bytes(job.request))}] "
                 f"(response 2 to a read, or a write echo of another value), and nothing that does; {why}",
                 job.last_mismatch,
                 "PWE" if job.request.task == TaskCode.WRITE_PARAMETER else "INDH",
@@ -400,10 +389,6 @@ class PkwEngine:
             extra += "; the slave may still carry the write out"
         job.error = TimeoutError(
             f"{PROTOCOL}: {job.describe()}: {why}{'; ' + stage if stage else ''}{extra} "
-            f"[task {hex_text(_pkw_bytes(job.request))}]"
+            f"[task {hex_text(pkw_bytes(job.request))}]"
         )
         return self._finish(job, JobState.FAILED, now)
-
-
-def _pkw_bytes(pkw: PkwRequest | PkwResponse) -> bytes:
-    return bytes([(pkw.ind >> 8) & 0xFF, pkw.ind & 0xFF, (pkw.pwe >> 8) & 0xFF, pkw.pwe & 0xFF])
