@@ -12,7 +12,9 @@ once at the Device level (``Device.read``: validation, scaling). Channels:
   input staleness margin (``stale_cycles=1``); ``gw-m0``: the same with ``stale_cycles=0``.
 
 Level ``link`` reads p3 back to back: every task has the INDL of the one before, the case the staleness margin
-costs most; ``mixed`` alternates p3 and p4.
+costs most; ``mixed`` alternates p3 and p4. Level ``open`` opens a session and reads p3 once, again and again
+(what a new session costs before its first value: the start fence reads included); "cycles/read" is then the
+exchanges per session.
 
 ``cycle=0`` runs exchanges back to back on demand; ``cycle>0`` is a background DP cycle, so a read costs at
 least two cycle times. The ``floor`` line is a bare pymodbus FC16 + FC03 pair against the same gateway: one
@@ -76,6 +78,23 @@ def link_reads(url: str, seconds: float, *, mixed: bool = False) -> dict[str, ob
                 "cycles_per_read": round(sum(cycles) / len(cycles), 2), "max_cycles": max(cycles)}  # fmt: skip
 
 
+def session_opens(url: str, seconds: float) -> dict[str, object]:
+    """Open a session, read p3 once, close: the cost of a session's first value."""
+    exchanges: list[int] = []
+
+    def op() -> None:
+        with open_device(url, "jjr8000") as dev:
+            transport = dev.transport
+            assert isinstance(transport, ProfibusPkwTransport) and transport.link is not None
+            job = transport.link.pkw(READ_P3)
+            assert job.response is not None and job.response.indl == 3
+            exchanges.append(transport.link.stats().exchanges)
+
+    n, wall = timed(op, seconds)
+    return {"reads": n, "per_second": round(n / wall, 1), "ms_per_read": round(1000 * wall / n, 3),
+            "cycles_per_read": round(sum(exchanges) / len(exchanges), 2), "max_cycles": max(exchanges)}  # fmt: skip
+
+
 def device_reads(url: str, seconds: float) -> dict[str, object]:
     dev: Device
     with open_device(url, "jjr8000") as dev:
@@ -117,6 +136,7 @@ def main(argv: list[str] | None = None) -> int:
         rows.append({"channel": "sim", "cycle": "0", "level": "mixed", **link_reads(url, args.seconds, mixed=True)})
         url = "profibus-pkw+sim://bench?ppo=1&cycle=0"
         rows.append({"channel": "sim", "cycle": "0", "level": "device", **device_reads(url, args.seconds)})
+        rows.append({"channel": "sim", "cycle": "0", "level": "open", **session_opens(url, args.seconds)})
     finally:
         detach_slave("bench")
 
@@ -133,6 +153,9 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append({"channel": "gw-m0", "cycle": cycle, "level": "link", **link_reads(url, args.seconds)})
         rows.append({"channel": "gateway", "cycle": "0", "level": "device",
                      **device_reads(f"{sim.url(0)}&cycle=0", args.seconds)})  # fmt: skip
+        for cycle in ("0", "0.005"):
+            url = f"{sim.url(0)}&cycle={cycle}"
+            rows.append({"channel": "gateway", "cycle": cycle, "level": "open", **session_opens(url, args.seconds)})
 
     if args.json:
         json.dump({"gateway_dp_cycle": args.gateway_cycle, "floor": floor, "rows": rows}, sys.stdout, indent=2)

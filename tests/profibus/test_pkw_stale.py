@@ -23,6 +23,8 @@ from starterbus.transports.profibus_pkw.telegram import (
 READ_P3 = pkw_request(TaskCode.READ_PARAMETER, 3)
 READ_M3 = pkw_request(TaskCode.READ_MEASUREMENT, 3)
 READ_P4 = pkw_request(TaskCode.READ_PARAMETER, 4)
+READ_P5 = pkw_request(TaskCode.READ_PARAMETER, 5)
+READ_P6 = pkw_request(TaskCode.READ_PARAMETER, 6)
 WRITE_P3 = pkw_request(TaskCode.WRITE_PARAMETER, 3, 20)
 FENCE_P4 = READ_P4  # the fence after a timeout on INDL 3 reads the last INDL answered (4) or the next one
 
@@ -198,8 +200,9 @@ def test_a_write_never_echoed_fails_typed_naming_what_was_shown() -> None:
     assert engine.quarantined(3)  # no verified answer
 
 
-def test_with_verify_start_the_first_task_of_a_session_waits_for_a_fence() -> None:
-    # An earlier session left "read p3" on the slave; its answer (12) shows after our session started.
+def test_with_verify_start_the_first_task_of_a_session_waits_for_the_start_chain() -> None:
+    # An earlier session left "read p3" on the slave; its answer (12) shows after our session started. With the
+    # default inherited=2 the first task waits for three fence reads, each on an INDL of its own.
     engine = PkwEngine(limits=Limits(max_cycles=8, timeout=100, verify_start=True))
     assert engine.quarantined(3) and engine.quarantined(200)  # the unknown past blocks every INDL
     job = engine.submit(READ_P3)
@@ -208,12 +211,56 @@ def test_with_verify_start_the_first_task_of_a_session_waits_for_a_fence() -> No
         [
             (NO_TASK, NO_RESPONSE),
             (FENCE_P4, r(1, 3, 12)),  # the earlier session's answer: a value for nobody
-            (FENCE_P4, r(1, 4, 40)),
+            (FENCE_P4, r(1, 4, 40)),  # the first fence answered (perhaps by an earlier session's p4)
             (NO_TASK, NO_RESPONSE),
-            (READ_P3, r(1, 3, 15)),
+            (READ_P5, r(1, 5, 50)),
+            (NO_TASK, NO_RESPONSE),
+            (READ_P6, r(1, 6, 60)),  # the third answer on a third INDL: ours, the chain is complete
         ],
     )
-    assert job.response == r(1, 3, 15) and job.fences == 1 and not engine.quarantined(200)
+    assert not engine.quarantined(3) and not job.done  # the last fence answer is verified: rule 1 holds
+    run(engine, [(NO_TASK, NO_RESPONSE), (READ_P3, r(1, 3, 15))], t0=1.0)
+    assert job.response == r(1, 3, 15) and job.fences == 3 and not engine.quarantined(200)
+
+
+def test_an_earlier_sessions_read_answering_the_first_fence_lends_nothing_later() -> None:
+    # The case the property test found: an earlier session's read of p4 answers our first fence (p4), whose own
+    # answer (41) shows later. The chain goes on to p5 and p6; a read of p4 after it takes only a fresh answer.
+    engine = PkwEngine(limits=Limits(max_cycles=8, timeout=100, verify_start=True, inherited=1))
+    p4 = engine.submit(READ_P4, "read p4")
+    p3 = engine.submit(READ_P3, "read p3")
+    run(
+        engine,
+        [
+            (NO_TASK, NO_RESPONSE),
+            (READ_P5, NO_RESPONSE),
+            (READ_P5, r(1, 5, 50)),  # an earlier session's p5 or ours: not known, so one more fence
+            (NO_TASK, r(1, 5, 51)),  # the first fence's own answer, late: taken for nothing
+            (NO_TASK, NO_RESPONSE),
+            (READ_P6, r(1, 6, 60)),
+            (NO_TASK, NO_RESPONSE),
+            (READ_P4, r(1, 4, 44)),
+            (NO_TASK, NO_RESPONSE),
+            (READ_P3, r(1, 3, 33)),
+        ],
+    )
+    assert p4.response == r(1, 4, 44) and p4.fences == 2 and p3.response == r(1, 3, 33) and p3.fences == 0
+
+
+def test_inherited_zero_is_the_single_fence_of_before() -> None:
+    engine = PkwEngine(limits=Limits(max_cycles=8, timeout=100, verify_start=True, inherited=0))
+    job = engine.submit(READ_P3)
+    run(
+        engine,
+        [(NO_TASK, NO_RESPONSE), (FENCE_P4, r(1, 4, 40)), (NO_TASK, NO_RESPONSE), (READ_P3, r(1, 3, 15))],
+    )
+    assert job.response == r(1, 3, 15) and job.fences == 1
+
+
+@pytest.mark.parametrize("inherited", [-1, 255])
+def test_inherited_out_of_range_is_refused(inherited: int) -> None:
+    with pytest.raises(ValueError, match="inherited must be 0..254"):
+        Limits(inherited=inherited)
 
 
 def test_with_verify_start_a_slave_that_never_answers_says_nothing_was_verified() -> None:
@@ -221,5 +268,37 @@ def test_with_verify_start_a_slave_that_never_answers_says_nothing_was_verified(
     job = engine.submit(READ_M3)
     run(engine, [(NO_TASK, NO_RESPONSE)] + [(FENCE_P4, NO_RESPONSE)] * 4)
     assert isinstance(job.error, TimeoutError)
-    assert "nothing has been verifiably answered yet in this session" in str(job.error)
-    assert "limit 4, and 4 for fence reads" in str(job.error)
+    assert "nothing has been verifiably answered yet in this session (0 of 3 start fence reads answered)" in str(
+        job.error
+    )
+    assert "limit 4, and 4 for each fence read" in str(job.error)
+
+
+def test_each_start_fence_has_a_budget_of_its_own() -> None:
+    # A slave slower than max_cycles for the whole chain but not for one fence: the first task still succeeds.
+    engine = PkwEngine(limits=Limits(max_cycles=4, timeout=100, verify_start=True, inherited=1))
+    job = engine.submit(READ_P3)
+    run(
+        engine,
+        [(NO_TASK, NO_RESPONSE)]
+        + [(FENCE_P4, NO_RESPONSE)] * 3
+        + [(FENCE_P4, r(1, 4, 40))]
+        + [(NO_TASK, r(1, 4, 40)), (NO_TASK, NO_RESPONSE), (READ_P5, NO_RESPONSE), (READ_P5, r(1, 5, 50))]
+        + [(NO_TASK, NO_RESPONSE), (READ_P3, r(1, 3, 15))],
+    )
+    assert job.response == r(1, 3, 15) and job.fences == 2 and (job.cycles, job.fence_cycles) == (11, 8)
+
+
+def test_a_session_whose_fences_were_all_lost_says_to_reopen() -> None:
+    engine = PkwEngine(limits=Limits(max_cycles=2, timeout=100, verify_start=True, inherited=0))
+    for indl in range(255):  # each job's fence is lost: every INDL but one gets used up
+        job = engine.submit(READ_P3)
+        for _ in range(3):
+            engine.output(0.0)
+            engine.receive(NO_RESPONSE, 0.0)
+        assert isinstance(job.error, TimeoutError), indl
+    job = engine.submit(READ_P3)
+    for _ in range(2):
+        engine.output(0.0)
+        engine.receive(NO_RESPONSE, 0.0)
+    assert isinstance(job.error, TimeoutError) and "reopen the session" in str(job.error)

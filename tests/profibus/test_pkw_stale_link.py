@@ -7,7 +7,7 @@ from collections.abc import Callable, Sequence
 
 import pytest
 
-from starterbus.core.errors import TimeoutError
+from starterbus.core.errors import ConfigurationError, TimeoutError
 from starterbus.core.model import Kind as PointKind
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
@@ -94,14 +94,15 @@ def test_a_task_left_by_an_earlier_session_does_not_answer_the_next_sessions_fir
         first.pkw(READ_P3)
     slave.latency = 20  # still slow: the old answer shows on its own for a while
     # Session 2's first task, m3 (INDL 3 too). The transport builds its engine with verify_start: the task waits
-    # for a verified fence read. Without it, the old answer (12) is taken for m3 (0 A): the reason for the rule.
+    # for the start chain (three fence reads on INDLs of their own, inherited=2). Without it, the old answer (12)
+    # is taken for m3 (0 A): the reason for the rule.
     limits = Limits(max_cycles=100, timeout=100, verify_start=verify_start)
     second = CyclicLink(SimChannel(slave), PkwEngine(limits=limits), cycle=0)
     second.open()
     try:
         job = second.pkw(READ_M3)
         assert job.response is not None
-        assert (job.response.pwe, job.fences) == ((0, 1) if verify_start else (12, 0))
+        assert (job.response.pwe, job.fences) == ((0, 3) if verify_start else (12, 0))
     finally:
         second.close()
         first.close()
@@ -149,3 +150,7 @@ def test_the_gateway_url_carries_the_margin(jjr8000: Profile) -> None:
     assert (gateway.limits.stale_cycles, gateway.limits.stale_time, gateway.limits.verify_start) == (1, 0.0, True)
     sim = LinkSettings.from_url(DeviceUrl.parse("profibus-pkw+sim://?stale_cycles=3&stale_time=0.02"), jjr8000)
     assert (sim.limits.stale_cycles, sim.limits.stale_time) == (3, 0.02)
+    assert (gateway.limits.inherited, sim.limits.inherited) == (2, 2)
+    assert LinkSettings.from_url(DeviceUrl.parse("profibus-pkw+sim://?inherited=0"), jjr8000).limits.inherited == 0
+    with pytest.raises(ConfigurationError, match="inherited"):
+        LinkSettings.from_url(DeviceUrl.parse("profibus-pkw+sim://?inherited=255"), jjr8000)

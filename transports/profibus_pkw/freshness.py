@@ -30,8 +30,14 @@ A new task on INDL ``i`` may start (:meth:`Freshness.proof`) at a "no response" 
 Its answer is then accepted only if fresh after the basis. An orphan on ``i`` satisfies neither until some other
 task is verifiably answered (the handshake sends a *fence*: a read of another INDL) or its own late answer shows.
 
-With ``verify_start`` the unknown past counts as an orphan on every INDL: a task that an earlier session left
-on the slave could still be answered, so the session's first task waits for a fence too.
+With ``verify_start`` the unknown past counts as an orphan on every INDL: up to ``inherited`` tasks that an
+earlier session left on the slave may still be answered, on any INDL and with any value, so no answer can be
+told from theirs by its content. Until the past is cleared nothing is attributed to a task (no proof, no late
+answer); the session's first task waits for a *start chain*: ``inherited + 1`` fence reads, each on an INDL not
+used before in the session and each answered fresh after the previous answer. Those answers are as many distinct
+executions (their INDLs differ), in the slave's order; at most ``inherited`` are old, so one is ours, and every
+later one, the last included, follows ours and is not old either. The last fence is its INDL's only task of the
+session: the last answer is its own, a verified answer, and rule 1 then holds for every INDL.
 """
 
 from __future__ import annotations
@@ -39,7 +45,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from starterbus.transports.profibus_pkw.telegram import NO_TASK, PkwRequest, PkwResponse, ResponseCode, TaskCode
+from starterbus.transports.profibus_pkw.telegram import (
+    NO_TASK,
+    PkwRequest,
+    PkwResponse,
+    ResponseCode,
+    TaskCode,
+    hex_text,
+)
 
 
 class Mark(NamedTuple):
@@ -58,6 +71,11 @@ class IndexRecord:
     basis: Mark  # its answers were acceptable from here (fresh after it)
     ended: Mark  # the master stopped sending it
     answered: Mark | None  # its verified answer was seen here; None: an orphan
+
+
+def pkw_bytes(pkw: PkwRequest | PkwResponse) -> bytes:
+    """The four PKW bytes (IND, PWE big-endian), as on the wire and in messages."""
+    return bytes([(pkw.ind >> 8) & 0xFF, pkw.ind & 0xFF, (pkw.pwe >> 8) & 0xFF, pkw.pwe & 0xFF])
 
 
 def answers(request: PkwRequest, response: PkwResponse) -> bool:
@@ -86,6 +104,13 @@ class Freshness:
     accepted_indl: int | None = None
     start: Mark | None = None  # before the first exchange: what the slave did earlier is unknown
     verify_start: bool = False  # treat that unknown past as an orphan on every INDL
+    inherited: int = 2  # how many tasks an earlier session may have left for the slave to answer
+    chain: int = 0  # start-chain fences answered so far (while the past is unknown)
+
+    @property
+    def unknown(self) -> bool:
+        """Can an answer still be an earlier session's (``verify_start`` and the start chain not complete)?"""
+        return self.verify_start and self.accepted is None
 
     def begin(self, now: float) -> None:
         if self.start is None:
@@ -100,10 +125,10 @@ class Freshness:
     def orphan(self, indl: int) -> IndexRecord | None:
         """The unanswered task that blocks INDL ``indl`` (rule 1 not yet met), if any; with ``verify_start``,
         before the first verified answer, a record of the unknown past (request "no task")."""
-        rec = self.records.get(indl)
-        if rec is None and self.verify_start and self.accepted is None:
+        if self.unknown:
             start = self.start or Mark(0, 0.0)
             return IndexRecord(NO_TASK, start, start, None)
+        rec = self.records.get(indl)
         if rec is None or rec.answered is not None:
             return None
         if self.accepted is not None and self.accepted.n > rec.ended.n:
@@ -113,15 +138,15 @@ class Freshness:
     def proof(self, indl: int, obs: Mark, *, fence: bool = False) -> Mark | None:
         """The basis for a new task on ``indl`` if "no response" seen at ``obs`` may start it, else None.
 
-        A ``fence`` may start on an INDL not used yet even with ``verify_start``: if an old task on that INDL
-        answers it, that old task is done, and (the slave being ordered) so is everything before it."""
+        While the past is unknown only a ``fence`` of the start chain may start, on an INDL not used yet in the
+        session (:meth:`fence_indl`), at a "no response" fresh after the start."""
         rec = self.records.get(indl)
         answered: Mark | None
-        if rec is None and self.verify_start and self.accepted is None and not fence:
+        if self.unknown and (not fence or rec is not None):
             return None
         if rec is None:
-            # Nothing sent on this INDL in this session: treated as answered at the start. (A task that an
-            # earlier session left running on the slave is not covered; see docs/profibus.md.)
+            # Nothing sent on this INDL in this session: treated as answered at the start (an earlier session's
+            # tasks are the start chain's business, see the module docstring).
             ended = answered = self.start or Mark(0, obs.t)
         else:
             ended, answered = rec.ended, rec.answered
@@ -142,12 +167,37 @@ class Freshness:
         self.accepted = obs
         self.accepted_indl = indl
 
+    def why_blocked(self, indl: int) -> str | None:
+        """Why INDL ``indl`` is quarantined, for a timeout message; None if it is not."""
+        orphan = self.orphan(indl)
+        if orphan is None:
+            return None
+        if orphan.request != NO_TASK:
+            return f"an earlier task on it [{hex_text(pkw_bytes(orphan.request))}] got no verified answer"
+        text = "nothing has been verifiably answered yet in this session "
+        text += f"({self.chain} of {self.inherited + 1} start fence reads answered)"
+        if self.fence_indl(indl) is None:
+            text += "; every INDL has had a lost fence read: reopen the session"
+        return text
+
+    def fenced(self, request: PkwRequest, basis: Mark, obs: Mark) -> None:
+        """A fence read's answer was seen at ``obs`` (fresh after ``basis``, echoing it). In the start chain
+        all but the last may be an earlier session's answers: the fence stays unanswered, its INDL is not used
+        again in the chain, and the next fence is sent on another one."""
+        if self.unknown and self.chain < self.inherited:
+            self.chain += 1
+            self.unanswered(request, basis, obs)
+        else:
+            self.answered(request, basis, obs)
+
     def unanswered(self, request: PkwRequest, basis: Mark, ended: Mark) -> None:
         """``request`` was sent but ended without a verified answer (timeout, corrupt answer, broken channel)."""
         self.records[request.indl] = IndexRecord(request, basis, ended, None)
 
     def late(self, response: PkwResponse, obs: Mark) -> bool:
         """Note an answer that arrives after its task ended; True if it resolved an orphan."""
+        if self.unknown:
+            return False  # it may be an earlier session's answer
         rec = self.records.get(response.ind & 0xFF)
         if rec is None or rec.answered is not None or not self.fresh(rec.basis, obs):
             return False
@@ -157,9 +207,16 @@ class Freshness:
         rec.answered = obs
         return True
 
-    def fence_indl(self, blocked: int) -> int:
+    def fence_indl(self, blocked: int) -> int | None:
         """An INDL to read so that a verified answer lifts the block on ``blocked``: preferably the last one
-        verifiably answered (a known address), else the next INDL not itself blocked."""
+        verifiably answered (a known address), else the next INDL not itself blocked. In the start chain: the
+        next INDL not used yet in the session (None: every one has had a lost fence read)."""
+        if self.unknown:
+            for step in range(1, 256):
+                indl = (blocked + step) & 0xFF
+                if indl not in self.records:
+                    return indl
+            return None
         if self.accepted_indl is not None and self.accepted_indl != blocked and not self.orphan(self.accepted_indl):
             return self.accepted_indl
         for step in range(1, 256):

@@ -16,7 +16,8 @@ answer, broken channel) leaves its INDL quarantined, in both data areas: the nex
 another exchange is verifiably answered; the engine forces one with a *fence*, a read of another INDL, unless
 the orphan's own late answer shows first. "No response" alone never lifts it: a slave still working on the old
 task shows "no response" too. With ``Limits.verify_start`` (what the transport uses) the unknown past before the
-session counts as such a task on every INDL: the session's first task is preceded by a fence.
+session counts as such a task on every INDL: the session's first task is preceded by the *start chain*,
+``Limits.inherited + 1`` fence reads on INDLs of their own (why that suffices: ``freshness.py``).
 
 Outcomes of a job (each a defined state, never a hang):
 
@@ -27,7 +28,7 @@ Outcomes of a job (each a defined state, never a hang):
   a value);
 - responses with another INDL (``job.foreign``), not fresh (``job.stale``) or not echoing the task
   (``job.mismatched``: response 2 to a read, a write echo with another value) are ignored;
-- no answer within ``max_cycles`` exchanges (clearing included; fence reads have ``max_cycles`` of their own)
+- no answer within ``max_cycles`` exchanges (clearing included; each fence read has ``max_cycles`` of its own)
   or ``timeout`` seconds (everything included): :class:`~starterbus.core.errors.TimeoutError`;
 - the channel failing: the driver calls :meth:`PkwEngine.fail` with its :class:`TransportError`.
 
@@ -43,7 +44,7 @@ from dataclasses import dataclass, field
 
 from starterbus.core.errors import DecodeError, RemoteDeviceError, StarterbusError, TimeoutError
 from starterbus.core.model import Label
-from starterbus.transports.profibus_pkw.freshness import Freshness, Mark, answers
+from starterbus.transports.profibus_pkw.freshness import Freshness, Mark, answers, pkw_bytes
 from starterbus.transports.profibus_pkw.telegram import (
     NO_TASK,
     PROTOCOL,
@@ -57,6 +58,8 @@ from starterbus.transports.profibus_pkw.telegram import (
     hex_text,
     pkw_request,
 )
+
+MAX_INHERITED = 254  # the start chain reads inherited + 1 INDLs, all different from the task's
 
 
 class PkwError(RemoteDeviceError):
@@ -94,7 +97,8 @@ class PkwJob:
     mismatched: int = 0  # responses with the task's INDL that do not echo the task
     last_mismatch: bytes = b""  # the last of them (the PKW bytes)
     fences: int = 0  # fence reads sent to lift a quarantine on the task's INDL
-    fence_cycles: int = 0  # exchanges spent sending them (a budget of their own: max_cycles)
+    fence_cycles: int = 0  # exchanges spent on them (sending them; clearing between those of the start chain)
+    fence_step: int = 0  # of which since the last fence answer: each fence read has max_cycles of its own
     started: float | None = None
     finished: float | None = None
 
@@ -117,7 +121,8 @@ class Limits:
     timeout: float = 2.0
     stale_cycles: int = 0
     stale_time: float = 0.0
-    verify_start: bool = False  # the session's first task waits for a verified fence read (see freshness.py)
+    verify_start: bool = False  # the session's first task waits for the start chain of fences (freshness.py)
+    inherited: int = 2  # with verify_start: tasks an earlier session may have left for the slave to answer
 
     def __post_init__(self) -> None:
         if self.max_cycles < 2:
@@ -126,6 +131,8 @@ class Limits:
             raise ValueError("timeout must be positive")
         if self.stale_cycles < 0 or self.stale_time < 0:
             raise ValueError("stale_cycles and stale_time must be >= 0")
+        if not 0 <= self.inherited <= MAX_INHERITED:
+            raise ValueError(f"inherited must be 0..{MAX_INHERITED} (one fence INDL each, and one more)")
 
 
 @dataclass(slots=True)
@@ -149,9 +156,13 @@ class PkwEngine:
     _last: tuple[Mark, int] | None = None  # the last observation and its response code
     _basis: Mark = field(default_factory=lambda: Mark(0, 0.0))  # the current job's answers: fresh after this
     _fence: _Fence | None = None
+    _chaining: bool = False  # a start-chain fence was answered, the next one is not sent yet
 
     def __post_init__(self) -> None:
-        self._book = Freshness(self.limits.stale_cycles, self.limits.stale_time, verify_start=self.limits.verify_start)
+        limits = self.limits
+        self._book = Freshness(
+            limits.stale_cycles, limits.stale_time, verify_start=limits.verify_start, inherited=limits.inherited
+        )
 
     # -- requests --------------------------------------------------------------------------------------------
 
@@ -189,6 +200,7 @@ class PkwEngine:
             job.started = now
             job.state = JobState.CLEARING
             self._fence = None
+            self._chaining = False
             if self._last is not None and self._last[1] == 0:
                 self._clear(job, self._last[0])
         if job is None:
@@ -196,9 +208,10 @@ class PkwEngine:
         job.cycles += 1
         if job.state is JobState.SENDING:
             return job.request
-        if self._fence is not None:
+        if self._fence is not None or self._chaining:
             job.fence_cycles += 1
-            return self._fence.request
+            job.fence_step += 1
+            return self._fence.request if self._fence is not None else NO_TASK
         return NO_TASK
 
     def receive(self, response: PkwResponse, now: float) -> PkwJob | None:
@@ -220,8 +233,10 @@ class PkwEngine:
             fence = self._fence
             if fence is not None:
                 if code and book.fresh(fence.basis, obs) and answers(fence.request, response):
-                    book.answered(fence.request, fence.basis, obs)
+                    book.fenced(fence.request, fence.basis, obs)
                     self._fence = None
+                    job.fence_step = 0
+                    self._chaining = book.unknown
             elif code == 0:
                 self._clear(job, obs)
             return self._check_limits(job, now)
@@ -241,7 +256,7 @@ class PkwEngine:
             job.response = response  # the common case first: a value that answers the task
             book.answered(request, self._basis, obs)
             return self._finish(job, JobState.DONE, now)
-        raw = _pkw_bytes(response)
+        raw = pkw_bytes(response)
         if code > ResponseCode.CANNOT_EXECUTE:
             job.error = DecodeError(
                 f"unknown response code {code} (INDH) to {job.describe()}; no value taken", raw, "INDH"
@@ -284,9 +299,10 @@ class PkwEngine:
         if self._book.orphan(job.request.indl) is None:
             return  # the previous answer on this INDL may still be shown: wait for a fresh "no response"
         indl = self._book.fence_indl(job.request.indl)
-        fence_basis = self._book.proof(indl, obs, fence=True)
-        if fence_basis is not None:
+        fence_basis = None if indl is None else self._book.proof(indl, obs, fence=True)
+        if indl is not None and fence_basis is not None:
             self._fence = _Fence(pkw_request(TaskCode.READ_PARAMETER, indl), fence_basis)
+            self._chaining = False
             job.fences += 1
 
     def fail(self, error: StarterbusError, now: float, *, all_jobs: bool = False) -> list[PkwJob]:
@@ -331,6 +347,7 @@ class PkwEngine:
             if self._fence is not None:
                 self._book.unanswered(self._fence.request, self._fence.basis, ended)
                 self._fence = None
+        self._chaining = False
         job.state = state
         job.finished = now
         self._current = None
@@ -340,23 +357,18 @@ class PkwEngine:
         started = job.started if job.started is not None else now
         why = ""
         limit = self.limits.max_cycles
-        if job.cycles - job.fence_cycles >= limit or job.fence_cycles >= limit:
+        if job.cycles - job.fence_cycles >= limit or job.fence_step >= limit:
             why = f"no response within {job.cycles} DP cycles (limit {limit}"
-            why += f", and {limit} for fence reads)" if job.fence_cycles else ")"
+            why += f", and {limit} for each fence read)" if job.fence_cycles else ")"
         elif now - started > self.limits.timeout:
             why = f"no response within {now - started:.3f} s (limit {self.limits.timeout:g} s, {job.cycles} cycles)"
         if not why:
             return None
         stage = ""
         if job.state is JobState.CLEARING:
-            orphan = self._book.orphan(job.request.indl)
-            if orphan is not None:
-                earlier = (
-                    "nothing has been verifiably answered yet in this session"
-                    if orphan.request == NO_TASK
-                    else f"an earlier task on it [{hex_text(_pkw_bytes(orphan.request))}] got no verified answer"
-                )
-                stage = f"INDL {job.request.indl:#04x} is quarantined: {earlier}" + (
+            blocked = self._book.why_blocked(job.request.indl)
+            if blocked is not None:
+                stage = f"INDL {job.request.indl:#04x} is quarantined: {blocked}" + (
                     f", and {job.fences} fence read(s) of another INDL got none either" if job.fences else ""
                 )
             else:
@@ -367,7 +379,7 @@ class PkwEngine:
         if job.mismatched:  # a fresh answer that is not this task's: a typed error, never a value
             job.error = DecodeError(
                 f"{PROTOCOL}: {job.describe()}: the slave showed {hex_text(job.last_mismatch)} "
-                f"{job.mismatched} time(s), which does not echo the task [{hex_text(_pkw_bytes(job.request))}] "
+                f"{job.mismatched} time(s), which does not echo the task [{hex_text(pkw_bytes(job.request))}] "
                 f"(response 2 to a read, or a write echo of another value), and nothing that does; {why}",
                 job.last_mismatch,
                 "PWE" if job.request.task == TaskCode.WRITE_PARAMETER else "INDH",
@@ -377,10 +389,6 @@ class PkwEngine:
             extra += "; the slave may still carry the write out"
         job.error = TimeoutError(
             f"{PROTOCOL}: {job.describe()}: {why}{'; ' + stage if stage else ''}{extra} "
-            f"[task {hex_text(_pkw_bytes(job.request))}]"
+            f"[task {hex_text(pkw_bytes(job.request))}]"
         )
         return self._finish(job, JobState.FAILED, now)
-
-
-def _pkw_bytes(pkw: PkwRequest | PkwResponse) -> bytes:
-    return bytes([(pkw.ind >> 8) & 0xFF, pkw.ind & 0xFF, (pkw.pwe >> 8) & 0xFF, pkw.pwe & 0xFF])

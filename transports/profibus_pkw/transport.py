@@ -9,7 +9,8 @@ URL forms (the part after ``+`` picks the channel)::
 Common parameters: ``ppo`` (1 or 3, default 1), ``cycle`` (s between DP exchanges; 0 = on demand, no thread),
 ``timeout`` (PKW time limit, s), ``max_cycles`` (PKW cycle limit), ``hold`` (exchanges per command word),
 ``pulse`` (minimum s per command word), ``station`` (the DP address, for messages; checked against the model),
-``stale_cycles`` / ``stale_time`` (how many exchanges / seconds old an input may be; sim 0/0, gateway 1/0).
+``stale_cycles`` / ``stale_time`` (how many exchanges / seconds old an input may be; sim 0/0, gateway 1/0),
+``inherited`` (how many tasks an earlier session may have left for the slave to answer; default 2).
 Sim only: ``latency`` (exchanges before a private slave's PKW response shows). Gateway only: ``out``, ``in``
 (register offsets of the output and input words), ``unit`` (Modbus unit id), ``in_fc`` (3 or 4: how inputs
 are read).
@@ -28,7 +29,7 @@ from starterbus.core.status import CW_START, Command, ControlWordState, Status, 
 from starterbus.core.transport import Capability, Transport
 from starterbus.core.url import DeviceUrl
 from starterbus.transports.profibus_pkw.channels import Channel, GatewayChannel, SimChannel, get_slave
-from starterbus.transports.profibus_pkw.handshake import Limits, PkwEngine
+from starterbus.transports.profibus_pkw.handshake import MAX_INHERITED, Limits, PkwEngine
 from starterbus.transports.profibus_pkw.link import CyclicLink
 from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
 from starterbus.transports.profibus_pkw.telegram import (
@@ -47,7 +48,18 @@ PPO1_CAPABILITIES = frozenset(Capability)
 PPO3_CAPABILITIES = frozenset({Capability.STATUS, Capability.COMMANDS})
 ACT_SCALE = 0.1  # PZD ACT: phase A current in 0.1 A (docs/manuals.md#profibus-golden-vectors)
 
-_COMMON = ("ppo", "cycle", "timeout", "max_cycles", "hold", "pulse", "station", "stale_cycles", "stale_time")
+_COMMON = (
+    "ppo",
+    "cycle",
+    "timeout",
+    "max_cycles",
+    "hold",
+    "pulse",
+    "station",
+    "stale_cycles",
+    "stale_time",
+    "inherited",
+)
 _SIM = (*_COMMON, "latency")
 _GATEWAY = (*_COMMON, "out", "in", "unit", "in_fc")
 
@@ -107,6 +119,7 @@ class LinkSettings:
             url.get_int("stale_cycles", 1 if gateway else 0, 0, 10_000),
             url.get_float("stale_time", 0.0, 0.0, 60.0),
             verify_start=True,  # a task an earlier session left on the slave must not answer our first one
+            inherited=url.get_int("inherited", 2, 0, MAX_INHERITED),
         )
         hold = url.get_int("hold", 3, 1, 1000)
         pulse = url.get_float("pulse", 0.05 if gateway else 0.0, 0.0, 10.0)
