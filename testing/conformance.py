@@ -31,6 +31,7 @@ import pytest
 
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import (
+    NotOpenError,
     RemoteDeviceError,
     StarterbusError,
     UnsupportedOperationError,
@@ -40,9 +41,11 @@ from starterbus.core.guarded import ConfirmationRefused, Proposal
 from starterbus.core.model import Kind, PointDef
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile, get_transport
+from starterbus.core.sharing import leases
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.core.status import Command, MotorState
-from starterbus.core.transport import Capability
+from starterbus.core.transport import Capability, Transport
+from starterbus.core.url import DeviceUrl
 
 REFERENCE = "modbus-rtu"
 
@@ -59,6 +62,10 @@ def wait_until(predicate: Callable[[], bool], timeout: float = 5.0) -> bool:
 
 def phase(starter: SimulatedStarter) -> Phase:
     return starter.phase
+
+
+def is_open(transport: Transport) -> bool:
+    return transport.is_open  # read through a call: mypy would keep an earlier assert's narrowing
 
 
 def open_fds() -> int:
@@ -255,7 +262,7 @@ class TransportConformance:
     def test_lifecycle_leaves_nothing_behind(self, url: str, profile: Profile) -> None:
         with open_device(url, profile):
             pass  # the first open may start shared, process-wide services
-        threads, fds = threading.active_count(), open_fds()
+        threads, fds, held = threading.active_count(), open_fds(), leases()
         for _ in range(3):
             device = open_device(url, profile)
             with device:
@@ -265,6 +272,52 @@ class TransportConformance:
                 device.status()  # closed: a typed error, never a hang or an AttributeError
         assert wait_until(lambda: threading.active_count() <= threads), "threads left running after close"
         assert wait_until(lambda: open_fds() <= fds), "file descriptors left open after close"
+        assert leases() == held, "a shared line, bus or gateway (SharedPool) was not released on close"
+
+    def _transport(self, url: str, profile: Profile) -> Transport:
+        return get_transport(self.transport).open(DeviceUrl.parse(url), profile)
+
+    def _operations(self, transport: Transport, profile: Profile) -> dict[str, Callable[[], object]]:
+        point = (profile.measurements or profile.parameters)[0]
+        return {
+            "read_points": lambda: transport.read_points([point]),
+            "read_status": transport.read_status,
+            "send_command": lambda: transport.send_command(Command.SOFT_STOP),
+            "write_parameter": lambda: transport.write_parameter(self._any_writable_in(profile), 0),
+            "poll": lambda: transport.poll([point], True),
+            "identify": transport.identify,
+        }
+
+    def _any_writable_in(self, profile: Profile) -> PointDef:
+        return next(p for p in profile.parameters if p.writable)
+
+    def test_a_transport_used_before_open_or_after_close_raises_not_open(
+        self, url: str, profile: Profile, starter: SimulatedStarter
+    ) -> None:
+        transport = self._transport(url, profile)
+        for name, call in self._operations(transport, profile).items():
+            with pytest.raises(NotOpenError, match="not open") as info:
+                call()
+            assert self.transport in str(info.value) and transport.url.text in str(info.value), name
+        transport.open()
+        transport.open()  # idempotent: the second open does nothing
+        assert is_open(transport)
+        transport.close()
+        transport.close()  # idempotent
+        assert not is_open(transport)
+        for name, call in self._operations(transport, profile).items():
+            with pytest.raises(NotOpenError, match="closed"):
+                call()
+            assert not is_open(transport), name
+        with transport:  # a closed transport opens again (a poller reconnects)
+            assert is_open(transport)
+        assert starter.phase is Phase.STOPPED
+
+    def test_declared_capabilities_match_the_hooks(self, url: str, profile: Profile) -> None:
+        plugin = get_transport(self.transport)
+        transport = self._transport(url, profile)
+        assert transport.capabilities <= plugin.capabilities, "a URL offers more than the plugin declares"
+        assert type(transport).capability_problems(plugin.capabilities) == []
 
     def test_agrees_with_the_reference_transport(self, url: str, profile: Profile, starter: SimulatedStarter) -> None:
         if self.transport == REFERENCE or not profile.supports(REFERENCE):

@@ -29,7 +29,7 @@ import threading
 from collections.abc import Sequence
 
 from starterbus.core.errors import ConfigurationError, DecodeError, TimeoutError
-from starterbus.core.model import Kind, PointDef, Reading
+from starterbus.core.model import PointDef, Reading
 from starterbus.core.profile import Profile
 from starterbus.core.sharing import SharedPool
 from starterbus.core.status import CW_RESET, CW_START, Command, ControlWordState, Status
@@ -77,7 +77,7 @@ MIN_EPR_MS = 100  # the shortest expected packet rate a ``period`` sets (watchdo
 EPR_FACTOR = 2
 
 #: one scanner per (interface, channel) in this process
-SCANNERS: SharedPool[Scanner] = SharedPool()
+SCANNERS: SharedPool[Scanner] = SharedPool("devicenet scanners")
 
 
 def timing_for_period(period: float) -> tuple[float, int]:
@@ -157,9 +157,7 @@ class DeviceNetTransport(Transport):
 
     # -- lifecycle ---------------------------------------------------------------------------------------------
 
-    def open(self) -> None:
-        if self.link is not None:
-            return
+    def _open(self) -> None:
         config = self.scanner_config
         scanner = SCANNERS.acquire(self._key, lambda: Scanner(config))
         try:
@@ -178,7 +176,7 @@ class DeviceNetTransport(Transport):
         try:
             self._wait_established(4 * config.timeout + 0.5)
         except BaseException:
-            self.close()
+            self._close()
             raise
 
     def _wait_established(self, timeout: float) -> None:
@@ -197,7 +195,7 @@ class DeviceNetTransport(Transport):
             + (f" (last error: {link.last_error})" if link.last_error else "")
         )
 
-    def close(self) -> None:
+    def _close(self) -> None:
         scanner, link = self.scanner, self.link
         self.scanner = self.link = None
         if scanner is not None and link is not None:
@@ -208,7 +206,7 @@ class DeviceNetTransport(Transport):
 
     def _require(self) -> tuple[Scanner, SlaveLink]:
         if self.scanner is None or self.link is None:
-            raise ConfigurationError(f"{self.describe()}: the transport is not open")
+            raise self._not_open()
         return self.scanner, self.link
 
     # -- capabilities -------------------------------------------------------------------------------------------
@@ -254,7 +252,7 @@ class DeviceNetTransport(Transport):
             )
         return sample
 
-    def read_status(self) -> Status:
+    def _read_status(self) -> Status:
         scanner, link = self._require()
         sample = self._fresh_sample(link, scanner)
         assemblies = link.assemblies or AssemblySet.EXTENDED
@@ -273,7 +271,7 @@ class DeviceNetTransport(Transport):
             )
         return ControlWordState(bus_control=True, run=run).apply(command)
 
-    def send_command(self, command: Command) -> None:
+    def _send_command(self, command: Command) -> None:
         scanner, link = self._require()
         words = self._words(command, link.run)
         error = scanner.link_error(link)
@@ -292,7 +290,7 @@ class DeviceNetTransport(Transport):
                     f"{self.timeout:g} s (connection {link.state.value})"
                 )
 
-    def preview_command(self, command: Command) -> list[str]:
+    def _preview_command(self, command: Command) -> list[str]:
         link = self.link
         run = link.run if link is not None else False
         assemblies = (link.assemblies if link is not None else None) or (
@@ -305,21 +303,14 @@ class DeviceNetTransport(Transport):
             frames.append(f"{poll_command_id(self.link_config.mac):03X}#{output.encode().hex().upper()}")
         return frames
 
-    def _no_parameters(self) -> str:
-        return f"the {self.profile.display_name} does not support parameter access over DeviceNet"
-
-    def preview_write(self, point: PointDef, raw: int) -> list[str]:
-        raise self.unsupported("write parameters", self._no_parameters())
-
-    def write_parameter(self, point: PointDef, raw: int) -> None:
-        raise self.unsupported("write parameters", self._no_parameters())
+    def _why_not(self, capability: Capability) -> str:
+        if capability in (Capability.READ_PARAMETERS, Capability.WRITE_PARAMETERS):
+            return f"the {self.profile.display_name} does not support parameter access over DeviceNet"
+        return super()._why_not(capability)
 
     # -- measurements ------------------------------------------------------------------------------------------
 
-    def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
-        for point in points:
-            if point.kind is Kind.PARAMETER:
-                raise self.unsupported(f"read the parameter {point.key}", self._no_parameters())
+    def _read_points(self, points: Sequence[PointDef]) -> list[Reading]:
         scanner, link = self._require()
         return [self._read_measurement(scanner, link, point) for point in points]
 
@@ -368,7 +359,7 @@ class DeviceNetTransport(Transport):
 
     # -- identity ------------------------------------------------------------------------------------------------
 
-    def identify(self) -> dict[str, object]:
+    def _identify(self) -> dict[str, object]:
         """Identity object attributes 1-7 (Get_Attribute_Single each; the product name is fragmented)."""
         scanner, link = self._require()
         raw: dict[int, bytes] = {}
