@@ -9,6 +9,7 @@ import inspect
 from abc import ABC, abstractmethod
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 from starterbus.core.errors import ConfigurationError, UnsupportedOperationError
@@ -86,11 +87,24 @@ class TransportPlugin(ABC):
             raise ConfigurationError(f"{value!r} is not an address (an integer 0..0xFFFF)")
         return value
 
-    def check_settings(self, settings: Mapping[str, Any]) -> None:
-        """Check this transport's table of a profile (``[transports.NAME]``) when the profile loads.
+    def parse_settings(self, settings: Mapping[str, Any]) -> object:
+        """Parse this transport's table of a profile (``[transports.NAME]``) when the profile loads.
 
-        Raise :class:`~starterbus.core.errors.ConfigurationError` naming the key and the value; the loader adds
-        the file. The default accepts anything.
+        Return a typed, frozen object (a frozen dataclass of your own, one default per key: build it with
+        :func:`~starterbus.core.settings_check.build`); the profile keeps it and your transport gets it back
+        with ``profile.settings_for(NAME, YourSettings)``. Raise
+        :class:`~starterbus.core.errors.ConfigurationError` naming an unknown key or a wrong value; the loader
+        adds the file. The default (for plugins written before this hook): :meth:`check_settings`, then the
+        table itself, read-only.
+        """
+        self.check_settings(settings)
+        return MappingProxyType(dict(settings))
+
+    def check_settings(self, settings: Mapping[str, Any]) -> None:
+        """Check the table without parsing it (the older hook; :meth:`parse_settings` calls it by default).
+
+        A plugin that defines :meth:`parse_settings` need not define this; the built-in ones keep it as
+        a shim that parses and drops the result. The default accepts anything.
         """
 
     # -- optional hooks: simulator front ends and a decoder, declared as data -----------------------------------

@@ -1,4 +1,4 @@
-"""The ``devicenet`` transport: one JJR8000 slave, scanned by the process-wide scanner of its CAN bus.
+"""The ``devicenet`` transport: one slave (the profile's model), scanned by the process-wide scanner of its bus.
 
 URL: ``devicenet://INTERFACE/CHANNEL?mac=5`` with any python-can interface (``virtual``, ``socketcan``,
 ``pcan``, ``remote`` for the loopback bridge, ...) and these parameters:
@@ -55,6 +55,7 @@ from starterbus.transports.devicenet.scanner import (
     ScannerConfig,
     SlaveLink,
 )
+from starterbus.transports.devicenet.settings import devicenet_settings
 
 NAME = "devicenet"
 URL_PARAMETERS = (
@@ -69,7 +70,6 @@ URL_PARAMETERS = (
     "timeout",
     "settle",
 )
-DEFAULT_BITRATES = (125000, 250000, 500000)
 
 MIN_INTERVAL = 0.005  # s: the fastest scan a ``period`` asks for (bus load)
 MAX_INTERVAL = 1.0  # s: the slowest; with EPR = 2 x interval the slave's watchdog fires after 8 s of silence
@@ -97,13 +97,13 @@ def parse_url(url: DeviceUrl, profile: Profile) -> tuple[ScannerConfig, LinkConf
             f"{url.text}: expected devicenet://INTERFACE/CHANNEL?mac=N (e.g. devicenet://virtual/bus0?mac=5, "
             "devicenet://socketcan/can0?mac=5, devicenet://remote/127.0.0.1:54701?mac=5)"
         )
-    settings = profile.transport_settings(NAME)
-    lo, hi = settings.get("mac_ids", [1, MAX_MAC])
-    mac = url.get_int("mac", lo=int(lo), hi=int(hi))
+    settings = devicenet_settings(profile)
+    lo, hi = settings.mac_ids
+    mac = url.get_int("mac", lo=lo, hi=hi)
     master_mac = url.get_int("master_mac", 0, lo=0, hi=MAX_MAC)
     if master_mac == mac:
         raise ConfigurationError(f"{url.text}: master_mac and mac are both {mac}")
-    bitrates = [int(b) for b in settings.get("bitrates", DEFAULT_BITRATES)]
+    bitrates = settings.bitrates
     bitrate = url.get_int("bitrate", 500000)
     if bitrate not in bitrates:
         raise ConfigurationError(f"{url.text}: bitrate {bitrate} is not one of {', '.join(map(str, bitrates))}")
@@ -138,6 +138,7 @@ def parse_url(url: DeviceUrl, profile: Profile) -> tuple[ScannerConfig, LinkConf
         settle=url.get_int("settle", 2, lo=1, hi=50),
         interval=poll / 1000.0,
         product=profile.display_name,
+        sets=", ".join(f"{s.value} {'/'.join(map(str, settings.instances(s)))}" for s in AssemblySet),
     )
     return scanner, link
 
@@ -150,6 +151,7 @@ class DeviceNetTransport(Transport):
     def __init__(self, url: DeviceUrl, profile: Profile) -> None:
         super().__init__(url, profile)
         self.scanner_config, self.link_config = parse_url(url, profile)
+        self.settings = devicenet_settings(profile)
         self.scanner: Scanner | None = None
         self.link: SlaveLink | None = None
         self._select_lock = threading.Lock()
@@ -371,8 +373,7 @@ class DeviceNetTransport(Transport):
         identity = decode_identity(raw)
         result: dict[str, object] = {"mac": link.mac, **identity.as_dict()}
         if link.assemblies is not None:
-            result["input_assembly"] = link.assemblies.input_instance
-            result["output_assembly"] = link.assemblies.output_instance
+            result["input_assembly"], result["output_assembly"] = self.settings.instances(link.assemblies)
         result["expected_packet_rate_ms"] = link.epr_ms
         return result
 

@@ -30,6 +30,7 @@ from starterbus.core.url import DeviceUrl
 from starterbus.transports.profibus_pkw.channels import Channel, GatewayChannel, SimChannel, get_slave
 from starterbus.transports.profibus_pkw.handshake import Limits, PkwEngine
 from starterbus.transports.profibus_pkw.link import CyclicLink
+from starterbus.transports.profibus_pkw.settings import profibus_settings
 from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
 from starterbus.transports.profibus_pkw.telegram import (
     NO_TASK,
@@ -84,16 +85,16 @@ class LinkSettings:
         if number not in (1, 3):
             raise ConfigurationError(f"{url.text}: ppo: {number} is not 1 (PPO1, 'type I') or 3 (PPO3, 'type III')")
         ppo = Ppo(number)
-        settings = profile.transport_settings(PROTOCOL)
-        offered = list(settings.get("ppo", []))
+        settings = profibus_settings(profile)
+        offered = settings.ppo
         if ppo.value not in offered:
             raise UnsupportedOperationError(
                 f"{profile.display_name} does not offer {ppo.name} over Profibus (it offers: "
                 f"{', '.join(f'PPO{n}' for n in offered) or 'none'})"
             )
         station = url.get_int("station", 0, 0, 127) if "station" in url.query else None
-        stations = settings.get("stations")
-        if station is not None and stations and not stations[0] <= station <= stations[1]:
+        stations = settings.stations
+        if station is not None and not stations[0] <= station <= stations[1]:
             raise ConfigurationError(
                 f"{url.text}: station: {station} is outside {profile.display_name}'s range {stations[0]}..{stations[1]}"
             )
@@ -143,7 +144,7 @@ class ProfibusPkwTransport(Transport):
         self.ppo = self.settings.ppo
         self.link: CyclicLink | None = None
         self.control = ControlWordState()
-        self._errors = profile.transport_settings(PROTOCOL).get("errors", {})
+        self._errors = profibus_settings(profile).errors
 
     # -- lifecycle -----------------------------------------------------------------------------------------
 

@@ -38,7 +38,8 @@ from starterbus.core import (
 )
 from starterbus.core.status import decode_status_word
 from starterbus_canopen.codes import RPDO1_BASE, TPDO1_BASE, Tpdo1, abort_meaning, encode_rpdo1
-from starterbus_canopen.od import PLUGIN_NAME, PdoLayout, build_od
+from starterbus_canopen.od import PdoLayout, build_od
+from starterbus_canopen.settings import PLUGIN_NAME
 from starterbus_canopen.url import CanopenUrl
 
 NMT_START = 0x01
