@@ -19,10 +19,10 @@ from starterbus.core.errors import (
     TimeoutError,
     UnsupportedOperationError,
 )
-from starterbus.core.model import PointDef, Reading, Value
+from starterbus.core.model import PointDef, Reading
 from starterbus.core.profile import Profile
 from starterbus.core.sharing import SharedPool
-from starterbus.core.status import Command, ControlWordState, Status, decode_status_word
+from starterbus.core.status import Command, ControlWordState, Status, status_with_currents
 from starterbus.core.transport import (
     ALL_CAPABILITIES,
     Capability,
@@ -52,8 +52,6 @@ from starterbus.transports.modbus.timing import char_time
 
 #: one line object per serial port / TCP endpoint in this process
 LINES: SharedPool[RtuLine] = SharedPool("modbus-rtu lines")
-
-PHASE_NAMES = ("a", "b", "c")
 
 #: prepared requests (and read plans) a transport keeps per kind; a poller repeats a handful of them
 CACHE_SIZE = 256
@@ -304,18 +302,13 @@ class ModbusRtuTransport(Transport):
         status_point = self.profile.role("status_word")
         if status_point is None:
             raise UnsupportedOperationError(f"{self.profile.display_name} has no status word")
-        currents = self.profile.phase_currents()
-        readings = self._read_points([status_point, *currents])
-        values = {
-            name: Value.from_raw(r.point, r.raw, source=TRANSPORT)
-            for name, r in zip(PHASE_NAMES, readings[1:], strict=False)
-        }
-        return decode_status_word(
+        readings = self._read_points([status_point, *self.profile.phase_currents()])
+        return status_with_currents(
+            self.profile,
             readings[0].raw,
-            self.profile.faults,
-            bit12_is_mains_voltage=self.profile.control.bit12_is_mains_voltage,
-            currents=values,
+            [r.raw for r in readings[1:]],
             source=f"{TRANSPORT} {self.describe()}",
+            current_source=TRANSPORT,
         )
 
     def _control_requests(self, command: Command) -> list[WriteRequest]:
