@@ -1,4 +1,6 @@
-"""The contract every transport implements, and the plugin object an entry point resolves to.
+"""The contract every transport implements: :class:`Transport`, a template whose public methods check the
+state and the capabilities and then call the hooks a plugin overrides (the plugin object an entry point
+resolves to, :class:`TransportPlugin`, lives in :mod:`starterbus.core.plugin` and is re-exported here).
 
 A :class:`Transport` moves raw words: it reads points (returning :class:`Reading` with the scale of its path),
 writes one parameter's raw value, sends a :class:`Command` and reads a decoded :class:`Status`. It declares
