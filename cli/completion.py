@@ -9,11 +9,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: 
     p = sub.add_parser(
         "completion",
         help="print a shell completion script (bash, zsh, fish)",
-        description="Print a completion script for commands and options.",
-        epilog="install:\n  bash: starterbus completion bash > ~/.local/share/bash-completion/completions/starterbus\n"
-        '  zsh:  starterbus completion zsh > "${fpath[1]}/_starterbus"\n'
-        "  fish: starterbus completion fish > ~/.config/fish/completions/starterbus.fish",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Print a completion script for commands and options; the examples install it.",
     )
     p.add_argument("shell", choices=["bash", "zsh", "fish"])
     p.set_defaults(handler=cmd_completion)

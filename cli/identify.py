@@ -1,4 +1,4 @@
-"""``starterbus identify URL --model MODEL``: the identity the device reports (DeviceNet identity object)."""
+"""``starterbus identify URL|NAME``: the identity the device reports (DeviceNet identity object)."""
 
 from __future__ import annotations
 
@@ -9,10 +9,10 @@ from starterbus.core.device import open_device
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted: str) -> None:
+    from starterbus.cli.main import _device_args
+
     p = sub.add_parser("identify", help="read the device's identity (DeviceNet identity object)")
-    p.add_argument("url", metavar="URL", help="device URL, e.g. devicenet://virtual/bus0?mac=5")
-    p.add_argument("--model", required=True, help="device model (jjr8000) or a profile .toml")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
+    _device_args(p)
     p.set_defaults(handler=cmd_identify)
 
 

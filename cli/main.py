@@ -44,14 +44,18 @@ def _device_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--model", default=None, help="device model (jjr5000, ssd1, jjr8000) or a profile .toml; required with a URL"
     )
+    _fleet_arg(p)
+    p.set_defaults(resolve_target=True)
+    _json_flag(p)
+
+
+def _fleet_arg(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--fleet",
         metavar="FILE",
         default=None,
         help="fleet file for device names (default $STARTERBUS_FLEET, or `fleet` in ~/.config/starterbus/config.toml)",
     )
-    p.set_defaults(resolve_target=True)
-    _json_flag(p)
 
 
 def _guard_args(p: argparse.ArgumentParser) -> None:
@@ -148,6 +152,9 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
 
     for extend in _EXTENSIONS:
         extend(sub, wants)
+    from starterbus.cli.examples import attach
+
+    attach(sub)
     return parser
 
 
@@ -235,20 +242,27 @@ def _quiet_libraries() -> None:
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
 
+def parse_arguments(argv: Sequence[str]) -> argparse.Namespace:
+    """The command line parsed as ``main`` parses it (a bad one: usage and SystemExit 2, as argparse does)."""
+    args_list = list(argv)
+    parser = build_parser(args_list)
+    args, extra = parser.parse_known_args(args_list)
+    rest = getattr(args, "rest_into", None)
+    if extra and rest is not None and not any(x.startswith("-") for x in extra):
+        # argparse gives a trailing "*" positional nothing when an option sits between it and the
+        # first positional (`read URL --model M KEY...`): the keys come back here
+        getattr(args, rest).extend(extra)
+    elif extra:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    return args
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     from starterbus.core.errors import StarterbusError
 
     args_list = list(sys.argv[1:] if argv is None else argv)
     try:
-        parser = build_parser(args_list)
-        args, extra = parser.parse_known_args(args_list)
-        rest = getattr(args, "rest_into", None)
-        if extra and rest is not None and not any(x.startswith("-") for x in extra):
-            # argparse gives a trailing "*" positional nothing when an option sits between it and the
-            # first positional (`read URL --model M KEY...`): the keys come back here
-            getattr(args, rest).extend(extra)
-        elif extra:
-            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        args = parse_arguments(args_list)
         _quiet_libraries()  # after parsing: `--help` exits before, without importing logging
         if getattr(args, "resolve_target", False):
             from starterbus.cli.target import resolve

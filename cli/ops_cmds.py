@@ -19,29 +19,28 @@ from starterbus.ops.diff import compare, load_pair
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted: str) -> None:
     from starterbus.cli import ops_history_cmds
+    from starterbus.cli.main import _device_args, _fleet_arg
 
     p = sub.add_parser("backup", help="save every readable parameter of a device to an editable TOML file")
-    p.add_argument("url", metavar="URL")
-    p.add_argument("--model", required=True, help="device model (jjr5000, ssd1, jjr8000) or a profile .toml")
+    _device_args(p)
     p.add_argument("-o", "--output", required=True, metavar="FILE", help="the backup file to write (TOML)")
-    p.add_argument("--json", action="store_true", help="print a JSON summary")
     p.set_defaults(handler=cmd_backup)
 
     p = sub.add_parser(
         "diff",
-        help="compare two parameter sets: backup FILE, device URL@MODEL, or defaults[@MODEL]; exit 1 if they differ",
+        help="compare two parameter sets: backup FILE, device URL@MODEL or NAME, or defaults[@MODEL]; "
+        "exit 1 if they differ",
     )
-    p.add_argument("a", metavar="A", help="backup file, URL@MODEL (or URL with --model), defaults[@MODEL]")
+    p.add_argument("a", metavar="A", help="backup file, URL@MODEL (or URL with --model), device NAME, defaults[@MODEL]")
     p.add_argument("b", metavar="B")
     p.add_argument("--model", help="the model of a side given as a bare URL")
+    _fleet_arg(p)
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(handler=cmd_diff)
 
     p = sub.add_parser("restore", help="write a backup's differing parameters into a device (guarded, read back)")
     p.add_argument("file", metavar="FILE", help="a backup written by `starterbus backup`")
-    p.add_argument("url", metavar="URL")
-    p.add_argument("--model", required=True, help="the device's model; must be the backup's")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
+    _device_args(p)
     p.add_argument("--accept-uncertain", action="store_true", help="acknowledge codes or scales the manual lacks")
     p.add_argument("--yes", "-y", action="store_true", help="do it without asking (required without a terminal)")
     p.add_argument("--dry-run", action="store_true", help="show the diff and the exact frames; send nothing")
@@ -64,7 +63,7 @@ def cmd_backup(args: argparse.Namespace) -> int:
 
 def cmd_diff(args: argparse.Namespace) -> int:
     try:
-        a, b = load_pair(args.a, args.b, args.model)
+        a, b = load_pair(args.a, args.b, args.model, lookup=lambda name: _named(name, args.fleet))
         rows = compare(a, b)
     except (StarterbusError, OSError) as exc:
         if args.json:
@@ -94,6 +93,13 @@ def cmd_diff(args: argparse.Namespace) -> int:
     if not args.json and (a.missing or b.missing):
         print(f"not compared (the profile prints no default): {', '.join(sorted({*a.missing, *b.missing}))}")
     return 1 if rows else 0
+
+
+def _named(name: str, fleet: str | None) -> tuple[str, str]:
+    from starterbus.cli.target import lookup
+
+    device = lookup(name, fleet, neither="an existing backup file, a device URL (URL@MODEL) or `defaults[@MODEL]`")
+    return device.url, device.model
 
 
 def cmd_restore(args: argparse.Namespace) -> int:

@@ -13,6 +13,7 @@ from typing import Any
 
 from starterbus.cli.device_cmds import _user, prompt_hook
 from starterbus.cli.output import emit_json, table
+from starterbus.cli.target import recorded_name
 from starterbus.core.audit import AuditLog
 from starterbus.core.device import open_device
 from starterbus.core.errors import ConfigurationError
@@ -20,12 +21,16 @@ from starterbus.ops.history import EVENT_COLUMNS, SAMPLE_COLUMNS, HistoryStore
 
 _RELATIVE = re.compile(r"(\d+(?:\.\d+)?)\s*(s|m|h|d|w)")
 _UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400, "w": 604800}
+_DEVICE_HELP = "{}: its name in the database (a fleet file's device name), or a fleet device's URL"
 
 
 def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted: str) -> None:
+    from starterbus.cli.main import _device_args, _fleet_arg
+
     p = sub.add_parser("history", help="query a history database written by `poll --record` or `record`")
     p.add_argument("db", metavar="DB")
-    p.add_argument("--device", metavar="NAME", help="only this device")
+    p.add_argument("--device", metavar="NAME|URL", help=_DEVICE_HELP.format("only this device"))
+    _fleet_arg(p)
     p.add_argument("--since", metavar="T", help="from T: 2026-11-23T08:00 (local time) or an age: 90s, 10m, 2h, 1d")
     p.add_argument("--until", metavar="T", help="up to T (same forms)")
     p.add_argument("--events", action="store_true", help="the events (state changes, faults, writes...), not samples")
@@ -37,21 +42,20 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted
     p.set_defaults(handler=cmd_history)
 
     p = sub.add_parser("record", help="record a start (status and currents) to CSV, SQLite and a PNG plot")
-    p.add_argument("url", metavar="URL")
-    p.add_argument("--model", required=True, help="device model (jjr5000, ssd1, jjr8000) or a profile .toml")
+    _device_args(p)
     p.add_argument("--start", action="store_true", help="send the start command (guarded); else wait for a start")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="directory for the CSV, starts.db and PNG")
     p.add_argument("--limit", type=float, default=60.0, metavar="S", help="stop after S seconds (default 60)")
     p.add_argument("--settle", type=float, default=1.0, metavar="S", help="keep recording S s after running")
-    p.add_argument("--name", help="the device name in the database (default: the URL)")
+    p.add_argument("--name", help="the device name in the database (default: the device name, else the URL)")
     p.add_argument("--yes", "-y", action="store_true", help="start without asking (required without a terminal)")
     p.add_argument("--audit-log", metavar="PATH", default=None, help="the JSON-lines audit log (see `write`)")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(handler=cmd_record)
 
     p = sub.add_parser("plot", help="draw a start from a history database as a PNG")
     p.add_argument("db", metavar="DB")
-    p.add_argument("--device", required=True, metavar="NAME")
+    p.add_argument("--device", required=True, metavar="NAME|URL", help=_DEVICE_HELP.format("the event's device"))
+    _fleet_arg(p)
     p.add_argument(
         "--event", required=True, type=int, metavar="N", help="a start or state event id (`history --events`)"
     )
@@ -79,12 +83,18 @@ def _stamp(t: float) -> str:
 
 def cmd_history(args: argparse.Namespace) -> int:
     since, until = parse_time(args.since), parse_time(args.until)
+    device = None if args.device is None else recorded_name(args.device, args.fleet)
     with HistoryStore(args.db, create=False) as store:
+        known = store.devices()
+        if device is not None and device not in known:
+            raise ConfigurationError(
+                f"{args.db}: nothing recorded of {device!r} (devices: {', '.join(known) or 'none'})"
+            )
         if args.events or args.kind:
-            rows = store.events(device=args.device, since=since, until=until, kind=args.kind)
+            rows = store.events(device=device, since=since, until=until, kind=args.kind)
             columns: tuple[str, ...] = EVENT_COLUMNS
         else:
-            rows = store.samples(device=args.device, since=since, until=until, limit=args.limit)
+            rows = store.samples(device=device, since=since, until=until, limit=args.limit)
             columns = SAMPLE_COLUMNS
     if args.json:
         rows = [{**row, "time_iso": _stamp(row["time"])} for row in rows]
@@ -128,7 +138,8 @@ def cmd_record(args: argparse.Namespace) -> int:
         if not args.json:
             what = "starting" if args.start else "waiting for the next start of"
             print(f"{what} {device.describe()}; recording up to {args.limit:g} s", file=sys.stderr)
-        rec = record_start(device, start=args.start, limit=args.limit, settle=args.settle, name=args.name)
+        name = args.name or getattr(args, "device_name", None)
+        rec = record_start(device, start=args.start, limit=args.limit, settle=args.settle, name=name)
     if not rec.points:
         raise ConfigurationError(f"nothing recorded: {rec.ended}")
     paths = write_all(rec, args.output)
@@ -159,7 +170,8 @@ def cmd_record(args: argparse.Namespace) -> int:
 def cmd_plot(args: argparse.Namespace) -> int:
     from starterbus.ops.plot import plot_event
 
-    out = args.output or str(Path(args.db).with_suffix("")) + f"-{args.device}-event-{args.event}.png"
-    count = plot_event(args.db, args.device, args.event, out)
-    print(f"{out}: {count} samples of {args.device} around event {args.event}")
+    device = recorded_name(args.device, args.fleet)
+    out = args.output or str(Path(args.db).with_suffix("")) + f"-{device}-event-{args.event}.png"
+    count = plot_event(args.db, device, args.event, out)
+    print(f"{out}: {count} samples of {device} around event {args.event}")
     return 0

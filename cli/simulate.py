@@ -24,12 +24,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "Serve simulated soft starters behind protocol front ends, for rehearsals without hardware. "
         "Several models may share one line: --unit 2:jjr5000 --unit 3:ssd1."
     )
-    parser.epilog = (
-        "examples:\n  starterbus simulate --model jjr5000 --unit 2 --modbus-rtu PTY\n"
-        "  starterbus simulate --unit 2:jjr5000 --unit 3:ssd1 --modbus-rtu PTY --script faults.txt\n"
-        "script lines: AT UNIT ACTION [ARG], e.g. '5 2 fault 6', '9 2 clear', '12 3 start', '20 3 stop'"
-    )
-    parser.formatter_class = argparse.RawDescriptionHelpFormatter
+    parser.epilog = "script lines: AT UNIT ACTION [ARG], e.g. '5 2 fault 6', '9 2 clear', '12 3 start', '20 3 stop'"
     own = [
         parser.add_argument(
             "--model", default=None, help="device model for units given without one (jjr5000, ssd1, ...)"

@@ -1,5 +1,8 @@
 """Which device a command means: a URL with ``--model``, or a device name from a fleet file.
 
+Every command that names a device resolves it here (:func:`resolve` for a ``URL|NAME`` argument,
+:func:`lookup` for a name among other kinds of argument, :func:`recorded_name` for a history database).
+
 The fleet file is ``--fleet FILE``, else ``$STARTERBUS_FLEET``, else ``fleet`` in the user's config file
 (``$XDG_CONFIG_HOME/starterbus/config.toml``: ``fleet = "/etc/starterbus/plant.toml"``).
 """
@@ -10,8 +13,12 @@ import argparse
 import os
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from starterbus.core.errors import ConfigurationError
+
+if TYPE_CHECKING:
+    from starterbus.fleet.config import DeviceConfig
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -45,6 +52,36 @@ def default_fleet(explicit: str | None) -> str | None:
     return fleet
 
 
+def lookup(name: str, fleet_option: str | None, neither: str = "a device URL (scheme://...)") -> DeviceConfig:
+    """Device ``name`` of the fleet file (``--fleet``, else the default); ``neither`` says what else ``name``
+    is not, for the error when no fleet file is configured."""
+    fleet_path = default_fleet(fleet_option)
+    if fleet_path is None:
+        raise ConfigurationError(
+            f"{name!r} is neither {neither} nor a device name: no fleet file to look it up in "
+            f"(give --fleet FILE, set ${FLEET_ENV}, or `fleet = ...` in {config_file()})"
+        )
+    from starterbus.fleet.config import load_fleet
+
+    fleet = load_fleet(fleet_path)
+    device = fleet.devices_by_name.get(name)
+    if device is None:
+        names = ", ".join(sorted(fleet.devices_by_name)) or "none"
+        raise ConfigurationError(f"{fleet_path}: no device named {name!r} (devices: {names})")
+    return device
+
+
+def recorded_name(text: str, fleet_option: str | None) -> str:
+    """The name a device has in a history database: a fleet device's URL becomes its name in the fleet file
+    (``poll --record`` and ``record NAME`` record by name); a name, or a URL of no fleet device, stays."""
+    fleet_path = default_fleet(fleet_option) if "://" in text else None
+    if fleet_path is None:
+        return text
+    from starterbus.fleet.config import load_fleet
+
+    return next((d.name for d in load_fleet(fleet_path).devices if d.url == text), text)
+
+
 def resolve(args: argparse.Namespace) -> None:
     """Turn ``args.url`` (a URL or a device name) and ``args.model`` into a URL and a model, in place."""
     target: str = args.url
@@ -52,22 +89,12 @@ def resolve(args: argparse.Namespace) -> None:
         if not args.model:
             raise ConfigurationError(f"{target}: give --model with a URL (or use a device name from a fleet file)")
         return
-    fleet_path = default_fleet(getattr(args, "fleet", None))
-    if fleet_path is None:
-        raise ConfigurationError(
-            f"{target!r} is neither a device URL (scheme://...) nor a device name: no fleet file to look it up in "
-            f"(give --fleet FILE, set ${FLEET_ENV}, or `fleet = ...` in {config_file()})"
-        )
-    from starterbus.fleet.config import load_fleet
-
-    fleet = load_fleet(fleet_path)
-    device = fleet.devices_by_name.get(target)
-    if device is None:
-        names = ", ".join(sorted(fleet.devices_by_name)) or "none"
-        raise ConfigurationError(f"{fleet_path}: no device named {target!r} (devices: {names})")
+    fleet_option = getattr(args, "fleet", None)
+    device = lookup(target, fleet_option)
     if args.model and args.model != device.model:
         raise ConfigurationError(
-            f"{target}: --model {args.model} disagrees with the fleet file ({fleet_path}: model {device.model})"
+            f"{target}: --model {args.model} disagrees with the fleet file "
+            f"({default_fleet(fleet_option)}: model {device.model})"
         )
     args.url, args.model = device.url, device.model
     args.device_name = target

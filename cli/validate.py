@@ -16,8 +16,6 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: 
         help="check fleet files without opening any port or bus",
         description="Load each fleet file as `poll` would (models, keys, addresses, URLs, remote rules) and "
         "report every device; opens nothing. Exit 0 when all are valid, 1 otherwise.",
-        epilog="example:\n  starterbus validate examples/fleet.toml",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("fleets", nargs="+", metavar="FLEET.toml")
     p.add_argument("--json", action="store_true", help="machine-readable output")

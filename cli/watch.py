@@ -13,6 +13,7 @@ from starterbus.core.device import Device, open_device
 from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
 from starterbus.core.status import MotorState, Status
 from starterbus.core.transport import Capability
+from starterbus.ops.faults import value_text
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: str) -> None:
@@ -23,9 +24,6 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: 
         help="watch one device: status and chosen points, refreshed in place",
         description="Poll one device and show its status and points, refreshed in place on a terminal "
         "(one block per poll on a pipe, one JSON object per poll with --json).",
-        epilog="examples:\n  starterbus watch conveyor-1 --fleet plant.toml\n"
-        "  starterbus watch 'modbus-rtu:///dev/ttyUSB0?unit=2' --model jjr5000 current_limit ramp_time --once",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     _device_args(p)
     p.add_argument("keys", nargs="*", metavar="KEY", help="points to show besides the status (default: measurements)")
@@ -71,7 +69,8 @@ def cmd_watch(args: argparse.Namespace) -> int:
 def poll(device: Device, keys: list[str]) -> tuple[Status | None, list[dict[str, object]], str | None]:
     try:
         status = device.status() if Capability.STATUS in device.capabilities else None
-        values = [v.as_json() | {"text": v.text()} for v in device.read(*keys).values()] if keys else []
+        read = device.read(*keys).values() if keys else ()
+        values = [v.as_json() | {"text": value_text(device.profile, v)} for v in read]
         return status, values, None
     except (TimeoutError, TransportError) as exc:
         return None, [], f"communication: {exc}"

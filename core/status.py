@@ -1,6 +1,6 @@
 """Decoded status, commands and the control/status words that every fieldbus of these devices shares.
 
-The status word and control word layout (MANUALS.md section 1) is the same on Modbus and Profibus; DeviceNet
+The status word and control word layout (docs/manuals.md#1-common-model) is the same on Modbus and Profibus; DeviceNet
 assemblies carry the same facts in other bits. Each transport turns what it receives into one :class:`Status`.
 """
 

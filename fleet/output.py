@@ -15,10 +15,13 @@ import threading
 from pathlib import Path
 from typing import TextIO
 
-from starterbus.core.errors import ConfigurationError
+from starterbus.core.errors import ConfigurationError, StarterbusError
+from starterbus.core.profile import Profile
+from starterbus.core.registry import get_profile
 from starterbus.core.status import MotorState, Status
 from starterbus.fleet.config import FleetConfig
 from starterbus.fleet.poller import DeviceRuntime, Sample
+from starterbus.ops.faults import value_text
 
 TABLE_HEADERS = ["device", "model", "bus", "state", "ready", "fault", "I A/B/C (A)", "points", "bus ctl", "age",
                  "errors", "communication"]  # fmt: skip
@@ -42,9 +45,24 @@ def _currents(sample: Sample) -> str:
     return "/".join(v.text().removesuffix(" A") for v in shown) or "-"
 
 
-def _points(sample: Sample) -> str:
-    """The configured points besides the phase currents (those have their own column)."""
-    return ", ".join(f"{k} {v.text()}" for k, v in sample.values.items() if not (v.unit == "A" and "phase" in k))
+def _points(sample: Sample, profile: Profile | None) -> str:
+    """The configured points besides the phase currents (those have their own column); fault codes (the
+    device's fault history) decoded with the profile's fault table, as the status's fault is."""
+    return ", ".join(
+        f"{k} {v.text() if profile is None else value_text(profile, v)}"
+        for k, v in sample.values.items()
+        if not (v.unit == "A" and "phase" in k)
+    )
+
+
+def _profile(runtime: DeviceRuntime) -> Profile | None:
+    """The device's profile, to decode fault codes (after the last poll the device is closed)."""
+    if runtime.device is not None:
+        return runtime.device.profile
+    try:
+        return get_profile(runtime.config.model)
+    except StarterbusError:
+        return None
 
 
 def shorten(text: str, width: int = ERROR_WIDTH) -> str:
@@ -73,13 +91,14 @@ def table_rows_styled(runtimes: list[DeviceRuntime], now: float) -> list[tuple[l
             continue
         status = sample.status
         comm = shorten(sample.error or "")
+        points = _points(sample, _profile(r))
         if status is None:
-            rows.append(([*head, "?", "-", "", _currents(sample), _points(sample), "-", age, str(r.errors), comm],
+            rows.append(([*head, "?", "-", "", _currents(sample), points, "-", age, str(r.errors), comm],
                          "warning" if comm else None))  # fmt: skip
             continue
         fault = f"{status.fault_code}: {status.fault_text}" if status.fault else ""
         style = "fault" if status.fault else ("warning" if status.warning or comm else None)
-        cells = [display_state(status), _flag(status.ready), fault, _currents(sample), _points(sample)]
+        cells = [display_state(status), _flag(status.ready), fault, _currents(sample), points]
         cells += [_flag(status.bus_control), age, str(r.errors), comm]
         rows.append(([*head, *cells], style))
     return rows

@@ -5,12 +5,13 @@ A side is written on the command line as
 * a backup file: ``plant/conveyor-1.toml`` (an existing path);
 * a device: ``URL@MODEL`` (``modbus-rtu:///dev/ttyUSB0?unit=2@jjr5000``), or a bare ``URL`` with ``--model``;
 * ``defaults`` or ``defaults@MODEL``: the profile's default of every parameter (without a model, the other
-  side's model).
+  side's model);
+* a device name, which ``lookup`` (the caller's: a fleet file's names) turns into the device's URL and model.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -55,14 +56,19 @@ class Row:
         }
 
 
+#: a device name -> (URL, model); raises ConfigurationError for a name it does not know
+Lookup = Callable[[str], tuple[str, str]]
+
+
 @dataclass(frozen=True, slots=True)
 class Spec:
     kind: str  # "file", "device", "defaults"
     text: str
     model: str | None = None
+    name: str | None = None  # a device given by name
 
 
-def parse_spec(text: str, default_model: str | None = None) -> Spec:
+def parse_spec(text: str, default_model: str | None = None, lookup: Lookup | None = None) -> Spec:
     """Which kind of side ``text`` names (see the module docstring); an unclear text is an error."""
     head, at, tail = text.rpartition("@")
     if text == "defaults" or (at and head == "defaults"):
@@ -75,6 +81,9 @@ def parse_spec(text: str, default_model: str | None = None) -> Spec:
         return Spec("device", text, default_model)
     if Path(text).exists():
         return Spec("file", text)
+    if lookup is not None and "/" not in text and not text.endswith(".toml"):  # a name, not a missing file
+        url, model = lookup(text)
+        return Spec("device", url, model, name=text)
     raise ConfigurationError(
         f"{text}: no such backup file, and not a device URL (URL@MODEL) or `defaults`/`defaults@MODEL`"
     )
@@ -86,10 +95,10 @@ def from_defaults(profile: Profile) -> ParameterSet:
     return ParameterSet(f"defaults of {profile.display_name}", profile, raws, missing)
 
 
-def from_device(url: str, model: str | Profile) -> ParameterSet:
+def from_device(url: str, model: str | Profile, name: str | None = None) -> ParameterSet:
     with open_device(url, model) as device:
         taken = backups.take_backup(device)
-    return ParameterSet(url, device.profile, taken.raws())
+    return ParameterSet(name or url, device.profile, taken.raws())
 
 
 def from_file(path: str) -> ParameterSet:
@@ -102,15 +111,17 @@ def load_side(spec: Spec, other_model: str | None = None) -> ParameterSet:
         return from_file(spec.text)
     if spec.kind == "device":
         assert spec.model is not None
-        return from_device(spec.text, spec.model)
+        return from_device(spec.text, spec.model, spec.name)
     model = spec.model or other_model
     if model is None:
         raise ConfigurationError("defaults: which model? write defaults@MODEL (or compare with a backup or device)")
     return from_defaults(get_profile(model))
 
 
-def load_pair(text_a: str, text_b: str, model: str | None = None) -> tuple[ParameterSet, ParameterSet]:
-    spec_a, spec_b = parse_spec(text_a, model), parse_spec(text_b, model)
+def load_pair(
+    text_a: str, text_b: str, model: str | None = None, lookup: Lookup | None = None
+) -> tuple[ParameterSet, ParameterSet]:
+    spec_a, spec_b = parse_spec(text_a, model, lookup), parse_spec(text_b, model, lookup)
     if spec_a.kind == "defaults" and spec_b.kind != "defaults":
         b = load_side(spec_b)
         return load_side(spec_a, b.profile.name), b

@@ -198,6 +198,12 @@ class HistoryStore:
             row["detail"] = json.loads(row["detail"] or "{}")
         return out
 
+    def devices(self) -> list[str]:
+        """Every device name with a sample or an event, sorted."""
+        with self.lock:
+            rows = self.conn.execute("SELECT device FROM samples UNION SELECT device FROM events ORDER BY 1").fetchall()
+        return [r[0] for r in rows]
+
     def event(self, event_id: int) -> dict[str, Any]:
         with self.lock:
             row = self.conn.execute(

@@ -146,6 +146,14 @@ def test_watch_once(fleet: tuple[Path, dict[int, SimulatedStarter]]) -> None:
     assert result.returncode == 0 and states == ["ready", "ready"]
 
 
+def test_a_virtual_can_bus_from_a_shell_fails_at_once_saying_why() -> None:
+    result = run("status", "devicenet://virtual/bus0?mac=5", "--model", "jjr8000")
+    assert result.returncode == 1 and result.stdout == ""
+    assert len(result.stderr.strip().splitlines()) == 1
+    assert "virtual channel 'bus0'" in result.stderr and "exists only inside one process" in result.stderr
+    assert "devicenet://remote/127.0.0.1:54701?mac=N" in result.stderr
+
+
 def test_decode_from_stdin_and_candump_logs(tmp_path: Path) -> None:
     answer = append_crc(bytes.fromhex("02 03 02 01 86")).hex(" ")
     result = run("decode", "modbus-rtu", stdin=f"# a hex dump\n02 03 01 00 00 01 85 C5\n\n{answer}\n")

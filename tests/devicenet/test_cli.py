@@ -13,6 +13,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from can.interfaces import virtual
 
 from starterbus.cli import simulate as simulate_command
 from starterbus.cli.main import main
@@ -45,6 +46,19 @@ def test_status_read_identify(channel: str, simulated: SimulatedStarter, capsys:
     assert re.search(r"product_name\s+JJR8000", out) and re.search(r"vendor_id\s+819", out)
     assert main(["read", url, "p3", "--model", "jjr8000"]) == 1
     assert "cannot read parameters" in capsys.readouterr().err
+
+
+def test_identify_by_device_name(
+    channel: str, simulated: SimulatedStarter, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    plant = tmp_path / "plant.toml"
+    plant.write_text(
+        f'[[bus]]\nname = "dn"\nurl = "devicenet://virtual/{channel}?dup_mac_wait=0.05&timeout=0.5"\n'
+        'device = [{ name = "crusher", model = "jjr8000", address = 5 }]\n',
+        encoding="utf-8",
+    )
+    assert main(["identify", "crusher", "--fleet", str(plant), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["identity"]["product_name"] == "JJR8000"
 
 
 def test_commands(
@@ -108,6 +122,7 @@ def test_simulate_command_in_process(
     runner = threading.Thread(target=lambda: result.append(main(args)))
     runner.start()
     try:
+        assert until(lambda: bool(virtual.channels.get(channel)), 30.0), "the simulator's bus did not open"
         with open_device(f"devicenet://virtual/{channel}?mac=6&{FAST}&timeout=1", "jjr8000") as device:
             assert device.status().source == "devicenet"
     finally:

@@ -1,4 +1,4 @@
-"""Explicit message bodies in 8/8 format: requests, responses, error responses (DEVICENET.md 'Explicit messages')."""
+"""Explicit message bodies in 8/8 format: requests, responses, error responses (docs/manuals.md#explicit-messages)."""
 
 from __future__ import annotations
 
@@ -27,13 +27,13 @@ from starterbus.transports.devicenet.explicit import (
     decode_response,
 )
 
-# (hex message, decoded) - requests as DEVICENET.md prints them
+# (hex message, decoded) - requests as docs/manuals.md#explicit-messages prints them
 REQUESTS = [
     # Allocate explicit + polled by master 0 on the group 2 only port: [M][4B][03][01][choice][allocator]
     ("00 4B 03 01 03 00", ExplicitRequest(0, Service.ALLOCATE, 3, 1, None, b"\x03\x00")),
     # Release: [M][4C][03][01][choice]
     ("00 4C 03 01 03", ExplicitRequest(0, Service.RELEASE, 3, 1, None, b"\x03")),
-    # Set expected packet rate, the spec digest's example (master MAC 10, value 0)
+    # Set expected packet rate, the example of docs/manuals.md#allocation-and-connections (master MAC 10, value 0)
     ("0A 10 05 02 09 00 00", ExplicitRequest(10, Service.SET_ATTRIBUTE_SINGLE, 5, 2, 9, b"\x00\x00")),
     # Get identity product name with XID 1
     ("40 0E 01 01 07", ExplicitRequest(0, Service.GET_ATTRIBUTE_SINGLE, 1, 1, 7, b"", xid=1)),

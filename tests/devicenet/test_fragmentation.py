@@ -1,4 +1,4 @@
-"""The fragmentation protocol, both directions, with acknowledgements (DEVICENET.md 'Fragmentation')."""
+"""The fragmentation protocol, both directions, with acknowledgements (docs/manuals.md#fragmentation)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""CAN identifiers of message groups 1-4 (DEVICENET.md table; Rockwell fragment example uses MAC 3)."""
+"""CAN identifiers of message groups 1-4 (docs/manuals.md#can-identifiers; the Rockwell
+fragment example uses MAC 3)."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ from starterbus.core.errors import DecodeError, EncodeError
 from starterbus.transports.devicenet import ids
 from starterbus.transports.devicenet.ids import DeviceNetId, Group, build_id, parse_id
 
-# (identifier, group, message id, MAC) - DEVICENET.md "CAN identifiers" and the predefined set for slave 5
+# (identifier, group, message id, MAC) - docs/manuals.md#can-identifiers and the predefined set for slave 5
 VECTORS = [
     (0x3C5, Group.GROUP_1, 15, 5),  # slave poll response 0x3C0 + S
     (0x42D, Group.GROUP_2, 5, 5),  # master poll command 0x405 + 8 S

@@ -15,7 +15,7 @@ from starterbus.transports.devicenet.identity import Identity, decode_attribute,
 
 
 def test_jjr8000_duplicate_mac_vector() -> None:
-    """DEVICENET.md: the JJR8000 (vendor 819 = 0x0333) sends 00 33 03 s0 s1 s2 s3."""
+    """docs/manuals.md#duplicate-mac-id-check: the JJR8000 (vendor 819 = 0x0333) sends 00 33 03 s0 s1 s2 s3."""
     message = DuplicateMacCheck(5, False, 819, 0x44332211)
     assert message.frame() == CanFrame(0x42F, bytes.fromhex("00 33 03 11 22 33 44"))
     assert decode_duplicate_mac(message.frame()) == message

@@ -294,9 +294,22 @@ def test_master_mac_collision(channel: str, jjr8000: Profile) -> None:
         assert SCANNERS.users(("virtual", channel)) == 0
 
 
-def test_absent_slave_times_out_on_open(channel: str) -> None:
+def test_absent_slave_times_out_on_open(channel: str, sniffer: object) -> None:
+    """Another bus is on the channel (a bus analyser), but no slave answers at MAC 12."""
     with pytest.raises(TimeoutError, match="did not answer"):
         open_device(url(channel, 12, "timeout=0.1"), "jjr8000").open()
+
+
+def test_a_virtual_channel_nothing_else_is_on_is_refused_with_the_way_across_processes(
+    channel: str, jjr8000: Profile
+) -> None:
+    with pytest.raises(ConfigurationError, match="exists only inside one process") as refused:
+        open_device(url(channel, 5), "jjr8000").open()
+    assert channel in str(refused.value) and "devicenet://remote/127.0.0.1:54701?mac=N" in str(refused.value)
+    assert SCANNERS.users(("virtual", channel)) == 0
+    simulator = DeviceNetSlaveSimulator(SimulatedStarter(jjr8000), ("virtual", channel), 5, dup_mac_wait=0.05)
+    with simulator, open_device(url(channel, 5), "jjr8000") as device:  # the simulator of this process is a peer
+        assert device.status().source == "devicenet"
 
 
 def test_scanner_settings_must_agree(channel: str, two_slaves: object) -> None:

@@ -1,8 +1,9 @@
 """Modbus RTU test helpers: the golden vector table, raw pty peers, simulators that are always closed.
 
-``VECTORS`` is MANUALS.md section 2, byte for byte: the JJR5000/SSD1 examples with their printed CRC, the
-JJR8000 examples (printed without CRC) with the CRC appended. Any test with a ``golden`` argument runs once
-per row (``pytest_generate_tests``), so the encoder and decoder tests share one table.
+``VECTORS`` is docs/manuals.md#modbus-golden-vectors and docs/manuals.md#jjr8000-modbus-worked-examples, byte
+for byte: the JJR5000/SSD1 examples with their printed CRC, the JJR8000 examples (printed without CRC) with the
+CRC appended. Any test with a ``golden`` argument runs once per row (``pytest_generate_tests``), so the encoder
+and decoder tests share one table.
 """
 
 from __future__ import annotations

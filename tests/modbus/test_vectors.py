@@ -1,4 +1,5 @@
-"""Every Modbus golden vector of MANUALS.md section 2, byte for byte, through encoder, decoder and receivers.
+"""Every Modbus golden vector (docs/manuals.md#modbus-golden-vectors, docs/manuals.md#jjr8000-modbus-worked-examples),
+byte for byte, through encoder, decoder and receivers.
 
 Each vector is fed whole, byte by byte, and followed by trailing garbage. The manual's malformed JJR8000
 responses must be errors naming the bytes, never values.

@@ -1,4 +1,5 @@
-"""Profibus PKW/PZD test helpers: the golden vectors of MANUALS.md section 3, and simulators that always close.
+"""Profibus PKW/PZD test helpers: the golden vectors of
+docs/manuals.md#profibus-golden-vectors, and simulators that always close.
 
 ``VECTORS`` is every telegram half the manuals print (jjr5000-profibus-dp.zh.txt "应用实例" and
 jjr8000-modbus-profibus-devicenet.zh.txt section 2 "应用实例"), byte for byte, with what it decodes to. Any test

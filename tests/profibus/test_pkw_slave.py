@@ -38,7 +38,8 @@ def pkw(slave: SimulatedDpSlave, ind: int, pwe: int = 0, stw: int = BUS) -> tupl
     return words[0], words[1]
 
 
-# (model, running, values, request IND, PWE) -> (response IND, PWE): the answers MANUALS.md section 3 defines.
+# (model, running, values, request IND, PWE) -> (response IND, PWE): the answers
+# docs/manuals.md#3-profibus-dp-pkw-and-pzd-telegrams defines.
 CASES = [
     # JJR5000: errors 1 illegal function, 2 illegal address, 3 illegal value, 4 parameter modify forbidden
     ("5000 read p 0x0100", "jjr5000", False, {}, 0x0100, 0, 0x0100, 390),

@@ -1,4 +1,4 @@
-"""Every golden vector of MANUALS.md section 3, byte for byte, both ways, for both models."""
+"""Every golden vector of docs/manuals.md#profibus-golden-vectors, byte for byte, both ways, for both models."""
 
 from __future__ import annotations
 

@@ -37,6 +37,7 @@ from starterbus.transports.devicenet.master_link import (
 from starterbus.transports.devicenet.master_node import MasterNode
 
 __all__ = [
+    "VIRTUAL_HINT",
     "CommunicationFaultError",
     "DuplicateResponderError",
     "InputSample",
@@ -51,6 +52,11 @@ __all__ = [
 log = logging.getLogger(__name__)
 
 SlaveLink = MasterLink
+#: what a master told that its virtual channel has no peer in this process should use instead
+VIRTUAL_HINT = (
+    "from another process, serve the simulator through its loopback bridge (starterbus simulate ... "
+    "--devicenet virtual:bus0 --devicenet-bridge 127.0.0.1:54701) and use devicenet://remote/127.0.0.1:54701?mac=N"
+)
 MAX_WAIT = 0.25  # longest receive wait: bounds the latency of timers a user thread set meanwhile
 BUG_BACKOFF = 0.01  # seconds before timers run again after an unexpected exception
 MESSAGE_CACHE = 512  # python-can messages kept for frames sent again (poll commands)
@@ -72,7 +78,11 @@ class Scanner:
         self.config = config
         self.where = f"{config.interface}/{config.channel}"
         self.clock = clock
-        self.bus = bus if bus is not None else open_bus(config.interface, config.channel, config.bitrate)
+        self.bus = (
+            bus
+            if bus is not None
+            else open_bus(config.interface, config.channel, config.bitrate, needs_peer=VIRTUAL_HINT)
+        )
         self._owns_bus = bus is None
         try:
             self.bus.set_filters(CAN_FILTERS)

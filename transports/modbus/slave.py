@@ -1,6 +1,6 @@
 """The slave's side of the codec: what a simulated soft starter answers to each request (no I/O).
 
-The rules follow the manuals (MANUALS.md section 2) and are written down in ``docs/modbus.md``:
+The rules follow the manuals (docs/manuals.md#2-modbus-rtu) and are written down in ``docs/modbus.md``:
 
 - function codes other than 03 and 06: exception 01;
 - FC03 with a quantity of 0 or more than the model's ``max_read_registers``: exception 03 (the Modbus

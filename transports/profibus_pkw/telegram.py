@@ -1,8 +1,9 @@
 """The vendor's Profibus DP telegrams (PPO1 / PPO3), sans-IO: bytes <-> words <-> named tuples.
 
-MANUALS.md section 3. Every word is big-endian. A telegram is a :class:`~typing.NamedTuple` whose fields are
-exactly its words in wire order, so decoding is one ``struct`` unpack and encoding one pack; the meaning of the
-words (task or response code in INDH, address in INDL) is read through properties::
+docs/manuals.md#3-profibus-dp-pkw-and-pzd-telegrams. Every word is big-endian. A telegram is a
+:class:`~typing.NamedTuple` whose fields are exactly its words in wire order, so decoding is one ``struct``
+unpack and encoding one pack; the meaning of the words (task or response code in INDH, address in INDL) is read
+through properties::
 
     PPO1 ("type I", 4 words)   master -> slave: IND  PWE  STW  0000      (Ppo1Out)
                                slave -> master: IND  PWE  ZSW  ACT       (Ppo1In)

@@ -46,7 +46,7 @@ from starterbus.transports.profibus_pkw.telegram import (
 VARIANTS = ("sim", "gateway")
 PPO1_CAPABILITIES = frozenset(Capability)
 PPO3_CAPABILITIES = frozenset({Capability.STATUS, Capability.COMMANDS})
-ACT_SCALE = 0.1  # PZD ACT: phase A current in 0.1 A (MANUALS.md section 3)
+ACT_SCALE = 0.1  # PZD ACT: phase A current in 0.1 A (docs/manuals.md#profibus-golden-vectors)
 
 _COMMON = ("ppo", "cycle", "timeout", "max_cycles", "hold", "pulse", "station", "stale_cycles", "stale_time")
 _SIM = (*_COMMON, "latency")

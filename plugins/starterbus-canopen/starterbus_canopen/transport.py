@@ -36,6 +36,7 @@ from starterbus.core import (
     TransportError,
     Value,
 )
+from starterbus.core.canbus import check_peer
 from starterbus.core.status import decode_status_word
 from starterbus_canopen.codes import RPDO1_BASE, TPDO1_BASE, Tpdo1, abort_meaning, encode_rpdo1
 from starterbus_canopen.od import PdoLayout, build_od
@@ -44,6 +45,11 @@ from starterbus_canopen.url import CanopenUrl
 
 NMT_START = 0x01
 HEARTBEAT_OPERATIONAL = 0x05
+#: what a master whose virtual channel has no peer in this process should use instead
+VIRTUAL_HINT = (
+    "across processes, use a bus every process can open, e.g. Linux virtual CAN (ip link add dev vcan0 type vcan; "
+    "ip link set up vcan0): starterbus simulate ... --canopen socketcan:vcan0 and canopen://socketcan/vcan0?node=N"
+)
 
 _locks_guard = threading.Lock()
 _node_locks: dict[tuple[str, str, int], threading.Lock] = {}
@@ -92,6 +98,7 @@ class CanopenTransport(Transport):
         kwargs: dict[str, Any] = {"interface": o.interface, "channel": o.channel}
         if o.bitrate is not None:
             kwargs["bitrate"] = o.bitrate
+        check_peer(o.interface, o.channel, VIRTUAL_HINT)
         try:
             network.connect(**kwargs)
         except (can.CanError, OSError, ValueError, ImportError) as exc:

@@ -177,6 +177,18 @@ def test_bad_urls_are_clear_errors(url: str, error: str) -> None:
         PLUGIN.open(DeviceUrl.parse(url), get_profile(MODEL))
 
 
+def test_a_virtual_channel_nothing_else_is_on_is_refused_with_the_way_across_processes(
+    starter: SimulatedStarter, channel: str
+) -> None:
+    with pytest.raises(ConfigurationError, match="exists only inside one process") as refused:
+        open_device(f"canopen://virtual/{channel}?node=5", starter.profile).open()
+    assert channel in str(refused.value) and "canopen://socketcan/vcan0?node=N" in str(refused.value)
+    with CanopenSimulator(("virtual", channel)) as sim:  # the simulator of this process is a peer
+        sim.add_node(starter, 5)
+        with open_device(f"canopen://virtual/{channel}?node=5", starter.profile) as device:
+            assert device.status().source.startswith("canopen")
+
+
 @pytest.mark.parametrize("value", [0x2000, [0x2000], [0x0FFF, 0], [0x2000, 256], [0x2000, True], ["0x2000", 0]])
 def test_bad_addresses_are_refused(value: object) -> None:
     with pytest.raises(ConfigurationError, match="not a CANopen address"):
