@@ -47,6 +47,7 @@ if TYPE_CHECKING:
     )
     from starterbus.core.model import Access, EnumTable, Kind, Label, PointDef, Reading, Value
     from starterbus.core.plugin_options import OptionValues, PluginOption, SimOption, resolve_options
+    from starterbus.core.polling import PlannedRequest, PollResult, TransportCounters
     from starterbus.core.profile import Profile, load_profile_file
     from starterbus.core.registry import get_profile, get_transport
     from starterbus.core.sharing import SharedPool
@@ -67,11 +68,8 @@ if TYPE_CHECKING:
         ALL_CAPABILITIES,
         Annotation,
         Capability,
-        PlannedRequest,
-        PollResult,
         RunningSimulator,
         Transport,
-        TransportCounters,
         TransportPlugin,
     )
     from starterbus.core.url import DeviceUrl
@@ -151,9 +149,9 @@ _LAZY = {
     "SimulatorRefusal": "starterbus.core.errors",
     "SharedPool": "starterbus.core.sharing",
     "ALL_CAPABILITIES": "starterbus.core.transport",
-    "PollResult": "starterbus.core.transport",
-    "PlannedRequest": "starterbus.core.transport",
-    "TransportCounters": "starterbus.core.transport",
+    "PollResult": "starterbus.core.polling",
+    "PlannedRequest": "starterbus.core.polling",
+    "TransportCounters": "starterbus.core.polling",
 }
 
 

@@ -11,29 +11,28 @@ import sys
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from starterbus.core.entry import nearest
-from starterbus.core.errors import ProfileError, StarterbusError, UnknownPointError
+from starterbus.core.errors import ConfigurationError, ProfileError, StarterbusError, UnknownPointError
 from starterbus.core.model import Certainty, EnumTable, Kind, PointDef, Provenance
 from starterbus.core.profile_points import (
     POINT_FIELDS,
     AddressParser,
     build_point,
     enum_table,
-    int_key,
     key_text,
-    label,
     provenance,
     shown,
     table,
     text,
     text_list,
 )
+from starterbus.core.profile_transports import address_fields, parse_transports, plugin_named
 from starterbus.core.status import FaultTable
 
 if TYPE_CHECKING:
-    from starterbus.core.transport import TransportPlugin
+    pass
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -60,6 +59,9 @@ _ROLE_NAMES = {
 _REQUIRED_ROLES = ("control_word", "status_word", "phase_currents", "rated_current", "current_limit")
 
 
+S = TypeVar("S")
+
+
 @dataclass(frozen=True, slots=True)
 class ControlTraits:
     bus_control_required: bool = False
@@ -81,12 +83,14 @@ class Profile:
     faults: FaultTable
     control: ControlTraits
     roles: Mapping[str, Any]  # role -> key (phase_currents -> list of keys)
-    transports: Mapping[str, Mapping[str, Any]]  # transport name -> its settings table
+    transports: Mapping[str, Mapping[str, Any]]  # transport name -> its settings table, as written
     manuals: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     source: str = ""
     fault_sources: Mapping[int, Provenance] = field(default_factory=dict)  # fault code -> where it comes from
     _by_address: Mapping[tuple[Kind | None, str], str] = field(default_factory=dict, repr=False)
+    #: transport name -> the typed object its plugin's ``parse_settings`` made of the table (opaque to the core)
+    _settings: dict[str, object] = field(default_factory=dict, repr=False, compare=False)
 
     # -- lookup ---------------------------------------------------------------------------------------------
 
@@ -132,7 +136,28 @@ class Profile:
         return transport in self.transports
 
     def transport_settings(self, transport: str) -> Mapping[str, Any]:
+        """The ``[transports.NAME]`` table as written (for display); a transport reads :meth:`settings_for`."""
         return self.transports.get(transport, {})
+
+    def settings_for(self, transport: str, kind: type[S]) -> S:
+        """The typed settings object the plugin ``transport`` parsed from its table when the profile loaded
+        (``TransportPlugin.parse_settings``; parsed now for a profile built in code or loaded before the plugin
+        was installed). ``kind`` is the plugin's own class: anything else is a ConfigurationError."""
+        value = self._settings.get(transport)
+        if value is None:
+            plugin = plugin_named(transport)
+            if plugin is None:
+                raise ConfigurationError(f"{self.name}: no transport plugin {transport!r} is installed")
+            try:
+                value = plugin.parse_settings(self.transport_settings(transport))
+            except StarterbusError as exc:
+                raise ProfileError(self.source or self.name, f"transports.{key_text(transport)}", str(exc)) from None
+            self._settings[transport] = value
+        if not isinstance(value, kind):
+            raise ConfigurationError(
+                f"{self.name}: the {transport} settings are a {type(value).__name__}, not a {kind.__name__}"
+            )
+        return value
 
     def by_protocol_address(self, transport: str, kind: Kind, address: object) -> PointDef | None:
         for point in self.points.values():
@@ -210,10 +235,10 @@ def build_profile(data: Mapping[str, Any], source: str) -> Profile:
     }
     fault_table = enum_table("faults", table(data, "faults", source, required=False), source, codes, "faults", 0, 63)
     faults = FaultTable(fault_table.labels)
-    points, by_address = _points(data, style, enums, source, (codes, defaults), _address_fields(data, source))
+    points, by_address = _points(data, style, enums, source, (codes, defaults), address_fields(data, source))
     control = _control(table(data, "control", source, required=False), points, source)
     roles = _roles(table(data, "roles", source), points, source)
-    transports = _transports(table(data, "transports", source), points, source)
+    transports, settings = parse_transports(table(data, "transports", source), points, source)
 
     return Profile(
         name=name,
@@ -231,6 +256,7 @@ def build_profile(data: Mapping[str, Any], source: str) -> Profile:
         notes=text_list(model, "notes", source, "model."),
         source=source,
         _by_address=by_address,
+        _settings=settings,
     )
 
 
@@ -348,74 +374,3 @@ def _roles(data: Mapping[str, Any], points: Mapping[str, PointDef], source: str)
         if role not in roles:
             raise ProfileError(source, f"roles.{role}", "required role missing")
     return roles
-
-
-def _transports(data: Mapping[str, Any], points: Mapping[str, PointDef], source: str) -> dict[str, Mapping[str, Any]]:
-    transports: dict[str, Mapping[str, Any]] = {}
-    for tname, settings in data.items():
-        where = f"transports.{key_text(tname)}"
-        if not isinstance(settings, Mapping):
-            raise ProfileError(source, where, f"must be a table of settings, not {shown(settings)}")
-        checked = dict(settings)
-        for sub in ("exceptions", "errors"):
-            if sub in checked:
-                entries = table(checked, sub, source, f"{where}.")
-                checked[sub] = {
-                    int_key(k, source, f"{where}.{sub}"): label(v, source, f"{where}.{sub}.{key_text(k)}")[0]
-                    for k, v in entries.items()
-                }
-        _check_settings(str(tname), checked, source, where)
-        transports[str(tname)] = checked
-    if not transports:
-        raise ProfileError(source, "transports", "a profile must name at least one transport")
-    for name in transports:
-        plugin = _plugin(name)
-        if (
-            plugin is not None
-            and plugin.requires_point_addresses
-            and not any(name in p.addresses for p in points.values())
-        ):
-            raise ProfileError(source, f"transports.{key_text(name)}", f"no point has a {name} address")
-    return transports
-
-
-def _plugin(name: str) -> TransportPlugin | None:
-    """The installed plugin of that name, or None (a profile may name a transport that is not installed)."""
-    from starterbus.core.registry import transports  # late: the registry imports this module
-
-    try:
-        return transports.get(name)
-    except StarterbusError:
-        return None
-
-
-def _address_fields(data: Mapping[str, Any], source: str) -> dict[str, AddressParser]:
-    """Each transport the profile names -> the parser of its point addresses (the plugin's, when installed)."""
-    names = data.get("transports")
-    if not isinstance(names, Mapping):
-        return {}  # reported, with the file and the key, when the transports table is read
-    fields: dict[str, AddressParser] = {}
-    for name in names:
-        plugin = _plugin(str(name))
-        fields[str(name)] = plugin.parse_address if plugin is not None else _unchecked
-    return fields
-
-
-def _unchecked(value: object) -> object:
-    """The plugin is not installed: keep its address as written (lists as tuples, so it can be looked up)."""
-    if isinstance(value, list):
-        return tuple(_unchecked(v) for v in value)
-    if isinstance(value, Mapping):
-        return tuple(sorted((str(k), _unchecked(v)) for k, v in value.items()))
-    return value
-
-
-def _check_settings(name: str, settings: Mapping[str, Any], source: str, where: str) -> None:
-    """Let the installed plugin of that name check its settings (a plugin not installed checks nothing)."""
-    plugin = _plugin(name)
-    if plugin is None:
-        return
-    try:
-        plugin.check_settings(settings)
-    except StarterbusError as exc:
-        raise ProfileError(source, where, str(exc)) from None

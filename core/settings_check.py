@@ -1,16 +1,21 @@
-"""Checks a transport plugin runs on its ``[transports.NAME]`` table of a profile (``check_settings``).
+"""Checks a transport plugin runs on its ``[transports.NAME]`` table of a profile (``parse_settings``), and
+:func:`build`, which makes the plugin's frozen settings object of the checked table.
 
 Each raises :class:`ConfigurationError` naming the key and the value; the profile loader adds the file.
-Absent keys are fine: the plugin falls back to its defaults.
+Absent keys are fine: the settings object's field holds the one default.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import re
 from collections.abc import Iterable, Mapping
-from typing import Any
+from types import MappingProxyType
+from typing import Any, TypeVar
 
 from starterbus.core.errors import ConfigurationError
+
+T = TypeVar("T")
 
 
 def _is_int(value: object) -> bool:
@@ -25,7 +30,7 @@ def _shown(value: object) -> str:
 def known_keys(settings: Mapping[str, Any], known: Iterable[str]) -> None:
     allowed = set(known)
     for key in sorted(set(settings) - allowed):
-        shown = key if re.fullmatch(r"[\w+-]+", key) else repr(key)
+        shown = key if re.fullmatch(r"[\w.+-]+", key) else repr(key)
         raise ConfigurationError(f"{shown}: unknown setting (known: {', '.join(sorted(allowed))})")
 
 
@@ -68,3 +73,27 @@ def sub_table(settings: Mapping[str, Any], key: str) -> Mapping[str, Any]:
     if not isinstance(value, Mapping):
         raise ConfigurationError(f"{key}: {_shown(value)} is not a table")
     return value
+
+
+def no_table() -> Mapping[Any, Any]:
+    """The default of a settings field holding a table (``field(default_factory=no_table)``): empty, read-only."""
+    return MappingProxyType({})
+
+
+def frozen(value: object) -> object:
+    """A TOML value made immutable: lists become tuples, tables read-only mappings (deeply)."""
+    if isinstance(value, list):
+        return tuple(frozen(v) for v in value)
+    if isinstance(value, Mapping):
+        return MappingProxyType({k: frozen(v) for k, v in value.items()})
+    return value
+
+
+def build(cls: type[T], settings: Mapping[str, Any], **parsed: object) -> T:
+    """The frozen dataclass ``cls`` of a checked table: each key present sets the field of its name (made
+    immutable by :func:`frozen`, or the value given in ``parsed`` for a key the plugin converted itself);
+    an absent key keeps the field's default, the only one. A key that is not a field is an error naming it."""
+    fields = [f.name for f in dataclasses.fields(cls)]  # type: ignore[arg-type]
+    known_keys(settings, fields)
+    values = {key: parsed[key] if key in parsed else frozen(value) for key, value in settings.items()}
+    return cls(**values)

@@ -3,13 +3,16 @@
 ``SharedPool.acquire(key, factory)`` returns the one live resource for ``key`` (creating it on first use)
 and counts users; ``release`` closes it when the last user is gone. Transports use it so that two devices
 on one RS485 line, or two slaves behind one DeviceNet scanner, go through one object that serialises access.
+Every pool registers itself: :func:`leases` counts the resources held in the whole process, which is how the
+conformance kit checks that closing a transport gave back what opening it took.
 """
 
 from __future__ import annotations
 
 import threading
+import weakref
 from collections.abc import Callable, Hashable
-from typing import Generic, Protocol, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 
 class Closable(Protocol):
@@ -20,9 +23,11 @@ R = TypeVar("R", bound=Closable)
 
 
 class SharedPool(Generic[R]):
-    def __init__(self) -> None:
+    def __init__(self, name: str = "") -> None:
+        self.name = name  #: what the pool holds, for messages ("acme-loop lines")
         self._lock = threading.Lock()
         self._items: dict[Hashable, tuple[R, int]] = {}
+        _POOLS.add(self)
 
     def acquire(self, key: Hashable, factory: Callable[[], R]) -> R:
         with self._lock:
@@ -51,3 +56,19 @@ class SharedPool(Generic[R]):
         with self._lock:
             item = self._items.get(key)
             return item[1] if item else 0
+
+    def leases(self) -> dict[Hashable, int]:
+        """Key -> users of every live resource of this pool."""
+        with self._lock:
+            return {key: users for key, (_, users) in self._items.items()}
+
+
+_POOLS: weakref.WeakSet[SharedPool[Any]] = weakref.WeakSet()
+
+
+def leases() -> dict[str, int]:
+    """``"POOL KEY"`` -> users, over every pool of the process (a serial port, a gateway, a CAN bus...)."""
+    out: dict[str, int] = {}
+    for pool in list(_POOLS):
+        out.update({f"{pool.name or 'pool'} {key!r}": users for key, users in pool.leases().items()})
+    return out

@@ -25,12 +25,14 @@ import contextlib
 import os
 import threading
 import time
+import warnings
 from collections.abc import Callable, Iterator
 
 import pytest
 
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import (
+    NotOpenError,
     RemoteDeviceError,
     StarterbusError,
     UnsupportedOperationError,
@@ -40,11 +42,17 @@ from starterbus.core.guarded import ConfirmationRefused, Proposal
 from starterbus.core.model import Kind, PointDef
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile, get_transport
+from starterbus.core.sharing import leases
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.core.status import Command, MotorState
-from starterbus.core.transport import Capability
+from starterbus.core.transport import Capability, Transport
+from starterbus.core.url import DeviceUrl
 
 REFERENCE = "modbus-rtu"
+
+
+class ConformanceNotice(UserWarning):
+    """What the kit could not check as it should (shown in pytest's warnings summary)."""
 
 
 def wait_until(predicate: Callable[[], bool], timeout: float = 5.0) -> bool:
@@ -59,6 +67,10 @@ def wait_until(predicate: Callable[[], bool], timeout: float = 5.0) -> bool:
 
 def phase(starter: SimulatedStarter) -> Phase:
     return starter.phase
+
+
+def is_open(transport: Transport) -> bool:
+    return transport.is_open  # read through a call: mypy would keep an earlier assert's narrowing
 
 
 def open_fds() -> int:
@@ -116,14 +128,45 @@ class TransportConformance:
             usable.append(point)
         return usable
 
-    def candidates(self, device: Device) -> list[PointDef]:
+    def candidates(self, device: Device, *, certain: bool = True) -> list[PointDef]:
+        """Parameters the kit may write: writable, not locked while running, more than one value, addressed on
+        this transport, and (``certain``) with both ends of the range certain (codes printed in the manual)."""
         locked = device.profile.control.locked_while_running | {device.profile.control.write_protect_key}
         points = [
             p
             for p in self.addressed(device, Kind.PARAMETER)
-            if p.writable and p.key not in locked and p.raw_max > p.raw_min and p.uncertainty(p.raw_min) is None
+            if p.writable
+            and p.key not in locked
+            and p.raw_max > p.raw_min
+            and (not certain or (p.uncertainty(p.raw_min) is None and p.uncertainty(p.raw_max) is None))
         ]
         return points[: self.writable_sample]
+
+    def write_targets(self, device: Device) -> tuple[list[PointDef], bool]:
+        """The parameters the write tests use, and whether writing them needs ``accept_uncertain=True``.
+
+        Those whose codes are printed in the manual; failing that (a model that states no certainty), the
+        others, written with ``accept_uncertain=True``, and a :class:`ConformanceNotice` warning says so in the
+        test's output. None at all, while the transport declares writes: the test fails, naming the model.
+        """
+        points = self.candidates(device)
+        if points:
+            return points, False
+        points = self.candidates(device, certain=False)
+        if not points:
+            pytest.fail(
+                f"{self.transport} declares {Capability.WRITE_PARAMETERS.value} but {device.profile.display_name} "
+                "has no parameter the kit may write (writable, not locked while running, more than one value, "
+                f"addressed on {self.transport}): give the kit a model that has one"
+            )
+        warnings.warn(
+            ConformanceNotice(
+                f"{device.profile.display_name} states no parameter whose codes are all printed in the manual: "
+                f"the write tests use {', '.join(p.key for p in points)} with accept_uncertain=True"
+            ),
+            stacklevel=2,
+        )
+        return points, True
 
     # -- the tests ------------------------------------------------------------------------------------------
 
@@ -176,10 +219,11 @@ class TransportConformance:
     def test_writes_round_trip_through_the_guarded_path(self, device: Device, starter: SimulatedStarter) -> None:
         if Capability.WRITE_PARAMETERS not in device.capabilities:
             pytest.skip(f"{self.transport} does not declare {Capability.WRITE_PARAMETERS.value}")
-        for point in self.candidates(device):
+        points, uncertain = self.write_targets(device)
+        for point in points:
             raw = point.raw_max if starter.read(point) != point.raw_max else point.raw_min
             value = point.to_engineering(raw) if point.enum is None else raw
-            outcome = device.write(point.key, value)
+            outcome = device.write(point.key, value, accept_uncertain=uncertain)
             assert outcome.ok and starter.params[point.key] == raw, point.key
             assert outcome.read_back is None or outcome.read_back.raw == raw
 
@@ -194,10 +238,12 @@ class TransportConformance:
             point = self._any_writable(device)
             with pytest.raises(ValidationError):
                 device.write(point.key, point.to_engineering(point.raw_max + 1) if point.enum is None else 10**6)
-            if Capability.WRITE_PARAMETERS in device.capabilities and self.candidates(device):
-                target = self.candidates(device)[0]
+            if Capability.WRITE_PARAMETERS in device.capabilities:
+                targets, uncertain = self.write_targets(device)
                 with pytest.raises(ConfirmationRefused):
-                    device.write(target.key, target.to_engineering(target.raw_min))
+                    device.write(
+                        targets[0].key, targets[0].to_engineering(targets[0].raw_min), accept_uncertain=uncertain
+                    )
             if Capability.COMMANDS in device.capabilities:
                 with pytest.raises(ConfirmationRefused):
                     device.start()
@@ -231,7 +277,7 @@ class TransportConformance:
         control = device.profile.control
         if control.write_protect_key:
             starter.params[control.write_protect_key] = 0
-            point = self.candidates(device)[0]
+            point = self.write_targets(device)[0][0]
         elif control.locked_while_running:
             starter.start()
             point = device.profile.point(sorted(control.locked_while_running)[0])
@@ -243,8 +289,8 @@ class TransportConformance:
 
     def test_dry_run_previews_send_nothing(self, device: Device, starter: SimulatedStarter) -> None:
         before = dict(starter.params)
-        if Capability.WRITE_PARAMETERS in device.capabilities and self.candidates(device):
-            point = self.candidates(device)[0]
+        if Capability.WRITE_PARAMETERS in device.capabilities:
+            point = self.write_targets(device)[0][0]
             frames = device.transport.preview_write(point, point.raw_min)
             assert frames and all(isinstance(f, str) and f for f in frames)
         if Capability.COMMANDS in device.capabilities:
@@ -255,7 +301,7 @@ class TransportConformance:
     def test_lifecycle_leaves_nothing_behind(self, url: str, profile: Profile) -> None:
         with open_device(url, profile):
             pass  # the first open may start shared, process-wide services
-        threads, fds = threading.active_count(), open_fds()
+        threads, fds, held = threading.active_count(), open_fds(), leases()
         for _ in range(3):
             device = open_device(url, profile)
             with device:
@@ -265,6 +311,50 @@ class TransportConformance:
                 device.status()  # closed: a typed error, never a hang or an AttributeError
         assert wait_until(lambda: threading.active_count() <= threads), "threads left running after close"
         assert wait_until(lambda: open_fds() <= fds), "file descriptors left open after close"
+        assert leases() == held, "a shared line, bus or gateway (SharedPool) was not released on close"
+
+    def _transport(self, url: str, profile: Profile) -> Transport:
+        return get_transport(self.transport).open(DeviceUrl.parse(url), profile)
+
+    def _operations(self, transport: Transport, profile: Profile) -> dict[str, Callable[[], object]]:
+        """Every operation that needs an open transport (none of them may reach the device here)."""
+        point = (profile.measurements or profile.parameters)[0]
+        return {
+            "read_points": lambda: transport.read_points([point]),
+            "read_status": transport.read_status,
+            "send_command": lambda: transport.send_command(Command.SOFT_STOP),
+            "write_parameter": lambda: transport.write_parameter(point, 0),  # the state is checked first
+            "poll": lambda: transport.poll([point], True),
+            "identify": transport.identify,
+        }
+
+    def test_a_transport_used_before_open_or_after_close_raises_not_open(
+        self, url: str, profile: Profile, starter: SimulatedStarter
+    ) -> None:
+        transport = self._transport(url, profile)
+        for name, call in self._operations(transport, profile).items():
+            with pytest.raises(NotOpenError, match="not open") as info:
+                call()
+            assert self.transport in str(info.value) and transport.url.text in str(info.value), name
+        transport.open()
+        transport.open()  # idempotent: the second open does nothing
+        assert is_open(transport)
+        transport.close()
+        transport.close()  # idempotent
+        assert not is_open(transport)
+        for name, call in self._operations(transport, profile).items():
+            with pytest.raises(NotOpenError, match="closed"):
+                call()
+            assert not is_open(transport), name
+        with transport:  # a closed transport opens again (a poller reconnects)
+            assert is_open(transport)
+        assert starter.phase is Phase.STOPPED
+
+    def test_declared_capabilities_match_the_hooks(self, url: str, profile: Profile) -> None:
+        plugin = get_transport(self.transport)
+        transport = self._transport(url, profile)
+        assert transport.capabilities <= plugin.capabilities, "a URL offers more than the plugin declares"
+        assert type(transport).capability_problems(plugin.capabilities) == []
 
     def test_agrees_with_the_reference_transport(self, url: str, profile: Profile, starter: SimulatedStarter) -> None:
         if self.transport == REFERENCE or not profile.supports(REFERENCE):

@@ -33,20 +33,20 @@ class RecordingTransport(Transport):
         self.sent: list[tuple[str, int]] = []
         self.memory: dict[str, int] = {}
 
-    def open(self) -> None:
+    def _open(self) -> None:
         pass
 
-    def close(self) -> None:
+    def _close(self) -> None:
         pass
 
     @property
     def capabilities(self) -> frozenset[Capability]:
         return self.caps
 
-    def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
+    def _read_points(self, points: Sequence[PointDef]) -> list[Reading]:
         return [Reading(p, self.memory.get(p.key, p.default if p.default is not None else p.raw_min)) for p in points]
 
-    def write_parameter(self, point: PointDef, raw: int) -> None:
+    def _write_parameter(self, point: PointDef, raw: int) -> None:
         self.sent.append((point.key, raw))
         self.memory[point.key] = raw
 

@@ -36,17 +36,17 @@ class ScriptedTransport(Transport):
         self.calls: list[tuple[float, int]] = []  # (timeout, retries) of each poll
         self._counters = TransportCounters()
 
-    def open(self) -> None:
+    def _open(self) -> None:
         pass
 
-    def close(self) -> None:
+    def _close(self) -> None:
         pass
 
     @property
     def capabilities(self) -> frozenset[Capability]:
         return ALL_CAPABILITIES
 
-    def poll(self, points: Sequence[PointDef], status: bool) -> PollResult:
+    def _poll(self, points: Sequence[PointDef], status: bool) -> PollResult:
         self.calls.append((self.timeout, self.retries))
         attempts = 1 if self.alive else 1 + self.retries
         self.clock.advance(self.took if self.alive else attempts * self.timeout)
@@ -85,7 +85,7 @@ def worker(
     transports = []
     for runtime in bus.devices:
         transport = ScriptedTransport(profile, clock, took=0.01)
-        runtime.device = Device(transport, profile)
+        runtime.device = Device(transport, profile).open()
         transports.append(transport)
     return bus, transports
 

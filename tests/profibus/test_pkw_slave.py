@@ -11,9 +11,9 @@ import pytest
 from starterbus.core.errors import ConfigurationError, DecodeError, Refusal
 from starterbus.core.profile import Profile, load_profile_text
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
+from starterbus.transports.profibus_pkw.settings import UNSUPPORTED_TASK
 from starterbus.transports.profibus_pkw.slave import (
     REFUSAL_ANSWERS,
-    UNSUPPORTED_TASK,
     PkwAnswer,
     SimulatedDpSlave,
     refusal_answers,

@@ -167,10 +167,11 @@ def test_points_without_a_usable_profibus_address(jjr5000: Profile) -> None:
     transport = PLUGIN.open(DeviceUrl.parse("profibus-pkw+sim://?cycle=0"), jjr5000)
     nowhere = PointDef("extra", Kind.PARAMETER, "0x0199", "", "extra", 0, 1, addresses={"modbus-rtu": 0x199})
     too_far = PointDef("far", Kind.PARAMETER, "0x0299", "", "far", 0, 1, addresses={"profibus-pkw": 0x199})
-    with pytest.raises(UnsupportedOperationError, match="no Profibus"):
-        transport.read_points([nowhere])
-    with pytest.raises(ConfigurationError, match="does not fit INDL"):
-        transport.read_points([too_far])
+    with transport:
+        with pytest.raises(UnsupportedOperationError, match="no Profibus"):
+            transport.read_points([nowhere])
+        with pytest.raises(ConfigurationError, match="does not fit INDL"):
+            transport.read_points([too_far])
     with pytest.raises(UnsupportedOperationError, match="read-only"):
         transport.preview_write(jjr5000.point("phase_a_current"), 1)
 

@@ -40,7 +40,7 @@ class Identity:
     revision: tuple[int, int] = (1, 1)
     status: int = 0
     serial_number: int = 0x20110100
-    product_name: str = "JJR8000"
+    product_name: str = ""  # from_profile: the profile's, else its display name
 
     def __post_init__(self) -> None:
         for name, value, hi in (
@@ -60,17 +60,15 @@ class Identity:
 
     @classmethod
     def from_profile(cls, profile: Profile, **overrides: Any) -> Identity:
-        """The identity in the profile's ``[transports.devicenet] identity`` table, with overrides."""
-        table: Mapping[str, Any] = profile.transport_settings("devicenet").get("identity", {})
-        values: dict[str, Any] = {}
-        for name in ("vendor_id", "device_type", "product_code", "status", "serial_number", "product_name"):
-            if name in table:
-                values[name] = table[name]
-        if "revision" in table:
-            values["revision"] = tuple(table["revision"])
-        values.update(overrides)
+        """The identity in the profile's ``[transports.devicenet] identity`` table (the product name: the
+        model's display name if the table gives none), with overrides."""
+        from starterbus.transports.devicenet.settings import devicenet_settings  # late: it imports this module
+
+        base = devicenet_settings(profile).identity
+        if not base.product_name:
+            base = replace(base, product_name=profile.display_name)
         try:
-            return cls(**values)
+            return replace(base, **overrides)
         except (TypeError, EncodeError) as exc:
             raise ConfigurationError(f"{profile.name}: invalid DeviceNet identity: {exc}") from exc
 

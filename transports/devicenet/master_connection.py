@@ -249,7 +249,8 @@ class ExplicitMessaging:
             what = f"{found.value} assemblies" if found else f"no {link.config.product} assembly pair"
             error = ConfigurationError(
                 f"{link.describe()} produces {produced} and consumes {consumed} bytes ({what}) but the URL asks "
-                f"for assemblies={wanted} (PRO type P1/M1 = basic 1/2, P3/M2 = extended 101/102)"
+                f"for assemblies={wanted} ({link.config.product} assembly sets: {link.config.sets}; the device's "
+                "PRO type parameter selects one)"
             )
             self._failed(link, error, now, release=True)
             return

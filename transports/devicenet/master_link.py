@@ -76,6 +76,7 @@ class LinkConfig:
     settle: int = 2  # poll responses with a new status parameter address before its value is trusted
     interval: float | None = None  # seconds between polls of this slave (None: the scanner's poll_period)
     product: str = "the device"  # the profile's name, for messages
+    sets: str = "basic or extended"  # the model's assembly sets and their instance numbers, for messages
 
 
 class InputSample(NamedTuple):

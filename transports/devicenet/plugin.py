@@ -8,12 +8,12 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
-from starterbus.core import settings_check as check
 from starterbus.core.errors import ConfigurationError
 from starterbus.core.plugin_options import PluginOption, resolve_options
 from starterbus.core.profile import Profile
 from starterbus.core.transport import Annotation, Capability, RunningSimulator, Transport, TransportPlugin
 from starterbus.core.url import DeviceUrl
+from starterbus.transports.devicenet.settings import DeviceNetSettings, devicenet_settings
 
 if TYPE_CHECKING:
     from starterbus.core.simulator import SimulatedStarter
@@ -38,26 +38,12 @@ class DeviceNetPlugin(TransportPlugin):
 
         return DeviceNetTransport(url, profile)
 
+    def parse_settings(self, settings: Mapping[str, Any]) -> DeviceNetSettings:
+        """``[transports.devicenet]``: mac_ids, input/output_assemblies ([basic, extended]), bitrates, identity."""
+        return DeviceNetSettings.parse(settings)
+
     def check_settings(self, settings: Mapping[str, Any]) -> None:
-        """The keys this transport reads from ``[transports.devicenet]``."""
-        check.known_keys(settings, ("mac_ids", "input_assemblies", "output_assemblies", "bitrates", "identity"))
-        check.int_range(settings, "mac_ids", 0, 63)
-        check.int_list(settings, "input_assemblies", 1, 0xFFFF)
-        check.int_list(settings, "output_assemblies", 1, 0xFFFF)
-        check.int_list(settings, "bitrates", 1, 1_000_000, choices=(125000, 250000, 500000))
-        identity = {f"identity.{k}": v for k, v in check.sub_table(settings, "identity").items()}
-        for name in ("vendor_id", "device_type", "product_code", "status"):
-            check.int_value(identity, f"identity.{name}", 0, 0xFFFF)
-        check.int_value(identity, "identity.serial_number", 0, 0xFFFFFFFF)
-        revision = identity.get("identity.revision", [0, 0])
-        if not isinstance(revision, list) or len(revision) != 2:
-            raise ConfigurationError(f"identity.revision: {revision!r} is not [major, minor]")
-        for part in revision:
-            check.int_value({"identity.revision": part}, "identity.revision", 0, 0xFF)
-        for name in ("product_name", "product_code_text", "revision_text"):
-            value = identity.get(f"identity.{name}", "")
-            if not isinstance(value, str) or (name == "product_name" and len(value.encode("ascii", "replace")) > 32):
-                raise ConfigurationError(f"identity.{name}: {value!r} is not a text (product_name: 32 characters)")
+        self.parse_settings(settings)
 
     # -- simulate ----------------------------------------------------------------------------------------------
 
@@ -118,8 +104,8 @@ class DeviceNetPlugin(TransportPlugin):
         if len(set(macs)) != len(macs):
             raise ConfigurationError(f"--mac given twice with the same MAC id: {macs}")
         for mac, starter in zip(macs, starters.values(), strict=True):
-            lo, hi = starter.profile.transport_settings(self.name).get("mac_ids", [1, 63])
-            if not int(lo) <= mac <= int(hi):
+            lo, hi = devicenet_settings(starter.profile).mac_ids
+            if not lo <= mac <= hi:
                 raise ConfigurationError(f"DeviceNet MAC id {mac} is outside {lo}..{hi}")
         choice = values.text("assemblies")
         assemblies = None if choice == "pro-type" else AssemblySet(choice or "extended")

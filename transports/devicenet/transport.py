@@ -1,4 +1,4 @@
-"""The ``devicenet`` transport: one JJR8000 slave, scanned by the process-wide scanner of its CAN bus.
+"""The ``devicenet`` transport: one slave (the profile's model), scanned by the process-wide scanner of its bus.
 
 URL: ``devicenet://INTERFACE/CHANNEL?mac=5`` with any python-can interface (``virtual``, ``socketcan``,
 ``pcan``, ``remote`` for the loopback bridge, ...) and these parameters:
@@ -29,7 +29,7 @@ import threading
 from collections.abc import Sequence
 
 from starterbus.core.errors import ConfigurationError, DecodeError, TimeoutError
-from starterbus.core.model import Kind, PointDef, Reading
+from starterbus.core.model import PointDef, Reading
 from starterbus.core.profile import Profile
 from starterbus.core.sharing import SharedPool
 from starterbus.core.status import CW_RESET, CW_START, Command, ControlWordState, Status
@@ -55,6 +55,7 @@ from starterbus.transports.devicenet.scanner import (
     ScannerConfig,
     SlaveLink,
 )
+from starterbus.transports.devicenet.settings import devicenet_settings
 
 NAME = "devicenet"
 URL_PARAMETERS = (
@@ -69,7 +70,6 @@ URL_PARAMETERS = (
     "timeout",
     "settle",
 )
-DEFAULT_BITRATES = (125000, 250000, 500000)
 
 MIN_INTERVAL = 0.005  # s: the fastest scan a ``period`` asks for (bus load)
 MAX_INTERVAL = 1.0  # s: the slowest; with EPR = 2 x interval the slave's watchdog fires after 8 s of silence
@@ -77,7 +77,7 @@ MIN_EPR_MS = 100  # the shortest expected packet rate a ``period`` sets (watchdo
 EPR_FACTOR = 2
 
 #: one scanner per (interface, channel) in this process
-SCANNERS: SharedPool[Scanner] = SharedPool()
+SCANNERS: SharedPool[Scanner] = SharedPool("devicenet scanners")
 
 
 def timing_for_period(period: float) -> tuple[float, int]:
@@ -97,13 +97,13 @@ def parse_url(url: DeviceUrl, profile: Profile) -> tuple[ScannerConfig, LinkConf
             f"{url.text}: expected devicenet://INTERFACE/CHANNEL?mac=N (e.g. devicenet://virtual/bus0?mac=5, "
             "devicenet://socketcan/can0?mac=5, devicenet://remote/127.0.0.1:54701?mac=5)"
         )
-    settings = profile.transport_settings(NAME)
-    lo, hi = settings.get("mac_ids", [1, MAX_MAC])
-    mac = url.get_int("mac", lo=int(lo), hi=int(hi))
+    settings = devicenet_settings(profile)
+    lo, hi = settings.mac_ids
+    mac = url.get_int("mac", lo=lo, hi=hi)
     master_mac = url.get_int("master_mac", 0, lo=0, hi=MAX_MAC)
     if master_mac == mac:
         raise ConfigurationError(f"{url.text}: master_mac and mac are both {mac}")
-    bitrates = [int(b) for b in settings.get("bitrates", DEFAULT_BITRATES)]
+    bitrates = settings.bitrates
     bitrate = url.get_int("bitrate", 500000)
     if bitrate not in bitrates:
         raise ConfigurationError(f"{url.text}: bitrate {bitrate} is not one of {', '.join(map(str, bitrates))}")
@@ -138,6 +138,7 @@ def parse_url(url: DeviceUrl, profile: Profile) -> tuple[ScannerConfig, LinkConf
         settle=url.get_int("settle", 2, lo=1, hi=50),
         interval=poll / 1000.0,
         product=profile.display_name,
+        sets=", ".join(f"{s.value} {'/'.join(map(str, settings.instances(s)))}" for s in AssemblySet),
     )
     return scanner, link
 
@@ -150,6 +151,7 @@ class DeviceNetTransport(Transport):
     def __init__(self, url: DeviceUrl, profile: Profile) -> None:
         super().__init__(url, profile)
         self.scanner_config, self.link_config = parse_url(url, profile)
+        self.settings = devicenet_settings(profile)
         self.scanner: Scanner | None = None
         self.link: SlaveLink | None = None
         self._select_lock = threading.Lock()
@@ -157,9 +159,7 @@ class DeviceNetTransport(Transport):
 
     # -- lifecycle ---------------------------------------------------------------------------------------------
 
-    def open(self) -> None:
-        if self.link is not None:
-            return
+    def _open(self) -> None:
         config = self.scanner_config
         scanner = SCANNERS.acquire(self._key, lambda: Scanner(config))
         try:
@@ -178,7 +178,7 @@ class DeviceNetTransport(Transport):
         try:
             self._wait_established(4 * config.timeout + 0.5)
         except BaseException:
-            self.close()
+            self._close()
             raise
 
     def _wait_established(self, timeout: float) -> None:
@@ -197,7 +197,7 @@ class DeviceNetTransport(Transport):
             + (f" (last error: {link.last_error})" if link.last_error else "")
         )
 
-    def close(self) -> None:
+    def _close(self) -> None:
         scanner, link = self.scanner, self.link
         self.scanner = self.link = None
         if scanner is not None and link is not None:
@@ -208,7 +208,7 @@ class DeviceNetTransport(Transport):
 
     def _require(self) -> tuple[Scanner, SlaveLink]:
         if self.scanner is None or self.link is None:
-            raise ConfigurationError(f"{self.describe()}: the transport is not open")
+            raise self._not_open()
         return self.scanner, self.link
 
     # -- capabilities -------------------------------------------------------------------------------------------
@@ -254,7 +254,7 @@ class DeviceNetTransport(Transport):
             )
         return sample
 
-    def read_status(self) -> Status:
+    def _read_status(self) -> Status:
         scanner, link = self._require()
         sample = self._fresh_sample(link, scanner)
         assemblies = link.assemblies or AssemblySet.EXTENDED
@@ -273,7 +273,7 @@ class DeviceNetTransport(Transport):
             )
         return ControlWordState(bus_control=True, run=run).apply(command)
 
-    def send_command(self, command: Command) -> None:
+    def _send_command(self, command: Command) -> None:
         scanner, link = self._require()
         words = self._words(command, link.run)
         error = scanner.link_error(link)
@@ -292,7 +292,7 @@ class DeviceNetTransport(Transport):
                     f"{self.timeout:g} s (connection {link.state.value})"
                 )
 
-    def preview_command(self, command: Command) -> list[str]:
+    def _preview_command(self, command: Command) -> list[str]:
         link = self.link
         run = link.run if link is not None else False
         assemblies = (link.assemblies if link is not None else None) or (
@@ -305,21 +305,14 @@ class DeviceNetTransport(Transport):
             frames.append(f"{poll_command_id(self.link_config.mac):03X}#{output.encode().hex().upper()}")
         return frames
 
-    def _no_parameters(self) -> str:
-        return f"the {self.profile.display_name} does not support parameter access over DeviceNet"
-
-    def preview_write(self, point: PointDef, raw: int) -> list[str]:
-        raise self.unsupported("write parameters", self._no_parameters())
-
-    def write_parameter(self, point: PointDef, raw: int) -> None:
-        raise self.unsupported("write parameters", self._no_parameters())
+    def _why_not(self, capability: Capability) -> str:
+        if capability in (Capability.READ_PARAMETERS, Capability.WRITE_PARAMETERS):
+            return f"the {self.profile.display_name} does not support parameter access over DeviceNet"
+        return super()._why_not(capability)
 
     # -- measurements ------------------------------------------------------------------------------------------
 
-    def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
-        for point in points:
-            if point.kind is Kind.PARAMETER:
-                raise self.unsupported(f"read the parameter {point.key}", self._no_parameters())
+    def _read_points(self, points: Sequence[PointDef]) -> list[Reading]:
         scanner, link = self._require()
         return [self._read_measurement(scanner, link, point) for point in points]
 
@@ -368,7 +361,7 @@ class DeviceNetTransport(Transport):
 
     # -- identity ------------------------------------------------------------------------------------------------
 
-    def identify(self) -> dict[str, object]:
+    def _identify(self) -> dict[str, object]:
         """Identity object attributes 1-7 (Get_Attribute_Single each; the product name is fragmented)."""
         scanner, link = self._require()
         raw: dict[int, bytes] = {}
@@ -380,8 +373,7 @@ class DeviceNetTransport(Transport):
         identity = decode_identity(raw)
         result: dict[str, object] = {"mac": link.mac, **identity.as_dict()}
         if link.assemblies is not None:
-            result["input_assembly"] = link.assemblies.input_instance
-            result["output_assembly"] = link.assemblies.output_instance
+            result["input_assembly"], result["output_assembly"] = self.settings.instances(link.assemblies)
         result["expected_packet_rate_ms"] = link.epr_ms
         return result
 

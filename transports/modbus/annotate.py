@@ -27,7 +27,7 @@ from starterbus.transports.modbus.frames import (
     decode_response,
     request_length,
 )
-from starterbus.transports.modbus.slave import TRANSPORT, max_read_registers
+from starterbus.transports.modbus.slave import TRANSPORT, max_read_registers, modbus_settings
 
 Field = tuple[str, str, str]
 
@@ -50,7 +50,7 @@ def parse_hex(tokens: Sequence[str]) -> bytes:
 
 def exception_meaning(profile: Profile | None, code: int) -> str:
     if profile is not None:
-        label = profile.transport_settings(TRANSPORT).get("exceptions", {}).get(code)
+        label = modbus_settings(profile).exceptions.get(code)
         if label is not None:
             return str(label)
         return f"unknown exception code {code} for {profile.display_name}"

@@ -19,10 +19,10 @@ from starterbus.core.errors import (
     TimeoutError,
     UnsupportedOperationError,
 )
-from starterbus.core.model import PointDef, Reading, Value
+from starterbus.core.model import PointDef, Reading
 from starterbus.core.profile import Profile
 from starterbus.core.sharing import SharedPool
-from starterbus.core.status import Command, ControlWordState, Status, decode_status_word
+from starterbus.core.status import Command, ControlWordState, Status, status_with_currents
 from starterbus.core.transport import (
     ALL_CAPABILITIES,
     Capability,
@@ -51,9 +51,7 @@ from starterbus.transports.modbus.slave import PROTOCOL, TRANSPORT, max_read_reg
 from starterbus.transports.modbus.timing import char_time
 
 #: one line object per serial port / TCP endpoint in this process
-LINES: SharedPool[RtuLine] = SharedPool()
-
-PHASE_NAMES = ("a", "b", "c")
+LINES: SharedPool[RtuLine] = SharedPool("modbus-rtu lines")
 
 #: prepared requests (and read plans) a transport keeps per kind; a poller repeats a handful of them
 CACHE_SIZE = 256
@@ -123,9 +121,7 @@ class ModbusRtuTransport(Transport):
     def _make_line(self) -> RtuLine:
         return RtuLine(self._connect, self.config.serial)
 
-    def open(self) -> None:
-        if self._line is not None:
-            return
+    def _open(self) -> None:
         line = LINES.acquire(self.config.line_key, self._make_line)
         try:
             line.check_settings(self.config.serial)
@@ -134,7 +130,7 @@ class ModbusRtuTransport(Transport):
             raise
         self._line = line
 
-    def close(self) -> None:
+    def _close(self) -> None:
         if self._line is not None:
             self._line = None
             LINES.release(self.config.line_key)
@@ -142,7 +138,7 @@ class ModbusRtuTransport(Transport):
     @property
     def line(self) -> RtuLine:
         if self._line is None:
-            raise ConfigurationError(f"{self.describe()} is not open (use the device as a context manager)")
+            raise self._not_open()
         return self._line
 
     @property
@@ -237,7 +233,7 @@ class ModbusRtuTransport(Transport):
             raise UnsupportedOperationError(f"{self.profile.display_name} {point.key} has no Modbus register")
         return address
 
-    def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
+    def _read_points(self, points: Sequence[PointDef]) -> list[Reading]:
         key = tuple(map(id, points))  # the profile's point objects live as long as the transport
         known = self._points.get(key) or self._point_requests(points, key)
         values: tuple[int, ...] = ()
@@ -274,12 +270,12 @@ class ModbusRtuTransport(Transport):
         self._plans[addresses] = plan, value_positions(addresses, plan)
         return self._plans[addresses]
 
-    def write_parameter(self, point: PointDef, raw: int) -> None:
+    def _write_parameter(self, point: PointDef, raw: int) -> None:
         self.write_register(self._address(point), raw)
 
     # -- fleet polling: one merged plan per (points, status), see poll_plan.py -----------------------------------
 
-    def poll(self, points: Sequence[PointDef], status: bool) -> PollResult:
+    def _poll(self, points: Sequence[PointDef], status: bool) -> PollResult:
         self._no_broadcast_reads()
         plan = self.poll_plans.get(points, status)
         return run_poll_plan(self.read_registers, plan, points, self.profile, f"{TRANSPORT} {self.describe()}")
@@ -301,23 +297,18 @@ class ModbusRtuTransport(Transport):
         finally:
             self.config, self._reads, self._writes = normal
 
-    def read_status(self) -> Status:
+    def _read_status(self) -> Status:
         self._no_broadcast_reads()
         status_point = self.profile.role("status_word")
         if status_point is None:
             raise UnsupportedOperationError(f"{self.profile.display_name} has no status word")
-        currents = self.profile.phase_currents()
-        readings = self.read_points([status_point, *currents])
-        values = {
-            name: Value.from_raw(r.point, r.raw, source=TRANSPORT)
-            for name, r in zip(PHASE_NAMES, readings[1:], strict=False)
-        }
-        return decode_status_word(
+        readings = self._read_points([status_point, *self.profile.phase_currents()])
+        return status_with_currents(
+            self.profile,
             readings[0].raw,
-            self.profile.faults,
-            bit12_is_mains_voltage=self.profile.control.bit12_is_mains_voltage,
-            currents=values,
+            [r.raw for r in readings[1:]],
             source=f"{TRANSPORT} {self.describe()}",
+            current_source=TRANSPORT,
         )
 
     def _control_requests(self, command: Command) -> list[WriteRequest]:
@@ -326,15 +317,15 @@ class ModbusRtuTransport(Transport):
         state = ControlWordState(self.control.bus_control, self.control.run)
         return [WriteRequest(self.unit, self._control_address, word) for word in state.apply(command)]
 
-    def send_command(self, command: Command) -> None:
+    def _send_command(self, command: Command) -> None:
         requests = self._control_requests(command)
         for request in requests:
             self.execute(request)
         self.control.apply(command)
 
-    def preview_write(self, point: PointDef, raw: int) -> list[str]:
+    def _preview_write(self, point: PointDef, raw: int) -> list[str]:
         frame = WriteRequest(self.unit, self._address(point), raw).encode()
         return [frame.hex(" ").upper()]
 
-    def preview_command(self, command: Command) -> list[str]:
+    def _preview_command(self, command: Command) -> list[str]:
         return [request.encode().hex(" ").upper() for request in self._control_requests(command)]

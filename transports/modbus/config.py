@@ -18,7 +18,7 @@ from starterbus.core.url import DeviceUrl
 from starterbus.transports.modbus.exchange import TransactionPolicy
 from starterbus.transports.modbus.frames import BROADCAST, MAX_UNIT
 from starterbus.transports.modbus.link import Link, PySerialLink, SerialSettings, com_port
-from starterbus.transports.modbus.slave import TRANSPORT
+from starterbus.transports.modbus.slave import modbus_settings
 from starterbus.transports.modbus.timing import silent_interval
 
 URL_PARAMETERS = (
@@ -84,7 +84,6 @@ class ModbusRtuConfig:
                 f"{url.text}: unknown variant {url.scheme!r} (use modbus-rtu:///dev/ttyUSB0, modbus-rtu://COM3, "
                 "modbus-rtu+tcp://HOST:PORT, modbus-rtu+rfc2217://HOST:PORT or modbus-rtu+socket://HOST:PORT)"
             )
-        settings = profile.transport_settings(TRANSPORT)
         path, host, port = "", "", 0
         if url.variant:
             host, port = url.host_port()
@@ -103,14 +102,15 @@ class ModbusRtuConfig:
             raise ConfigurationError(
                 f"{url.text}: unit: required URL parameter missing (the slave address, e.g. unit=2)"
             )
-        lo, hi = settings.get("unit_ids", [0, MAX_UNIT])
+        settings = modbus_settings(profile)
+        lo, hi = settings.unit_ids
         if unit != BROADCAST and not lo <= unit <= hi:
             raise ConfigurationError(
                 f"{url.text}: unit: {profile.display_name} slave addresses are {max(lo, 1)}..{hi} (0 = broadcast)"
             )
 
-        baud_choices = [int(b) for b in settings.get("baudrates", [])]
-        default_baud = int(settings.get("default_baudrate", 9600))
+        baud_choices = settings.baudrates
+        default_baud = settings.default_baudrate
         baudrate = url.get_int("baudrate", default_baud, 1, 10_000_000)
         if baud_choices and baudrate not in baud_choices:
             raise ConfigurationError(

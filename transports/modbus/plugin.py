@@ -5,7 +5,6 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from starterbus.core import settings_check as check
 from starterbus.core.errors import ConfigurationError
 from starterbus.core.plugin_options import PluginOption, resolve_options
 from starterbus.core.profile import Profile
@@ -17,7 +16,7 @@ from starterbus.transports.modbus.annotate import annotate
 from starterbus.transports.modbus.client import ModbusRtuTransport
 from starterbus.transports.modbus.config import ModbusRtuConfig
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
-from starterbus.transports.modbus.slave import TRANSPORT
+from starterbus.transports.modbus.slave import TRANSPORT, ModbusSettings, modbus_settings
 
 
 class ModbusRtuPlugin(TransportPlugin):
@@ -37,13 +36,12 @@ class ModbusRtuPlugin(TransportPlugin):
     def open(self, url: DeviceUrl, profile: Profile) -> Transport:
         return ModbusRtuTransport(url, profile, ModbusRtuConfig.from_url(url, profile))
 
+    def parse_settings(self, settings: Mapping[str, Any]) -> ModbusSettings:
+        """``[transports.modbus-rtu]`` (``exceptions`` is parsed by the loader)."""
+        return ModbusSettings.parse(settings)
+
     def check_settings(self, settings: Mapping[str, Any]) -> None:
-        """The keys this transport reads from ``[transports.modbus-rtu]`` (``exceptions`` is parsed by the loader)."""
-        check.known_keys(settings, ("max_read_registers", "unit_ids", "baudrates", "default_baudrate", "exceptions"))
-        check.int_value(settings, "max_read_registers", 1, 125)
-        check.int_range(settings, "unit_ids", 0, 247)
-        check.int_list(settings, "baudrates", 1, 10_000_000)
-        check.int_value(settings, "default_baudrate", 1, 10_000_000)
+        self.parse_settings(settings)
 
     # -- simulator ----------------------------------------------------------------------------------------------
 
@@ -74,19 +72,19 @@ class ModbusRtuPlugin(TransportPlugin):
                 raise ConfigurationError("the Modbus line options need --modbus-rtu PORT|PTY or --modbus-rtu-tcp")
             return []
         first = next(iter(starters.values()), None)
-        default = first.profile.transport_settings(TRANSPORT).get("default_baudrate", 9600) if first else 9600
-        baudrate = values.integer("baudrate") or int(default)
+        default = modbus_settings(first.profile if first else None).default_baudrate
+        baudrate = values.integer("baudrate") or default
         for unit, starter in starters.items():
             profile = starter.profile
             if not profile.supports(TRANSPORT):
                 raise ConfigurationError(f"{profile.display_name} has no Modbus RTU interface")
-            settings = profile.transport_settings(TRANSPORT)
-            lo, hi = settings.get("unit_ids", [1, 247])
+            settings = modbus_settings(profile)
+            lo, hi = settings.unit_ids
             if not max(1, lo) <= unit <= hi:
                 raise ConfigurationError(
                     f"--unit {unit}: {profile.display_name} Modbus slave addresses are {max(1, lo)}..{hi}"
                 )
-            choices = [int(b) for b in settings.get("baudrates", [])]
+            choices = settings.baudrates
             if choices and baudrate not in choices:
                 raise ConfigurationError(
                     f"--baudrate {baudrate}: {profile.display_name} speaks {', '.join(map(str, choices))} baud"

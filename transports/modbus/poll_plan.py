@@ -19,16 +19,15 @@ from collections.abc import Callable, Sequence, Set
 from dataclasses import dataclass
 
 from starterbus.core.errors import UnsupportedOperationError
-from starterbus.core.model import PointDef, Reading, Value
+from starterbus.core.model import PointDef, Reading
 from starterbus.core.profile import Profile
-from starterbus.core.status import Status, decode_status_word
+from starterbus.core.status import Status, status_with_currents
 from starterbus.core.transport import PlannedRequest, PollResult
 from starterbus.transports.modbus.slave import PROTOCOL, TRANSPORT
 from starterbus.transports.modbus.timing import char_time
 
 REQUEST_BYTES = 8  # unit, function, address (2), count (2), CRC (2)
 ANSWER_OVERHEAD = 5  # unit, function, byte count, CRC (2)
-PHASE_NAMES = ("a", "b", "c")
 
 
 def fc03_wire_time(count: int, char: float, silence: float) -> float:
@@ -146,17 +145,7 @@ class PollPlans:
 
 def decode_status(profile: Profile, words: Sequence[int], source: str) -> Status:
     """The status from the status word and the phase currents (``words``, in that order)."""
-    currents = {
-        name: Value.from_raw(point, raw, source=TRANSPORT)
-        for name, point, raw in zip(PHASE_NAMES, profile.phase_currents(), words[1:], strict=False)
-    }
-    return decode_status_word(
-        words[0],
-        profile.faults,
-        bit12_is_mains_voltage=profile.control.bit12_is_mains_voltage,
-        currents=currents,
-        source=source,
-    )
+    return status_with_currents(profile, words[0], words[1:], source=source, current_source=TRANSPORT)
 
 
 def run(

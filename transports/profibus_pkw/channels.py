@@ -219,7 +219,7 @@ _MODBUS_EXCEPTIONS = {
 }
 
 #: one connection per (host, port) in this process
-GATEWAYS: SharedPool[GatewayConnection] = SharedPool()
+GATEWAYS: SharedPool[GatewayConnection] = SharedPool("profibus-pkw gateways")
 
 
 class GatewayChannel(Channel):

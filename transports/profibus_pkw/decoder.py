@@ -16,6 +16,7 @@ from starterbus.core.profile import Profile
 from starterbus.core.status import FaultTable, decode_status_word, describe_control_word
 from starterbus.core.textinput import parse_hex
 from starterbus.core.transport import Annotation
+from starterbus.transports.profibus_pkw.settings import profibus_settings
 from starterbus.transports.profibus_pkw.telegram import (
     PROTOCOL,
     RESPONSE_TEXT,
@@ -127,7 +128,7 @@ def _pkw_in_fields(pkw: PkwResponse, profile: Profile | None, kind: Kind | None)
         meaning = "; ".join(values) if values else f"value {pkw.pwe}"
     elif response == ResponseCode.CANNOT_EXECUTE:
         if profile is not None:
-            label = error_label(profile.transport_settings(PROTOCOL).get("errors", {}), pkw.pwe)
+            label = error_label(profibus_settings(profile).errors, pkw.pwe)
             zh = f" / {label.zh}" if label.zh else ""
             meaning = f"error {pkw.pwe}: {label.en}{zh} ({profile.display_name} table)"
         else:

@@ -5,8 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from starterbus.core import settings_check as check
-from starterbus.core.errors import ConfigurationError, Refusal
+from starterbus.core.errors import ConfigurationError
 from starterbus.core.model import Kind
 from starterbus.core.plugin_options import PluginOption, resolve_options
 from starterbus.core.profile import Profile
@@ -15,7 +14,7 @@ from starterbus.core.textinput import parse_host_port
 from starterbus.core.transport import Annotation, Capability, RunningSimulator, Transport, TransportPlugin
 from starterbus.core.url import DeviceUrl
 from starterbus.transports.profibus_pkw.decoder import annotate_hex
-from starterbus.transports.profibus_pkw.slave import UNSUPPORTED_TASK
+from starterbus.transports.profibus_pkw.settings import ProfibusSettings, profibus_settings
 from starterbus.transports.profibus_pkw.telegram import PROTOCOL, Direction, Part, Ppo
 from starterbus.transports.profibus_pkw.transport import LinkSettings, ProfibusPkwTransport
 
@@ -36,19 +35,12 @@ class ProfibusPkwPlugin(TransportPlugin):
     def open(self, url: DeviceUrl, profile: Profile) -> Transport:
         return ProfibusPkwTransport(url, profile, LinkSettings.from_url(url, profile))
 
+    def parse_settings(self, settings: Mapping[str, Any]) -> ProfibusSettings:
+        """``[transports.profibus-pkw]``: ppo, stations, errors (parsed by the loader), refusals."""
+        return ProfibusSettings.parse(settings)
+
     def check_settings(self, settings: Mapping[str, Any]) -> None:
-        """The keys this transport reads from ``[transports.profibus-pkw]`` (``errors`` is parsed by the loader)."""
-        check.known_keys(settings, ("ppo", "stations", "errors", "refusals"))
-        check.int_list(settings, "ppo", 1, 3, choices=(1, 3))
-        check.int_range(settings, "stations", 0, 127)
-        names = {r.name.lower() for r in Refusal} | {UNSUPPORTED_TASK}
-        for name, value in check.sub_table(settings, "refusals").items():
-            if name not in names:
-                raise ConfigurationError(f"refusals.{name}: unknown refusal (known: {', '.join(sorted(names))})")
-            if value != "response 2" and (
-                isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= 0xFFFF
-            ):
-                raise ConfigurationError(f"refusals.{name}: {value!r} is not an error number or 'response 2'")
+        self.parse_settings(settings)
 
     # -- simulator ---------------------------------------------------------------------------------------
 
@@ -89,8 +81,8 @@ class ProfibusPkwPlugin(TransportPlugin):
             profile = starter.profile
             if not profile.supports(PROTOCOL):
                 raise ConfigurationError(f"{profile.display_name} has no Profibus interface")
-            limits = profile.transport_settings(PROTOCOL).get("stations")
-            if limits and not limits[0] <= station <= limits[1]:
+            limits = profibus_settings(profile).stations
+            if not limits[0] <= station <= limits[1]:
                 raise ConfigurationError(
                     f"--unit {station}: {profile.display_name} DP stations are {limits[0]}..{limits[1]}"
                 )

@@ -23,6 +23,7 @@ from starterbus.core.errors import ConfigurationError, DecodeError, Refusal, Sim
 from starterbus.core.model import Kind
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
+from starterbus.transports.profibus_pkw.settings import RESPONSE_2, UNSUPPORTED_TASK, profibus_settings
 from starterbus.transports.profibus_pkw.telegram import (
     NO_RESPONSE,
     PROTOCOL,
@@ -34,7 +35,6 @@ from starterbus.transports.profibus_pkw.telegram import (
 )
 
 #: key for the answer to a task code the slave does not know (INDH 4-255 from the master)
-UNSUPPORTED_TASK = "unsupported_task"
 
 
 @dataclass(frozen=True, slots=True)
@@ -91,8 +91,8 @@ def refusal_answers(profile: Profile) -> dict[Refusal | str, PkwAnswer]:
     error number for response 3, or ``"response 2"``), else the built-in table of the model, else the first
     error of the model's table whose English text has a matching keyword (response 2 for read-only).
     """
-    settings = profile.transport_settings(PROTOCOL)
-    errors: Mapping[int, object] = settings.get("errors", {})
+    settings = profibus_settings(profile)
+    errors: Mapping[int, object] = settings.errors
     answers: dict[Refusal | str, PkwAnswer] = dict(REFUSAL_ANSWERS.get(profile.name, {}))
     if not answers:
         answers[Refusal.READ_ONLY] = _R2
@@ -104,23 +104,10 @@ def refusal_answers(profile: Profile) -> dict[Refusal | str, PkwAnswer]:
                     break
             else:
                 answers[key] = _r3(min(errors) if errors else 0)
-    custom = settings.get("refusals", {})
-    if not isinstance(custom, Mapping):
-        raise ConfigurationError(f"{profile.source}: transports.{PROTOCOL}.refusals must be a table")
     names: dict[str, Refusal | str] = {r.name.lower(): r for r in Refusal}
     names[UNSUPPORTED_TASK] = UNSUPPORTED_TASK
-    for name, value in custom.items():
-        if name not in names:
-            raise ConfigurationError(f"{profile.source}: transports.{PROTOCOL}.refusals.{name}: unknown refusal")
-        if value == "response 2":
-            answers[names[name]] = _R2
-        elif isinstance(value, int) and 0 <= value <= 0xFFFF:
-            answers[names[name]] = _r3(value)
-        else:
-            raise ConfigurationError(
-                f"{profile.source}: transports.{PROTOCOL}.refusals.{name}: {value!r} is not an error number "
-                "or 'response 2'"
-            )
+    for name, value in settings.refusals.items():  # checked when the profile loaded
+        answers[names[name]] = _R2 if value == RESPONSE_2 else _r3(int(value))
     return answers
 
 
@@ -133,7 +120,7 @@ class SimulatedDpSlave:
         self.starter = starter
         self.profile = starter.profile
         self.ppo = Ppo(ppo)
-        if self.ppo.value not in self.profile.transport_settings(PROTOCOL).get("ppo", []):
+        if self.ppo.value not in profibus_settings(self.profile).ppo:
             raise ConfigurationError(f"{self.profile.display_name} does not offer {self.ppo.name} (profile 'ppo')")
         if latency < 0:
             raise ValueError("latency is a number of exchanges >= 0")

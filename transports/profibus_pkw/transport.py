@@ -31,6 +31,7 @@ from starterbus.core.url import DeviceUrl
 from starterbus.transports.profibus_pkw.channels import Channel, GatewayChannel, SimChannel, get_slave
 from starterbus.transports.profibus_pkw.handshake import MAX_INHERITED, Limits, PkwEngine
 from starterbus.transports.profibus_pkw.link import CyclicLink
+from starterbus.transports.profibus_pkw.settings import profibus_settings
 from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
 from starterbus.transports.profibus_pkw.telegram import (
     NO_TASK,
@@ -96,16 +97,16 @@ class LinkSettings:
         if number not in (1, 3):
             raise ConfigurationError(f"{url.text}: ppo: {number} is not 1 (PPO1, 'type I') or 3 (PPO3, 'type III')")
         ppo = Ppo(number)
-        settings = profile.transport_settings(PROTOCOL)
-        offered = list(settings.get("ppo", []))
+        settings = profibus_settings(profile)
+        offered = settings.ppo
         if ppo.value not in offered:
             raise UnsupportedOperationError(
                 f"{profile.display_name} does not offer {ppo.name} over Profibus (it offers: "
                 f"{', '.join(f'PPO{n}' for n in offered) or 'none'})"
             )
         station = url.get_int("station", 0, 0, 127) if "station" in url.query else None
-        stations = settings.get("stations")
-        if station is not None and stations and not stations[0] <= station <= stations[1]:
+        stations = settings.stations
+        if station is not None and not stations[0] <= station <= stations[1]:
             raise ConfigurationError(
                 f"{url.text}: station: {station} is outside {profile.display_name}'s range {stations[0]}..{stations[1]}"
             )
@@ -156,7 +157,7 @@ class ProfibusPkwTransport(Transport):
         self.ppo = self.settings.ppo
         self.link: CyclicLink | None = None
         self.control = ControlWordState()
-        self._errors = profile.transport_settings(PROTOCOL).get("errors", {})
+        self._errors = profibus_settings(profile).errors
 
     # -- lifecycle -----------------------------------------------------------------------------------------
 
@@ -189,9 +190,7 @@ class ProfibusPkwTransport(Transport):
             timeout=min(s.limits.timeout, 5.0),
         )
 
-    def open(self) -> None:
-        if self.link is not None:
-            return
+    def _open(self) -> None:
         s = self.settings
         engine = PkwEngine(self._errors, s.limits)
         link = CyclicLink(self.make_channel(), engine, cycle=s.cycle, hold=s.hold, pulse=s.pulse, name=self.url.text)
@@ -207,15 +206,14 @@ class ProfibusPkwTransport(Transport):
         self.control = ControlWordState(bus_control=True, run=running)
         self.link = link
 
-    def close(self) -> None:
+    def _close(self) -> None:
         link, self.link = self.link, None
         if link is not None:
             link.close()
 
     def _link(self) -> CyclicLink:
         if self.link is None:
-            self.open()
-        assert self.link is not None
+            raise self._not_open()
         return self.link
 
     # -- what it can do --------------------------------------------------------------------------------
@@ -228,9 +226,10 @@ class ProfibusPkwTransport(Transport):
         where = f" station {self.settings.station}" if self.settings.station is not None else ""
         return f"{self.url.text}{where}"
 
-    def _require_pkw(self, what: str) -> None:
-        if not self.ppo.has_pkw:
-            raise self.unsupported(what, "PPO3 carries no PKW area (use ppo=1 for parameters and measurements)")
+    def _why_not(self, capability: Capability) -> str:
+        if not self.ppo.has_pkw and capability not in PPO3_CAPABILITIES:
+            return "PPO3 carries no PKW area (use ppo=1 for parameters and measurements)"
+        return super()._why_not(capability)
 
     def _index(self, point: PointDef) -> int:
         index: int | None = point.addresses.get(PROTOCOL)
@@ -254,8 +253,7 @@ class ProfibusPkwTransport(Transport):
 
     # -- operations ----------------------------------------------------------------------------------------
 
-    def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
-        self._require_pkw("read parameters or measurements")
+    def _read_points(self, points: Sequence[PointDef]) -> list[Reading]:
         requests = [(p, self.request_for(p)) for p in points]
         link = self._link()
         readings = []
@@ -265,8 +263,7 @@ class ProfibusPkwTransport(Transport):
             readings.append(Reading(point, job.response.pwe))
         return readings
 
-    def write_parameter(self, point: PointDef, raw: int) -> None:
-        self._require_pkw("write parameters")
+    def _write_parameter(self, point: PointDef, raw: int) -> None:
         request = self.request_for(point, raw)
         job = self._link().pkw(request, f"write {point.key} ({point.address}) = {raw}")
         assert job.response is not None
@@ -277,12 +274,12 @@ class ProfibusPkwTransport(Transport):
                 "PWE",
             )
 
-    def read_status(self) -> Status:
+    def _read_status(self) -> Status:
         words = self._link().inputs(self.settings.limits.timeout)
         zsw, act = (words[2], words[3]) if self.ppo is Ppo.PPO1 else (words[0], words[1])
         return status_with_currents(self.profile, zsw, [act], source=PROTOCOL, scale=ACT_SCALE, extra_raw={"act": act})
 
-    def send_command(self, command: Command) -> None:
+    def _send_command(self, command: Command) -> None:
         link = self._link()
         words = self.control.apply(command)
         link.send_control(words, self.settings.limits.timeout)
@@ -293,14 +290,13 @@ class ProfibusPkwTransport(Transport):
         words = output_words(self.ppo, pkw, stw)
         return hex_text(b"".join(w.to_bytes(2, "big") for w in words))
 
-    def preview_write(self, point: PointDef, raw: int) -> list[str]:
+    def _preview_write(self, point: PointDef, raw: int) -> list[str]:
         """The output telegrams of a write: the clear cycle ("no task"), then the task repeated until answered."""
-        self._require_pkw("write parameters")
         request = self.request_for(point, raw)
         stw = self.control.word
         return [self._telegram_hex(NO_TASK, stw), self._telegram_hex(request, stw)]
 
-    def preview_command(self, command: Command) -> list[str]:
+    def _preview_command(self, command: Command) -> list[str]:
         """The output telegrams of a command, one per control word (each held for ``hold`` exchanges)."""
         state = ControlWordState(self.control.bus_control, self.control.run)
         return [self._telegram_hex(NO_TASK, word) for word in state.apply(command)]

@@ -24,7 +24,8 @@ from starterbus_canopen.codes import (
     decode_rpdo1,
     emcy_meaning,
 )
-from starterbus_canopen.od import PLUGIN_NAME, PdoLayout
+from starterbus_canopen.od import PdoLayout
+from starterbus_canopen.settings import PLUGIN_NAME
 
 Field = tuple[str, str, str]
 _CANDUMP = re.compile(r"([0-9A-Fa-f]{1,3})#((?:[0-9A-Fa-f]{2}\.?)*)")

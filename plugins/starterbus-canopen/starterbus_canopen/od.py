@@ -8,50 +8,15 @@ public). PDO set 1 (design, in the spirit of CiA 442): TPDO1 = status word + pha
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 from canopen import objectdictionary as odm
 
 from starterbus.core import ConfigurationError, PointDef, Profile
 from starterbus_canopen.codes import RPDO1_BASE, TPDO1_BASE
+from starterbus_canopen.settings import PLUGIN_NAME, CanopenSettings
 
-PLUGIN_NAME = "canopen"
 MASTER_NODE_DEFAULT = 0x7F
-
-
-@dataclass(frozen=True, slots=True)
-class Identity:
-    vendor_id: int = 0
-    product_code: int = 0
-    revision: int = 0
-    serial_number: int = 0
-
-
-@dataclass(frozen=True, slots=True)
-class CanopenSettings:
-    """The profile's ``[transports.canopen]`` table, parsed (see ``CanopenPlugin.check_settings``)."""
-
-    node_ids: tuple[int, int] = (1, 127)
-    device_type: int = 0
-    identity: Identity = Identity()
-
-    @classmethod
-    def of(cls, profile: Profile) -> CanopenSettings:
-        data: Mapping[str, Any] = profile.transport_settings(PLUGIN_NAME)
-        lo, hi = data.get("node_ids", [1, 127])
-        ident = data.get("identity", {})
-        return cls(
-            (int(lo), int(hi)),
-            int(data.get("device_type", 0)),
-            Identity(
-                int(ident.get("vendor_id", 0)),
-                int(ident.get("product_code", 0)),
-                int(ident.get("revision", 0)),
-                int(ident.get("serial_number", 0)),
-            ),
-        )
 
 
 @dataclass(frozen=True, slots=True)

@@ -19,9 +19,7 @@ from starterbus.core import (
     Transport,
     TransportPlugin,
 )
-
-_SETTINGS = ("node_ids", "device_type", "identity")
-_IDENTITY = ("vendor_id", "product_code", "revision", "serial_number")
+from starterbus_canopen.settings import CanopenSettings
 
 
 def _int(value: object) -> bool:
@@ -60,30 +58,12 @@ class CanopenPlugin(TransportPlugin):
             )
         return int(value[0]), int(value[1])
 
-    def check_settings(self, settings: Mapping[str, Any]) -> None:
+    def parse_settings(self, settings: Mapping[str, Any]) -> CanopenSettings:
         """``[transports.canopen]``: node_ids = [lo, hi], device_type (0x1000), identity = {...} (0x1018)."""
-        unknown = sorted(set(settings) - set(_SETTINGS))
-        if unknown:
-            raise ConfigurationError(f"unknown key(s) {unknown} (known: {', '.join(_SETTINGS)})")
-        ids = settings.get("node_ids", [1, 127])
-        if (
-            not isinstance(ids, list)
-            or len(ids) != 2
-            or not all(_int(v) and 1 <= v <= 127 for v in ids)
-            or (ids[0] > ids[1])
-        ):
-            raise ConfigurationError(f"node_ids: {ids!r} is not [lo, hi] within 1..127")
-        device_type = settings.get("device_type", 0)
-        if not _int(device_type) or not 0 <= device_type <= 0xFFFFFFFF:
-            raise ConfigurationError(f"device_type: {device_type!r} is not a 32-bit unsigned integer")
-        identity = settings.get("identity", {})
-        if not isinstance(identity, Mapping):
-            raise ConfigurationError(f"identity: {identity!r} is not a table")
-        for key, value in identity.items():
-            if key not in _IDENTITY:
-                raise ConfigurationError(f"identity.{key}: unknown key (known: {', '.join(_IDENTITY)})")
-            if not _int(value) or not 0 <= value <= 0xFFFFFFFF:
-                raise ConfigurationError(f"identity.{key}: {value!r} is not a 32-bit unsigned integer")
+        return CanopenSettings.parse(settings)
+
+    def check_settings(self, settings: Mapping[str, Any]) -> None:
+        self.parse_settings(settings)
 
     # -- simulate (argparse glue in one module, see sim_cli) ------------------------------------------------------
 

@@ -30,7 +30,8 @@ from starterbus_canopen.codes import (
     Tpdo1,
     decode_rpdo1,
 )
-from starterbus_canopen.od import MASTER_NODE_DEFAULT, PLUGIN_NAME, PdoLayout, address, build_od
+from starterbus_canopen.od import MASTER_NODE_DEFAULT, PdoLayout, address, build_od
+from starterbus_canopen.settings import PLUGIN_NAME
 
 ABORT_GENERAL = 0x08000000
 ABORT_LENGTH = 0x06070010

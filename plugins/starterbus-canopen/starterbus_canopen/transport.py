@@ -39,7 +39,8 @@ from starterbus.core import (
 from starterbus.core.canbus import check_peer
 from starterbus.core.status import decode_status_word
 from starterbus_canopen.codes import RPDO1_BASE, TPDO1_BASE, Tpdo1, abort_meaning, encode_rpdo1
-from starterbus_canopen.od import PLUGIN_NAME, PdoLayout, build_od
+from starterbus_canopen.od import PdoLayout, build_od
+from starterbus_canopen.settings import PLUGIN_NAME
 from starterbus_canopen.url import CanopenUrl
 
 NMT_START = 0x01
@@ -90,7 +91,7 @@ class CanopenTransport(Transport):
     def describe(self) -> str:
         return f"{self.url.text} (node {self.options.node})"
 
-    def open(self) -> None:
+    def _open(self) -> None:
         o = self.options
         network = canopen.Network()
         network.NOTIFIER_CYCLE = 0.05  # the notifier thread ends promptly on close
@@ -126,7 +127,7 @@ class CanopenTransport(Transport):
         self._rpdo_task = None
         network.disconnect()
 
-    def close(self) -> None:
+    def _close(self) -> None:
         network, self._network, self._node = self._network, None, None
         if network is not None:
             self._stop(network)
@@ -180,20 +181,20 @@ class CanopenTransport(Transport):
             )
         return int.from_bytes(data, "little")
 
-    def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
+    def _read_points(self, points: Sequence[PointDef]) -> list[Reading]:
         out = []
         for point in points:
             index, subindex = self._address(point, f"read {point.key}")
             out.append(Reading(point, self._upload_u(index, subindex, 2, point.key)))
         return out
 
-    def write_parameter(self, point: PointDef, raw: int) -> None:
+    def _write_parameter(self, point: PointDef, raw: int) -> None:
         index, subindex = self._address(point, f"write {point.key}")
         _, node = self._require()
         what = f"write {point.key} = {raw} at 0x{index:04X}:{subindex:02X}"
         self._sdo(what, node.sdo.download, index, subindex, raw.to_bytes(2, "little"))
 
-    def identify(self) -> dict[str, object]:
+    def _identify(self) -> dict[str, object]:
         return {
             "device_type": f"0x{self._upload_u(0x1000, 0, 4, 'device type'):08X}",
             "vendor_id": f"0x{self._upload_u(0x1018, 1, 4, 'vendor-ID'):08X}",
@@ -222,7 +223,7 @@ class CanopenTransport(Transport):
             return None
         return sample
 
-    def read_status(self) -> Status:
+    def _read_status(self) -> Status:
         self._require()
         layout = self.layout
         sample = self._fresh_tpdo()
@@ -252,7 +253,7 @@ class CanopenTransport(Transport):
         state = ControlWordState(self._control.bus_control, self._control.run)
         return state.apply(command)
 
-    def send_command(self, command: Command) -> None:
+    def _send_command(self, command: Command) -> None:
         network, _ = self._require()
         words = self._control.apply(command)
         cob = RPDO1_BASE + self.options.node
@@ -271,12 +272,12 @@ class CanopenTransport(Transport):
 
     # -- dry runs --------------------------------------------------------------------------------------------
 
-    def preview_write(self, point: PointDef, raw: int) -> list[str]:
+    def _preview_write(self, point: PointDef, raw: int) -> list[str]:
         index, subindex = self._address(point, f"write {point.key}")
         frame = sdo_download_frame(self.options.node, index, subindex, raw)
         return [f"{frame}  SDO expedited download 0x{index:04X}:{subindex:02X} = {raw} ({point.key})"]
 
-    def preview_command(self, command: Command) -> list[str]:
+    def _preview_command(self, command: Command) -> list[str]:
         cob = RPDO1_BASE + self.options.node
         words = self._rpdo_frames(command)
         return [

@@ -5,7 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from starterbus.core import ConfigurationError, DeviceUrl, Profile
-from starterbus_canopen.od import MASTER_NODE_DEFAULT, CanopenSettings
+from starterbus_canopen.od import MASTER_NODE_DEFAULT
+from starterbus_canopen.settings import CanopenSettings
 
 URL_PARAMETERS = ("node", "bitrate", "heartbeat", "master", "timeout", "max_age", "cycle")
 BITRATES = (10_000, 20_000, 50_000, 125_000, 250_000, 500_000, 800_000, 1_000_000)

@@ -198,10 +198,10 @@ def test_bad_addresses_are_refused(value: object) -> None:
 @pytest.mark.parametrize(
     ("settings", "error"),
     [
-        ({"node_id": [1, 5]}, "unknown key"),
+        ({"node_id": [1, 5]}, "node_id: unknown setting"),
         ({"node_ids": [0, 5]}, "node_ids"),
         ({"device_type": -1}, "device_type"),
-        ({"identity": {"vendor": 1}}, "identity.vendor: unknown key"),
+        ({"identity": {"vendor": 1}}, "identity.vendor: unknown setting"),
         ({"identity": {"vendor_id": 2**32}}, "identity.vendor_id"),
     ],
 )

@@ -1,0 +1,95 @@
+"""What a fleet poller gets from a transport: a poll's result, the plan of its requests, the wire counters."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+from starterbus.core.model import Reading
+from starterbus.core.status import Status
+
+
+@dataclass(frozen=True, slots=True)
+class PollResult:
+    """One poll of one device: its status (if asked for) and the points asked for, in the order asked."""
+
+    status: Status | None
+    readings: list[Reading]
+
+
+@dataclass(frozen=True, slots=True)
+class PlannedRequest:
+    """One request of a device's poll plan, for display (``starterbus poll FLEET --plan``).
+
+    ``wire_time``: seconds the request and its answer occupy the line (silences included) at the line's speed;
+    None where the transport cannot tell (a cyclic bus whose master refreshes inputs by itself).
+    """
+
+    text: str
+    registers: int
+    request_bytes: int = 0
+    answer_bytes: int = 0
+    wire_time: float | None = None
+
+    def as_json(self) -> dict[str, object]:
+        return {
+            "request": self.text,
+            "registers": self.registers,
+            "request_bytes": self.request_bytes,
+            "answer_bytes": self.answer_bytes,
+            "wire_time": self.wire_time,
+        }
+
+
+@dataclass(slots=True)
+class TransportCounters:
+    """What one transport put on the wire since it was made (counters only grow).
+
+    ``requests`` counts frames sent, retries included; ``transactions`` the calls that sent them; ``timeouts``
+    and ``errors`` the transactions that failed (no answer; any failure); ``busy_time`` the time the transport
+    held its line (0 if it does not measure it); ``wire_time`` the time its frames and silences occupied the wire.
+    """
+
+    transactions: int = 0
+    requests: int = 0
+    retries: int = 0
+    timeouts: int = 0
+    errors: int = 0
+    bytes_sent: int = 0
+    bytes_received: int = 0
+    busy_time: float = 0.0
+    wire_time: float = 0.0
+
+    def _values(self) -> tuple[int, int, int, int, int, int, int, float, float]:
+        return (
+            self.transactions, self.requests, self.retries, self.timeouts, self.errors,
+            self.bytes_sent, self.bytes_received, self.busy_time, self.wire_time,
+        )  # fmt: skip
+
+    def copy(self) -> TransportCounters:
+        return TransportCounters(*self._values())
+
+    def add(self, other: TransportCounters) -> None:
+        self.transactions += other.transactions
+        self.requests += other.requests
+        self.retries += other.retries
+        self.timeouts += other.timeouts
+        self.errors += other.errors
+        self.bytes_sent += other.bytes_sent
+        self.bytes_received += other.bytes_received
+        self.busy_time += other.busy_time
+        self.wire_time += other.wire_time
+
+    def minus(self, other: TransportCounters) -> TransportCounters:
+        a, b = self._values(), other._values()
+        return TransportCounters(
+            a[0] - b[0], a[1] - b[1], a[2] - b[2], a[3] - b[3], a[4] - b[4], a[5] - b[5], a[6] - b[6],
+            a[7] - b[7], a[8] - b[8],
+        )  # fmt: skip
+
+    def as_json(self) -> dict[str, object]:
+        out: dict[str, object] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            out[f.name] = round(value, 6) if isinstance(value, float) else value
+        return out
