@@ -13,7 +13,7 @@ if TYPE_CHECKING:
 
     from starterbus.core.audit import AuditLog
     from starterbus.core.canbridge import LoopbackBridge, parse_bridge_address
-    from starterbus.core.canbus import open_bus, parse_bus_spec
+    from starterbus.core.canbus import check_peer, open_bus, parse_bus_spec
     from starterbus.core.canbus import shutdown as shutdown_bus
     from starterbus.core.device import Device, open_device
     from starterbus.core.errors import (
@@ -60,6 +60,7 @@ if TYPE_CHECKING:
         MotorState,
         Status,
         decode_status_word,
+        describe_control_word,
         encode_status_word,
         status_with_currents,
     )
@@ -137,11 +138,13 @@ _LAZY = {
     "parse_host_port": "starterbus.core.textinput",
     "check_loopback": "starterbus.core.textinput",
     "open_bus": "starterbus.core.canbus",
+    "check_peer": "starterbus.core.canbus",
     "parse_bus_spec": "starterbus.core.canbus",
     "shutdown_bus": "starterbus.core.canbus:shutdown",
     "LoopbackBridge": "starterbus.core.canbridge",
     "parse_bridge_address": "starterbus.core.canbridge",
     "decode_status_word": "starterbus.core.status",
+    "describe_control_word": "starterbus.core.status",
     "encode_status_word": "starterbus.core.status",
     "status_with_currents": "starterbus.core.status",
     "PHASE_NAMES": "starterbus.core.status",
@@ -225,7 +228,9 @@ __all__ = [
     "ValidationError",
     "Value",
     "check_loopback",
+    "check_peer",
     "decode_status_word",
+    "describe_control_word",
     "encode_status_word",
     "get_profile",
     "get_transport",

@@ -9,7 +9,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from starterbus.core.errors import DecodeError, Refusal
+from starterbus.core import DecodeError, Refusal
 
 #: CiA 301 table 22 (SDO abort codes)
 ABORT_CODES: dict[int, str] = {

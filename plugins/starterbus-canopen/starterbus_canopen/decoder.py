@@ -13,8 +13,15 @@ import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from starterbus.core import Annotation, DecodeError, PointDef, Profile, StarterbusError
-from starterbus.core.status import decode_status_word, describe_control_word
+from starterbus.core import (
+    Annotation,
+    DecodeError,
+    PointDef,
+    Profile,
+    StarterbusError,
+    decode_status_word,
+    describe_control_word,
+)
 from starterbus_canopen.codes import (
     ERROR_REGISTER_BITS,
     NMT_COMMANDS,

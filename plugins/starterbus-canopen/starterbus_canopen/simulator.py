@@ -18,8 +18,14 @@ from typing import Any
 import can
 import canopen
 
-from starterbus.core import ConfigurationError, DecodeError, PointDef, RunningSimulator, SimulatedStarter
-from starterbus.core.errors import SimulatorRefusal
+from starterbus.core import (
+    ConfigurationError,
+    DecodeError,
+    PointDef,
+    RunningSimulator,
+    SimulatedStarter,
+    SimulatorRefusal,
+)
 from starterbus_canopen.codes import (
     EMCY_HEARTBEAT,
     ER_COMMUNICATION,

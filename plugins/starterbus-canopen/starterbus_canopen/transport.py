@@ -35,9 +35,9 @@ from starterbus.core import (
     Transport,
     TransportError,
     Value,
+    check_peer,
+    decode_status_word,
 )
-from starterbus.core.canbus import check_peer
-from starterbus.core.status import decode_status_word
 from starterbus_canopen.codes import RPDO1_BASE, TPDO1_BASE, Tpdo1, abort_meaning, encode_rpdo1
 from starterbus_canopen.od import PdoLayout, build_od
 from starterbus_canopen.settings import PLUGIN_NAME
