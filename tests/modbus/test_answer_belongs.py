@@ -189,8 +189,11 @@ def test_late_answers_by_every_margin_are_never_values() -> None:
     with pty_peer(schedule, 3) as (path, peer), rtu_transport(f"modbus-rtu://{path}?{PARAMS}&retries=0") as transport:
         tally = read_and_check(transport, peer, 2 * len(schedule), 3, (2,))
     if peer.skipped == 0:
-        # a late answer is a timeout, or "truncated" when its first piece beat the master's own deadline check
-        assert sum(tally.errors.values()) >= len(schedule) and tally.values, tally
+        # a late answer is a timeout, or "truncated" when its first piece beat the master's own deadline check;
+        # usually its quarantine costs the next read too, but a master held up by a loaded machine may get past
+        # that window unharmed (seen once: 23 of 24), so only one error per late answer is certain
+        late = sum(1 for kind, _ in schedule if kind != "ok")
+        assert sum(tally.errors.values()) >= late and tally.values, tally
 
 
 def test_one_late_answer_is_not_the_next_reads_value() -> None:
