@@ -85,6 +85,12 @@ def test_a_closed_pipe_ends_quietly_however_little_was_written(words: list[str])
     assert (result.returncode, result.stderr) == (0, "")
 
 
+def test_a_stream_ends_when_its_reader_goes_away() -> None:
+    """`demo --json | head -1`: the polling stops cleanly at the first failed write, long before the duration."""
+    result = closed_pipe("demo", "--json", "--duration", "600")  # (the subprocess's timeout is 60 s)
+    assert (result.returncode, result.stderr) == (0, "")  # no summary either: nobody reads any more
+
+
 def test_plot_json(tmp_path: Path) -> None:
     db = tmp_path / "h.db"
     event = write_start_history(db)
