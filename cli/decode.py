@@ -20,6 +20,9 @@ _OWN_DESTS = ("help", "model", "json", "file", "data", "protocol", "handler", "c
 
 
 def add_subparsers(parser: argparse.ArgumentParser) -> None:
+    # `decode --json PROTOCOL ...` as well as `decode PROTOCOL --json ...`; the protocol's own --json has no
+    # default, or its False would overwrite the True given before the protocol
+    parser.add_argument("--json", action="store_true", help="machine-readable output")
     sub = parser.add_subparsers(dest="protocol", required=True, metavar="PROTOCOL")
     for entry in plugin_order(transports.load_all()):
         plugin = entry.loaded
@@ -53,7 +56,7 @@ def _add_decoder(sub: argparse._SubParsersAction[argparse.ArgumentParser], plugi
         return
     p = command()
     p.add_argument("--model", default=None, help="device model, for names and engineering values")
-    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--json", action="store_true", default=argparse.SUPPRESS, help="machine-readable output")
     p.add_argument(
         "data",
         nargs="*",

@@ -80,7 +80,8 @@ def prompt_hook(args: argparse.Namespace) -> Confirm:
                 print(f"  note: {planned.uncertainty}", file=sys.stderr)
         for frame in proposal.frames:
             print(f"  frame: {frame}", file=sys.stderr)
-        answer = input(f"{proposal.question()} [y/N] ").strip().lower()
+        print(f"{proposal.question()} [y/N] ", end="", file=sys.stderr, flush=True)  # stdout may be JSON for a pipe
+        answer = sys.stdin.readline().strip().lower()
         return answer in ("y", "yes")
 
     return ask

@@ -257,6 +257,11 @@ def parse_arguments(argv: Sequence[str]) -> argparse.Namespace:
     return args
 
 
+def _stdout_closed() -> None:
+    """The reader went away: what is still buffered goes nowhere, so Python's exit-time flush cannot fail."""
+    os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     from starterbus.core.errors import StarterbusError
 
@@ -273,13 +278,21 @@ def main(argv: Sequence[str] | None = None) -> int:
             module, _, function = handler.partition(":")
             handler = getattr(_module(module), function)
             assert callable(handler)
-        return handler(args)
+        code = handler(args)
+        sys.stdout.flush()  # a closed pipe shows here, not at exit (where Python prints a traceback, exit 120)
+        return code
     except StarterbusError as exc:
         print(f"starterbus: error: {exc}", file=sys.stderr)
         return 1
     except BrokenPipeError:  # output piped into `head` and the like: the reader has what it wanted
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        _stdout_closed()
         return 0
+    except SystemExit:  # --help, --version, a usage error: their output may meet a closed pipe too
+        try:
+            sys.stdout.flush()
+        except BrokenPipeError:
+            _stdout_closed()
+        raise
     except OSError as exc:
         print(f"starterbus: error: {exc}", file=sys.stderr)
         return 1

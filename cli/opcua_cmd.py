@@ -13,6 +13,8 @@ import os
 import sys
 from pathlib import Path
 
+from starterbus.cli.lifetime import until_signalled
+from starterbus.cli.output import emit_json, emit_json_line
 from starterbus.core.errors import ConfigurationError
 from starterbus.core.registry import get_profile
 from starterbus.core.status import Command
@@ -49,6 +51,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
         "--locale", choices=["en", "zh"], default="en", help="language of display names (the other: descriptions)"
     )
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
+    p.add_argument("--json", action="store_true", help="one JSON line when the server is up (endpoint, devices...)")
     p.set_defaults(handler=cmd_opcua)
 
     p = sub.add_parser("opcua-user", help="add or change a user of the OPC UA server (password asked, stored hashed)")
@@ -56,6 +59,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p.add_argument("name", metavar="NAME")
     p.add_argument("--role", choices=["operator", "read-only"], default="read-only", help="default %(default)s")
     p.add_argument("--delete", action="store_true", help="remove the user instead")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(handler=cmd_opcua_user)
 
 
@@ -110,28 +114,41 @@ def cmd_opcua(args: argparse.Namespace) -> int:
         from starterbus.fleet.demo import demo_fleet
 
         with demo_fleet() as demo:
-            return asyncio.run(_serve(demo_remote(demo.config), settings, args.duration))
-    return asyncio.run(_serve(load_fleet(args.fleet), settings, args.duration))
+            return asyncio.run(_serve(demo_remote(demo.config), settings, args))
+    return asyncio.run(_serve(load_fleet(args.fleet), settings, args))
 
 
-async def _serve(config: FleetConfig, settings: object, duration: float | None) -> int:
+async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace) -> int:
     from starterbus.aio import AsyncFleet
     from starterbus.opcua.server import OpcUaServer, OpcUaSettings
 
     assert isinstance(settings, OpcUaSettings)
+    stop = asyncio.Event()
+    interrupted = until_signalled(stop, args.duration)
     async with AsyncFleet(config) as fleet, OpcUaServer(fleet, settings) as server:
-        security = "Basic256Sha256 Sign, SignAndEncrypt" + (", None" if settings.allow_insecure else "")
-        count = len(settings.users)
-        users = f"{count} user{'' if count == 1 else 's'}" + (", anonymous read-only" if settings.anonymous else "")
-        print(
-            f"OPC UA: {len(config.devices)} devices on {server.endpoint_url} ({security}; {users})",
-            flush=True,
-        )
-        if duration is None:
-            await asyncio.Event().wait()
+        policies = [
+            "Basic256Sha256 Sign",
+            "Basic256Sha256 SignAndEncrypt",
+            *(["None"] if settings.allow_insecure else []),
+        ]
+        if args.json:
+            emit_json_line(
+                {
+                    "event": "ready",
+                    "endpoint": server.endpoint_url,
+                    "devices": [d.name for d in config.devices],
+                    "security": policies,
+                    "users": len(settings.users),
+                    "anonymous": settings.anonymous,
+                }
+            )
         else:
-            await asyncio.sleep(duration)
-    return 0
+            count = len(settings.users)
+            users = f"{count} user{'' if count == 1 else 's'}" + (", anonymous read-only" if settings.anonymous else "")
+            security = "Basic256Sha256 Sign, SignAndEncrypt" + (", None" if settings.allow_insecure else "")
+            print(f"OPC UA: {len(config.devices)} devices on {server.endpoint_url} ({security}; {users})", flush=True)
+        await stop.wait()
+    return 130 if interrupted else 0
 
 
 def cmd_opcua_user(args: argparse.Namespace) -> int:
@@ -150,7 +167,11 @@ def cmd_opcua_user(args: argparse.Namespace) -> int:
     os.fchmod(fd, 0o600)  # also an existing file: it holds password hashes
     with os.fdopen(fd, "w", encoding="utf-8") as f:
         f.write(dump_users(users))
-    print(f"{path}: {'removed' if args.delete else 'set'} {args.name}")
+    if args.json:
+        role = None if args.delete else args.role
+        emit_json({"file": str(path), "user": args.name, "action": "removed" if args.delete else "set", "role": role})
+    else:
+        print(f"{path}: {'removed' if args.delete else 'set'} {args.name}")
     return 0
 
 

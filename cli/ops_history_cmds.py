@@ -25,7 +25,7 @@ _DEVICE_HELP = "{}: its name in the database (a fleet file's device name), or a 
 
 
 def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted: str) -> None:
-    from starterbus.cli.main import _device_args, _fleet_arg
+    from starterbus.cli.main import _device_args, _fleet_arg, _json_flag
 
     p = sub.add_parser("history", help="query a history database written by `poll --record` or `record`")
     p.add_argument("db", metavar="DB")
@@ -60,6 +60,7 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted
         "--event", required=True, type=int, metavar="N", help="a start or state event id (`history --events`)"
     )
     p.add_argument("-o", "--output", metavar="FILE", help="the PNG to write (default DB-DEVICE-event-N.png)")
+    _json_flag(p)
     p.set_defaults(handler=cmd_plot)
 
 
@@ -173,5 +174,8 @@ def cmd_plot(args: argparse.Namespace) -> int:
     device = recorded_name(args.device, args.fleet)
     out = args.output or str(Path(args.db).with_suffix("")) + f"-{device}-event-{args.event}.png"
     count = plot_event(args.db, device, args.event, out)
-    print(f"{out}: {count} samples of {device} around event {args.event}")
+    if args.json:
+        emit_json({"file": out, "device": device, "event": args.event, "samples": count})
+    else:
+        print(f"{out}: {count} samples of {device} around event {args.event}")
     return 0

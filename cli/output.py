@@ -73,3 +73,10 @@ def emit_json(data: Any, out: TextIO | None = None) -> None:
     out = out or sys.stdout
     json.dump(data, out, ensure_ascii=False, indent=2, default=str)
     out.write("\n")
+
+
+def emit_json_line(data: Any, out: TextIO | None = None) -> None:
+    """One JSON object on one line, flushed: the stream of a long-running command (``serve``, ``opcua``)."""
+    out = out or sys.stdout
+    out.write(json.dumps(data, ensure_ascii=False, default=str) + "\n")
+    out.flush()

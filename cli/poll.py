@@ -108,8 +108,9 @@ def run_fleet(
     csv_log = CsvLog(csv_path, config, long=csv_long) if csv_path else None
     if csv_log is not None:
         sinks.append(csv_log)
-    if json_out:
-        sinks.append(JsonLines(out))
+    json_lines = JsonLines(out) if json_out else None
+    if json_lines is not None:
+        sinks.append(json_lines)
 
     def on_sample(sample: Sample) -> None:
         for sink in sinks:
@@ -127,6 +128,8 @@ def run_fleet(
         while poller.running:
             if deadline is not None and time.monotonic() >= deadline:
                 break
+            if json_lines is not None and json_lines.closed:  # the reader went away (`| head -1`)
+                break
             poller.stopping.wait(refresh if in_place else 0.2)
             if in_place:
                 render(poller, out, True, banner() if banner else "")
@@ -140,6 +143,8 @@ def run_fleet(
         poller.stop()
         if csv_log is not None:
             csv_log.close()
+    if json_lines is not None and json_lines.closed:
+        raise BrokenPipeError("the JSON reader went away")  # after the clean stop; `main` exits 0 quietly
     if not json_out:
         render(poller, out, in_place)
     if interrupted:

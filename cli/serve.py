@@ -6,12 +6,13 @@ import argparse
 import asyncio
 import contextlib
 import logging
-import signal
 import socket
 import sys
 import threading
 from pathlib import Path
 
+from starterbus.cli.lifetime import until_signalled
+from starterbus.cli.output import emit_json_line
 from starterbus.core.errors import ConfigurationError
 
 
@@ -54,6 +55,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p.add_argument("--reconnect-delay", type=float, default=2.0, help="wait between connection attempts, s")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("-v", "--verbose", action="store_true", help="log every connection event")
+    p.add_argument("--json", action="store_true", help="one JSON line once it runs (broker, topic, devices...)")
     p.set_defaults(handler=cmd_serve)
 
 
@@ -106,6 +108,7 @@ async def _serve(args: argparse.Namespace) -> int:
     from starterbus.serve.state import default_state_file, load_bdseq
 
     demo = broker_proc = None
+    interrupted: list[int] = []  # SIGINT once Ctrl-C stopped it: exit 130 after the clean shutdown
     node = args.node or socket.gethostname().split(".")[0]
     try:
         if args.demo:
@@ -149,29 +152,35 @@ async def _serve(args: argparse.Namespace) -> int:
                 fleet, session, broker, state_file=state_file, on_sample=collector.observe,
                 retry_delay=args.reconnect_delay,
             )  # fmt: skip
-            commands = "as the fleet file allows" if options.commands_allowed else "refused (plaintext)"
-            where = f"{session.topic_prefix}/+/{node} on {broker.describe()}"
-            print(f"starterbus serve: {len(session.devices)} devices as {where}; commands {commands}", flush=True)
-            if broker_proc is not None:
-                print(
-                    "  embedded broker: a local mosquitto for trying it out, not for production\n"
-                    f"  watch the traffic: mosquitto_sub -h 127.0.0.1 -p {port} -t 'spBv1.0/#' -v"
-                    "   (payloads are Sparkplug B protobuf)",
-                    flush=True,
-                )
+            stop = asyncio.Event()
+            interrupted = until_signalled(stop, args.duration)
+            metrics = None
+            if not args.json:
+                _print_banner(session, node, broker, broker_proc is not None, options.commands_allowed)
             if args.metrics:
                 mhost, mport, _server = start_metrics_server(args.metrics, collector)
-                print(f"  Prometheus metrics: http://{mhost}:{mport}/metrics", flush=True)
-            stop = asyncio.Event()
-            loop = asyncio.get_running_loop()
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                loop.add_signal_handler(sig, stop.set)
-            if args.duration is not None:
-                loop.call_later(args.duration, stop.set)
+                metrics = f"http://{mhost}:{mport}/metrics"
+                if not args.json:
+                    print(f"  Prometheus metrics: {metrics}", flush=True)
             if demo is not None:
-                _run_demo_scenario(fleet.poller, demo, stop, loop)
-            async with _opcua_server(args, fleet):
-                if args.opcua:
+                _run_demo_scenario(fleet.poller, demo, stop, asyncio.get_running_loop())
+            async with _opcua_server(args, fleet) as opcua:
+                if args.json:
+                    emit_json_line(
+                        {
+                            "event": "ready",
+                            "broker": broker.describe(),
+                            "embedded_broker": broker_proc is not None,
+                            "topic": f"{session.topic_prefix}/+/{node}",
+                            "group": args.group,
+                            "node": node,
+                            "devices": list(session.devices),
+                            "commands": options.commands_allowed,
+                            "metrics": metrics,
+                            "opcua": getattr(opcua, "endpoint_url", None),
+                        }
+                    )
+                elif args.opcua:
                     print(f"  OPC UA: {args.opcua}", flush=True)
                 await driver.run(stop)
     finally:
@@ -179,7 +188,25 @@ async def _serve(args: argparse.Namespace) -> int:
             broker_proc.close()
         if demo is not None:
             demo.close()
-    return 0
+    return 130 if interrupted else 0
+
+
+def _print_banner(session: object, node: str, broker: object, embedded: bool, commands_allowed: bool) -> None:
+    """What ``serve`` prints for a person once it runs (``--json``: one JSON line instead)."""
+    from starterbus.serve.broker import BrokerOptions
+    from starterbus.serve.session import EdgeSession
+
+    assert isinstance(session, EdgeSession) and isinstance(broker, BrokerOptions)
+    commands = "as the fleet file allows" if commands_allowed else "refused (plaintext)"
+    where = f"{session.topic_prefix}/+/{node} on {broker.describe()}"
+    print(f"starterbus serve: {len(session.devices)} devices as {where}; commands {commands}", flush=True)
+    if embedded:
+        print(
+            "  embedded broker: a local mosquitto for trying it out, not for production\n"
+            f"  watch the traffic: mosquitto_sub -h 127.0.0.1 -p {broker.port} -t 'spBv1.0/#' -v"
+            "   (payloads are Sparkplug B protobuf)",
+            flush=True,
+        )
 
 
 def parse_deadbands(items: list[str]) -> tuple[float, dict[str, float]]:

@@ -8,7 +8,7 @@ import threading
 import time
 from typing import TextIO
 
-from starterbus.cli.output import emit_json, paint, table, use_colour
+from starterbus.cli.output import emit_json_line, paint, table, use_colour
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
 from starterbus.core.status import MotorState, Status
@@ -23,7 +23,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: 
         "watch",
         help="watch one device: status and chosen points, refreshed in place",
         description="Poll one device and show its status and points, refreshed in place on a terminal "
-        "(one block per poll on a pipe, one JSON object per poll with --json).",
+        "(one block per poll on a pipe, one JSON line per poll with --json).",
     )
     _device_args(p)
     p.add_argument("keys", nargs="*", metavar="KEY", help="points to show besides the status (default: measurements)")
@@ -49,7 +49,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
             status, values, error = poll(device, keys)
             polls += 1
             if args.json:
-                emit_json(
+                emit_json_line(
                     {
                         "device": args.url,
                         "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),

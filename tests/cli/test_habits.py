@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import pty
 import shutil
 import signal
 import subprocess
@@ -38,13 +39,18 @@ def run(*args: str, stdin: str | None = None, env: dict[str, str] | None = None)
     )
 
 
-def json_docs(text: str) -> list[dict[str, object]]:
-    docs, decoder, rest = [], json.JSONDecoder(), text.strip()
-    while rest:
-        doc, end = decoder.raw_decode(rest)
-        docs.append(doc)
-        rest = rest[end:].strip()
-    return docs
+def spawn(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
+    """The console script in the background, its stdout and stderr piped, and Ctrl-C (SIGINT) handled as in a shell.
+
+    A runner started in the background ignores SIGINT, and a child inherits that: the child gets the default.
+    """
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        return subprocess.Popen(
+            [EXE, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env={**os.environ, **(env or {})}
+        )
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def test_version() -> None:
@@ -108,6 +114,28 @@ def test_device_names_from_a_fleet_file(
     assert "disagrees with the fleet file" in capsys.readouterr().err
 
 
+def test_the_confirmation_asks_on_stderr_so_stdout_stays_json(
+    fleet: tuple[Path, dict[int, SimulatedStarter]], tmp_path: Path
+) -> None:
+    path, starters = fleet
+    terminal, tty = pty.openpty()  # a person at a terminal, the output piped on (`| jq`)
+    proc = subprocess.Popen(
+        [EXE, "write", "conveyor-1", "ramp_time=12", "--fleet", str(path), "--json",
+         "--audit-log", str(tmp_path / "audit.jsonl")],
+        stdin=tty, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    os.close(tty)
+    try:
+        os.write(terminal, b"y\n")  # the answer waits in the terminal's line buffer until the question is read
+        out, err = proc.communicate(timeout=60)
+    finally:
+        os.close(terminal)
+    assert proc.returncode == 0, err
+    assert "[y/N]" in err and "[y/N]" not in out
+    assert [w["key"] for w in json.loads(out)["written"]] == ["ramp_time"]
+    assert starters[2].params["ramp_time"] == 12
+
+
 def test_a_name_without_a_fleet_file_says_how_to_give_one(
     capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 ) -> None:
@@ -142,7 +170,7 @@ def test_watch_once(fleet: tuple[Path, dict[int, SimulatedStarter]]) -> None:
     assert result.returncode == 0, result.stderr
     assert "ready" in result.stdout and "phase_a_current" in result.stdout
     result = run("watch", "conveyor-1", "--fleet", str(path), "--count", "2", "--interval", "0", "--json")
-    states = [d["status"]["state"] for d in json_docs(result.stdout)]  # type: ignore[index]
+    states = [json.loads(line)["status"]["state"] for line in result.stdout.splitlines()]  # JSON lines
     assert result.returncode == 0 and states == ["ready", "ready"]
 
 
@@ -171,14 +199,9 @@ def test_decode_from_stdin_and_candump_logs(tmp_path: Path) -> None:
 def test_simulate_several_models_on_one_line_with_a_fault_script(tmp_path: Path) -> None:
     script = tmp_path / "s.txt"
     script.write_text("0 2 fault 6   # trip at once\n")
-    # a runner started in the background ignores SIGINT, and a child inherits that: give it the default handling
-    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
-    proc = subprocess.Popen(
-        [EXE, "simulate", "--unit", "2:jjr5000", "--unit", "3:ssd1", "--modbus-rtu", "PTY", "--script", str(script),
-         "--json"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
-    signal.signal(signal.SIGINT, previous)
+    proc = spawn(
+        "simulate", "--unit", "2:jjr5000", "--unit", "3:ssd1", "--modbus-rtu", "PTY", "--script", str(script), "--json"
+    )
     try:
         assert proc.stdout is not None and proc.stderr is not None
         listing = json.loads(proc.stdout.readline())

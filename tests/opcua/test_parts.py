@@ -24,7 +24,7 @@ from starterbus.opcua.units import eu_information, unit_id
 from starterbus.opcua.users import Role, dump_users, hash_password, load_users, parse_users, verify_password
 from starterbus.opcua.values import sample_updates
 
-# OPC 10000-8 / UNECE Rec. 20 codes as printed in shared/spec/OPCUA.md section 1
+# OPC 10000-8 / UNECE Rec. 20 codes: docs/opcua.md#engineering-units
 UNECE_VECTORS = [
     ("AMP", 4279632),
     ("SEC", 5457219),

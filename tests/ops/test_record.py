@@ -87,8 +87,8 @@ def test_record_waits_for_the_next_start(line: Line) -> None:
     assert rec.points[0].state == "starting" and rec.points[-1].state == "running"
 
 
-def test_plot_a_start_from_poll_history(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    db = tmp_path / "h.db"
+def write_start_history(db: Path) -> int:
+    """A history database as `poll --record` writes it: device m1 starts at t=100 (60 samples); the event's id."""
     with HistoryStore(db) as store:
         event = store.add_event(100.0, "m1", "state", "ready -> starting", detail={"from": "ready", "to": "starting"})
         store.add_event(105.0, "m1", "state", "running -> stopping", detail={"from": "running", "to": "stopping"})
@@ -99,6 +99,12 @@ def test_plot_a_start_from_poll_history(tmp_path: Path, capsys: pytest.CaptureFi
             values = {"current_limit": {"value": 350}, "motor_rated_current": {"value": 390}}
             store.add_sample({"time": t, "device": "m1", "model": "jjr5000", "online": 1, "state": state,
                               "current_a": amps, "values": values})  # fmt: skip
+    return event
+
+
+def test_plot_a_start_from_poll_history(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    db = tmp_path / "h.db"
+    event = write_start_history(db)
     assert main(["plot", str(db), "--device", "m1", "--event", str(event)]) == 0
     check_png(tmp_path / f"h-m1-event-{event}.png")
     with HistoryStore(db) as store:
