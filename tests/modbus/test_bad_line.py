@@ -26,6 +26,7 @@ from starterbus.core.errors import (
     ValidationError,
 )
 from starterbus.core.status import Command
+from starterbus.testing import wait_until
 from starterbus.transports.modbus.crc import append_crc
 from starterbus.transports.modbus.frames import (
     ExceptionResponse,
@@ -190,7 +191,7 @@ def test_late_answer_from_an_earlier_request_is_not_taken(peer: PtyPeer) -> None
     with device(peer, "timeout=0.1&retries=0") as d:
         with pytest.raises(TimeoutError):
             d.read("motor_rated_current")
-        time.sleep(0.3)  # the late answer is now waiting on the line
+        assert wait_until(lambda: len(peer.replied_at) == 1)  # the late answer is now waiting on the line
         assert d.read_value("motor_rated_current").value == 390
 
 
