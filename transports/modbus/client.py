@@ -107,6 +107,7 @@ class ModbusRtuTransport(Transport):
         control = profile.role("control_word")
         self._control_address = control.address_for(PROTOCOL) if control is not None else None
         self._char_time = char_time(self.config.serial.baudrate)
+        self._two_silences = 2 * self.config.serial.silence  # each request and each answer is followed by one
         self._reads: dict[tuple[int, int], Exchange] = {}  # (address, count) -> the FC03 exchange
         self._writes: dict[tuple[int, int], Exchange] = {}  # (address, value) -> the FC06 exchange
         #: addresses -> the requests that read them and where each value is in their answers
@@ -180,6 +181,14 @@ class ModbusRtuTransport(Transport):
         except StarterbusError as exc:
             self._tally(exchange, line.retries - retries, 0, isinstance(exc, TimeoutError))
             raise
+        if line.retries == retries and response is not None and not isinstance(response, ExceptionResponse):
+            c = self._counters  # the usual case, as _tally counts it: one request, one normal answer
+            c.transactions += 1
+            c.requests += 1
+            c.bytes_sent += len(exchange.frame)
+            c.bytes_received += exchange.answer_length
+            c.wire_time += (len(exchange.frame) + exchange.answer_length) * self._char_time + self._two_silences
+            return response
         if isinstance(response, ExceptionResponse):
             self._tally(exchange, line.retries - retries, EXCEPTION_FRAME_LENGTH, False)
             raise self._remote_error(exchange.request, response)

@@ -131,20 +131,22 @@ class RtuLine:
 
     def _attempts(self, exchange: Exchange) -> Response | None:
         attempts = exchange.attempts
-        guard = self.guard
+        guard, clock = self.guard, self._clock
         for attempt in range(1, attempts + 1):
-            if not guard.send_now(self._clock()):
-                guard.sent(self._wait_quiet(exchange))
-            self.link.write(exchange.frame)
-            sent_at = self._clock()
-            self.requests += 1
+            started = clock()
+            if not guard.send_now(started):
+                started = self._wait_quiet(exchange)
+                guard.sent(started)
             if exchange.broadcast:
-                guard.broadcast_sent(sent_at, exchange.wire, exchange.policy.turnaround)
+                self.link.write(exchange.frame)
+                self.requests += 1
+                guard.broadcast_sent(clock(), exchange.wire, exchange.policy.turnaround)
                 return None
+            self.requests += 1
             try:
-                return self._receive(exchange, sent_at)
+                return self._exchange(exchange, started)
             except (TimeoutError, DecodeError) as exc:
-                guard.failed(self._clock(), exchange.quarantine)  # the next request waits the quarantine
+                guard.failed(clock(), exchange.quarantine)  # the next request waits the quarantine
                 if attempt == attempts:
                     note = f" (attempt {attempt} of {attempts}"
                     note += ")" if exchange.may_retry else "; a write is not repeated unless retry_writes=1)"
@@ -153,46 +155,52 @@ class RtuLine:
                 self.retries += 1
         raise AssertionError("unreachable")  # pragma: no cover
 
-    def _receive(self, exchange: Exchange, sent_at: float) -> Response:
-        """The answer: at least the header and at most the whole answer in the first read (on a pty, usually
-        all of it); the rest of a normal answer in one more read. Anything unusual goes to the receiver."""
-        deadline = sent_at + exchange.budget
-        needed, length = exchange.header_length, exchange.answer_length
-        data = self.link.read(needed, deadline, length, wait=exchange.budget)
-        received_at = self._clock()
-        if needed <= len(data) < length and exchange.good_so_far(data):
-            rest = self.link.read(length - len(data), deadline)
-            if rest:
-                data += rest
-                received_at = self._clock()
-        if len(data) == length:
-            response = exchange.quick_decode(data)
-            if response is not None:
-                return self._deliver(exchange, data, response, received_at)
-        return self._receive_rest(exchange, data, needed, received_at, deadline)
-
-    def _deliver(self, exchange: Exchange, answer: bytes, response: Response, at: float) -> Response:
-        """``response`` (``answer``, complete at ``at``) if the guard lets it through: not sooner than the wire
-        allows, and followed by silence (the silent interval's wait is here, not before the next request)."""
+    def _exchange(self, exchange: Exchange, started: float) -> Response:
+        """Write the request (``started`` no later than its first byte) and return the answer if the guard lets it
+        through: not sooner than the wire allows, and followed by silence (the silent interval's wait is here, not
+        before the next request). The first read takes at least the header and at most the whole answer (on a
+        pty, usually all of it); anything but a whole good answer goes on in :meth:`_receive_rest`."""
+        link, length = self.link, exchange.answer_length
+        deadline = started + exchange.budget
+        link.write(exchange.frame)
+        data = link.read(exchange.header_length, deadline, length, wait=exchange.budget)
+        at = self._clock()
+        response = exchange.quick_decode(data) if len(data) == length else None
+        if response is None:
+            data, response, at = self._receive_rest(exchange, data, at, deadline)
         guard = self.guard
-        error = guard.answer_complete(len(exchange.frame), answer, at)
+        error = guard.answer_complete(len(exchange.frame), data, at)
         if error is not None:
             raise error
         try:
-            extra = self.link.take_input() if self.link.wait_readable(guard.trail_until - at) else b""
+            extra = link.take_input() if link.wait_readable(guard.trail_until - at) else b""
         except TransportError:  # the connection closed after the answer: no byte followed it
             self._broken = True
             extra = b""
         if extra:
-            raise guard.trailing(answer, extra)
+            raise guard.trailing(data, extra)
         guard.delivered()
         return response
 
-    def _receive_rest(self, exchange: Exchange, data: bytes, needed: int, last_rx: float, deadline: float) -> Response:
-        """Anything but a good normal answer: the receiver checks the bytes so far and each piece to come.
+    def _receive_rest(
+        self, exchange: Exchange, data: bytes, last_rx: float, deadline: float
+    ) -> tuple[bytes, Response, float]:
+        """Anything but a whole good answer in the first read: (the answer, its decoding, when it was complete).
 
-        ``data`` is what the reads so far gave (at least ``needed`` bytes unless the time ran out).
+        ``data`` is what the first read gave (at least the header unless the time ran out). The rest of a normal
+        answer is one more read; anything unusual goes to the receiver, which checks each piece and names what
+        is wrong.
         """
+        needed, length = exchange.header_length, exchange.answer_length
+        if needed <= len(data) < length and exchange.good_so_far(data):
+            rest = self.link.read(length - len(data), deadline)
+            if rest:
+                data += rest
+                last_rx = self._clock()
+            if len(data) == length:
+                response = exchange.quick_decode(data)
+                if response is not None:
+                    return data, response, last_rx
         receiver = ResponseReceiver(exchange.request)
         while True:
             if needed:  # ``data`` is what a read of at least ``needed`` bytes gave
@@ -211,7 +219,7 @@ class RtuLine:
             if event is not NEED_DATA:
                 if receiver.trailing:  # an exception answer read together with what followed it
                     raise self.guard.trailing(receiver.frame, receiver.trailing)
-                return self._deliver(exchange, receiver.frame, event, last_rx)
+                return receiver.frame, event, last_rx
             needed = receiver.bytes_needed()
             if needed:
                 data = self.link.read(needed, deadline, receiver.expected_length - len(receiver.received))
