@@ -117,70 +117,68 @@ class RtuLine:
         return self.run(self.prepare(request, policy))
 
     def run(self, exchange: Exchange) -> Response | None:
-        """:meth:`transact` for a prepared request (the same exchange may be run any number of times)."""
+        """:meth:`transact` for a prepared request (the same exchange may be run any number of times).
+
+        Each attempt: wait until the guard lets the request start, write it, read the answer (at least the header
+        and at most the whole answer in the first read: on a pty, usually all of it; anything but a whole good
+        answer goes on in :meth:`_receive_rest`), then deliver it only if the guard lets it through: not sooner
+        than the wire allows, and followed by silence (the silent interval's wait is here, not before the next
+        request). The usual case runs in this one function: it is every transaction's CPU.
+        """
         with self.lock:
             if self._broken or self._closed:
                 self._usable_link()
             self.transactions += 1
+            guard, link, clock = self.guard, self.link, self._clock
+            attempt = 0
             try:
-                return self._attempts(exchange)
+                while True:
+                    attempt += 1
+                    started = clock()  # no later than the request's first byte
+                    if not guard.send_now(started):
+                        started = self._wait_quiet(exchange)
+                        guard.sent(started)
+                    self.requests += 1
+                    if exchange.broadcast:
+                        link.write(exchange.frame)
+                        guard.broadcast_sent(clock(), exchange.wire, exchange.policy.turnaround)
+                        return None
+                    try:
+                        deadline, length = started + exchange.budget, exchange.answer_length
+                        data = link.transfer(exchange.frame, exchange.header_length, deadline, length, exchange.budget)
+                        at = clock()
+                        response = exchange.quick_decode(data) if len(data) == length else None
+                        if response is None:
+                            data, response, at = self._receive_rest(exchange, data, at, deadline)
+                        error = guard.answer_complete(len(exchange.frame), data, at)
+                        if error is not None:
+                            raise error
+                        try:
+                            extra = link.take_input() if link.wait_readable(guard.trail_until - at) else b""
+                        except TransportError:  # the connection closed after the answer: no byte followed it
+                            self._broken = True
+                            extra = b""
+                        if extra:
+                            raise guard.trailing(data, extra)
+                        guard.delivered()
+                        return response
+                    except (TimeoutError, DecodeError) as exc:
+                        self._failed(exchange, exc, attempt)
             except TransportError as exc:
                 if not isinstance(exc, TimeoutError):
                     self._broken = True  # the next transaction reopens / reconnects
                 raise
 
-    def _attempts(self, exchange: Exchange) -> Response | None:
+    def _failed(self, exchange: Exchange, exc: TimeoutError | DecodeError, attempt: int) -> None:
+        """Attempt ``attempt`` failed with ``exc``: the line is quarantined; raise ``exc`` if it was the last."""
+        self.guard.failed(self._clock(), exchange.quarantine)  # the next request waits the quarantine
         attempts = exchange.attempts
-        guard, clock = self.guard, self._clock
-        for attempt in range(1, attempts + 1):
-            started = clock()
-            if not guard.send_now(started):
-                started = self._wait_quiet(exchange)
-                guard.sent(started)
-            if exchange.broadcast:
-                self.link.write(exchange.frame)
-                self.requests += 1
-                guard.broadcast_sent(clock(), exchange.wire, exchange.policy.turnaround)
-                return None
-            self.requests += 1
-            try:
-                return self._exchange(exchange, started)
-            except (TimeoutError, DecodeError) as exc:
-                guard.failed(clock(), exchange.quarantine)  # the next request waits the quarantine
-                if attempt == attempts:
-                    note = f" (attempt {attempt} of {attempts}"
-                    note += ")" if exchange.may_retry else "; a write is not repeated unless retry_writes=1)"
-                    exc.args = (str(exc) + note,)
-                    raise
-                self.retries += 1
-        raise AssertionError("unreachable")  # pragma: no cover
-
-    def _exchange(self, exchange: Exchange, started: float) -> Response:
-        """Write the request (``started`` no later than its first byte) and return the answer if the guard lets it
-        through: not sooner than the wire allows, and followed by silence (the silent interval's wait is here, not
-        before the next request). The first read takes at least the header and at most the whole answer (on a
-        pty, usually all of it); anything but a whole good answer goes on in :meth:`_receive_rest`."""
-        link, length = self.link, exchange.answer_length
-        deadline = started + exchange.budget
-        link.write(exchange.frame)
-        data = link.read(exchange.header_length, deadline, length, wait=exchange.budget)
-        at = self._clock()
-        response = exchange.quick_decode(data) if len(data) == length else None
-        if response is None:
-            data, response, at = self._receive_rest(exchange, data, at, deadline)
-        guard = self.guard
-        error = guard.answer_complete(len(exchange.frame), data, at)
-        if error is not None:
-            raise error
-        try:
-            extra = link.take_input() if link.wait_readable(guard.trail_until - at) else b""
-        except TransportError:  # the connection closed after the answer: no byte followed it
-            self._broken = True
-            extra = b""
-        if extra:
-            raise guard.trailing(data, extra)
-        guard.delivered()
-        return response
+        if attempt >= attempts:
+            note = f" (attempt {attempt} of {attempts}"
+            note += ")" if exchange.may_retry else "; a write is not repeated unless retry_writes=1)"
+            exc.args = (str(exc) + note,)
+            raise exc
+        self.retries += 1
 
     def _receive_rest(
         self, exchange: Exchange, data: bytes, last_rx: float, deadline: float
