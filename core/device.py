@@ -155,7 +155,8 @@ class Device:
             or resolved.capabilities != offered
         ):
             resolved = self._resolve_readable(keys, offered)
-        self._require_open()
+        if not self.is_open:
+            self._require_open()
         readings = tuple(transport.read_points(resolved.points))
         last_readings, values = resolved.last
         if readings != last_readings:  # the same readings (often the same objects) give the same (immutable) values
