@@ -77,10 +77,10 @@ def main() -> None:
     paired = [statistics.median(r for r, _ in per_round), statistics.median(d for _, d in per_round)]
     print(f"  median of the per-round ratios: read_registers {paired[0]:.2f}x   Device.read {paired[1]:.2f}x")
     if args.watch_floor:
-        watch = median["watch"]
+        watching = median["watch"]
         print(
-            f"  ratio to the watching floor ({watch / median['floor']:.2f}x the floor): read_registers "
-            f"{median['raw'] / watch:.2f}x   Device.read {median['device'] / watch:.2f}x"
+            f"  ratio to the watching floor ({watching / median['floor']:.2f}x the floor): read_registers "
+            f"{median['raw'] / watching:.2f}x   Device.read {median['device'] / watching:.2f}x"
         )
 
 
