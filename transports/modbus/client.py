@@ -15,8 +15,6 @@ from collections.abc import Iterator, Sequence
 from starterbus.core.errors import (
     ConfigurationError,
     RemoteDeviceError,
-    StarterbusError,
-    TimeoutError,
     UnsupportedOperationError,
 )
 from starterbus.core.model import PointDef, Reading, Value
@@ -36,7 +34,6 @@ from starterbus.transports.modbus.annotate import exception_meaning
 from starterbus.transports.modbus.config import ModbusRtuConfig
 from starterbus.transports.modbus.frames import (
     BROADCAST,
-    EXCEPTION_FRAME_LENGTH,
     ExceptionResponse,
     ReadRequest,
     ReadResponse,
@@ -107,7 +104,6 @@ class ModbusRtuTransport(Transport):
         control = profile.role("control_word")
         self._control_address = control.address_for(PROTOCOL) if control is not None else None
         self._char_time = char_time(self.config.serial.baudrate)
-        self._two_silences = 2 * self.config.serial.silence  # each request and each answer is followed by one
         self._reads: dict[tuple[int, int], Exchange] = {}  # (address, count) -> the FC03 exchange
         self._writes: dict[tuple[int, int], Exchange] = {}  # (address, value) -> the FC06 exchange
         #: addresses -> the requests that read them and where each value is in their answers
@@ -174,39 +170,10 @@ class ModbusRtuTransport(Transport):
         return self._run(Exchange(request, self.config.policy, self._char_time))
 
     def _run(self, exchange: Exchange) -> Response | None:
-        line = self._line if self._line is not None else self.line  # the property raises "not open"
-        retries = line.retries
-        try:
-            response = line.run(exchange)
-        except StarterbusError as exc:
-            self._tally(exchange, line.retries - retries, 0, isinstance(exc, TimeoutError))
-            raise
-        if line.retries == retries and response is not None and not isinstance(response, ExceptionResponse):
-            c = self._counters  # the usual case, as _tally counts it: one request, one normal answer
-            c.transactions += 1
-            c.requests += 1
-            c.bytes_sent += len(exchange.frame)
-            c.bytes_received += exchange.answer_length
-            c.wire_time += (len(exchange.frame) + exchange.answer_length) * self._char_time + self._two_silences
-            return response
+        response = (self._line or self.line).run(exchange, self._counters)  # the property raises "not open"
         if isinstance(response, ExceptionResponse):
-            self._tally(exchange, line.retries - retries, EXCEPTION_FRAME_LENGTH, False)
             raise self._remote_error(exchange.request, response)
-        self._tally(exchange, line.retries - retries, 0 if response is None else exchange.answer_length, False)
         return response
-
-    def _tally(self, exchange: Exchange, retries: int, received: int, timeout: bool) -> None:
-        """Count one transaction: its frames (``retries`` repeats; the line serialises, so the delta of its
-        retry counter is this transaction's), the bytes of the good answer, the wire time at the line's speed."""
-        c, sent = self._counters, 1 + retries
-        c.transactions += 1
-        c.requests += sent
-        c.retries += retries
-        c.timeouts += timeout
-        c.errors += received == 0 and not exchange.broadcast
-        c.bytes_sent += sent * len(exchange.frame)
-        c.bytes_received += received
-        c.wire_time += (sent * len(exchange.frame) + received) * self._char_time + 2 * sent * self.config.serial.silence
 
     def _prepare(self, cache: dict[tuple[int, int], Exchange], key: tuple[int, int], request: Request) -> Exchange:
         exchange = Exchange(request, self.config.policy, self._char_time)  # an invalid request raises here
@@ -227,9 +194,11 @@ class ModbusRtuTransport(Transport):
         if exchange is None:  # a broadcast transport never gets this far, so never has a read cached
             self._no_broadcast_reads()
             exchange = self._prepare(self._reads, (address, count), ReadRequest(self.unit, address, count))
-        response = self._run(exchange)
-        assert isinstance(response, ReadResponse)
-        return response.values
+        response = (self._line or self.line).run(exchange, self._counters)  # as _run, one call less
+        if isinstance(response, ReadResponse):
+            return response.values
+        assert isinstance(response, ExceptionResponse)
+        raise self._remote_error(exchange.request, response)
 
     def write_register(self, address: int, value: int) -> None:
         """Raw FC06 (checked echo; nothing to check for a broadcast)."""

@@ -15,7 +15,8 @@ import threading
 import time
 from collections.abc import Callable
 
-from starterbus.core.errors import ConfigurationError, DecodeError, TimeoutError, TransportError
+from starterbus.core.errors import ConfigurationError, DecodeError, StarterbusError, TimeoutError, TransportError
+from starterbus.core.transport import TransportCounters
 from starterbus.transports.modbus.exchange import Exchange, TransactionPolicy
 from starterbus.transports.modbus.frames import Request, Response
 from starterbus.transports.modbus.guard import LineGuard, hex_bytes
@@ -116,8 +117,9 @@ class RtuLine:
         """
         return self.run(self.prepare(request, policy))
 
-    def run(self, exchange: Exchange) -> Response | None:
-        """:meth:`transact` for a prepared request (the same exchange may be run any number of times).
+    def run(self, exchange: Exchange, counters: TransportCounters | None = None) -> Response | None:
+        """:meth:`transact` for a prepared request (the same exchange may be run any number of times); what the
+        transaction put on the wire is added to ``counters`` (the asking transport's: the line serialises).
 
         Each attempt: wait until the guard lets the request start, write it, read the answer (at least the header
         and at most the whole answer in the first read: on a pty, usually all of it; anything but a whole good
@@ -126,12 +128,12 @@ class RtuLine:
         request). The usual case runs in this one function: it is every transaction's CPU.
         """
         with self.lock:
-            if self._broken or self._closed:
-                self._usable_link()
             self.transactions += 1
-            guard, link, clock = self.guard, self.link, self._clock
             attempt = 0
             try:
+                if self._broken or self._closed:
+                    self._usable_link()
+                guard, link, clock = self.guard, self.link, self._clock
                 while True:
                     attempt += 1
                     started = clock()  # no later than the request's first byte
@@ -142,6 +144,8 @@ class RtuLine:
                     if exchange.broadcast:
                         link.write(exchange.frame)
                         guard.broadcast_sent(clock(), exchange.wire, exchange.policy.turnaround)
+                        if counters is not None:
+                            self._count(counters, exchange, attempt, 0, None)
                         return None
                     try:
                         deadline, length = started + exchange.budget, exchange.answer_length
@@ -161,13 +165,40 @@ class RtuLine:
                         if extra:
                             raise guard.trailing(data, extra)
                         guard.delivered()
+                        if counters is None:
+                            return response
+                        if attempt == 1:  # the usual case, as _count counts it
+                            c, sent = counters, len(exchange.frame)
+                            c.transactions += 1
+                            c.requests += 1
+                            c.bytes_sent += sent
+                            c.bytes_received += len(data)
+                            c.wire_time += (sent + len(data)) * self.char_time + 2 * self._silence
+                        else:
+                            self._count(counters, exchange, attempt, len(data), None)
                         return response
                     except (TimeoutError, DecodeError) as exc:
                         self._failed(exchange, exc, attempt)
-            except TransportError as exc:
-                if not isinstance(exc, TimeoutError):
+            except StarterbusError as exc:
+                if isinstance(exc, TransportError) and not isinstance(exc, TimeoutError):
                     self._broken = True  # the next transaction reopens / reconnects
+                if counters is not None:
+                    self._count(counters, exchange, max(1, attempt), 0, exc)
                 raise
+
+    def _count(
+        self, c: TransportCounters, exchange: Exchange, sent: int, received: int, failure: StarterbusError | None
+    ) -> None:
+        """Count one transaction: ``sent`` frames (repeats included), the ``received`` bytes of the answer it
+        delivered (0: none), the wire time at the line's speed with a silence after every frame."""
+        c.transactions += 1
+        c.requests += sent
+        c.retries += sent - 1
+        c.timeouts += isinstance(failure, TimeoutError)
+        c.errors += received == 0 and not exchange.broadcast
+        c.bytes_sent += sent * len(exchange.frame)
+        c.bytes_received += received
+        c.wire_time += (sent * len(exchange.frame) + received) * self.char_time + 2 * sent * self._silence
 
     def _failed(self, exchange: Exchange, exc: TimeoutError | DecodeError, attempt: int) -> None:
         """Attempt ``attempt`` failed with ``exc``: the line is quarantined; raise ``exc`` if it was the last."""
