@@ -13,7 +13,7 @@ import pytest
 
 from starterbus.core.device import open_device
 from starterbus.core.errors import ChecksumError, ConfigurationError, DecodeError, RemoteDeviceError, TimeoutError
-from starterbus.transports.modbus.client import plan_reads, value_positions
+from starterbus.transports.modbus.client import ModbusRtuTransport, plan_reads, value_positions
 from starterbus.transports.modbus.crc import append_crc
 from starterbus.transports.modbus.frames import (
     ExceptionResponse,
@@ -167,15 +167,16 @@ def test_the_counters_count_what_the_wire_saw(peer: PtyPeer) -> None:
     url = f"modbus-rtu://{peer.path}?unit=2&baudrate=19200&timeout=0.1&retries=1"
     with open_device(url, "jjr5000") as device:
         transport = device.transport
-        seen = []
+        assert isinstance(transport, ModbusRtuTransport)
+        seen: list[object] = []
         for _ in range(4):
             try:
-                transport.read_registers(0x0100, 4)  # type: ignore[attr-defined]
+                transport.read_registers(0x0100, 4)
             except (RemoteDeviceError, TimeoutError) as exc:
                 seen.append(type(exc))
             c = transport.counters()
             seen.append((c.transactions, c.requests, c.retries, c.timeouts, c.errors, c.bytes_sent, c.bytes_received))
-        silence = transport.config.serial.silence  # type: ignore[attr-defined]
+        silence = transport.config.serial.silence
     assert seen == [
         (1, 1, 0, 0, 0, 8, 13),
         (2, 3, 1, 0, 0, 24, 26),

@@ -218,10 +218,13 @@ class ModbusRtuTransport(Transport):
     def read_points(self, points: Sequence[PointDef]) -> list[Reading]:
         key = tuple(map(id, points))  # the profile's point objects live as long as the transport
         known = self._points.get(key) or self._point_requests(points, key)
+        line = self._line or self.line
         values: tuple[int, ...] = ()
         for exchange in known.exchanges:
-            response = self._run(exchange)
-            assert isinstance(response, ReadResponse)
+            response = line.run(exchange, self._counters)  # as _run, one call less
+            if not isinstance(response, ReadResponse):
+                assert isinstance(response, ExceptionResponse)
+                raise self._remote_error(exchange.request, response)
             values += response.values
         last_values, last_readings = known.last
         if values == last_values:  # the same words: the same (immutable) readings
