@@ -17,12 +17,31 @@ from types import TracebackType
 from starterbus.core.audit import AuditLog
 from starterbus.core.errors import NotOpenError, UnsupportedOperationError, ValidationError
 from starterbus.core.guarded import Confirm, Guard, Outcome, always
-from starterbus.core.model import Kind, PointDef, Value
+from starterbus.core.model import Kind, PointDef, Reading, Value
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile, get_transport
 from starterbus.core.status import Command, Status
 from starterbus.core.transport import Capability, Transport
 from starterbus.core.url import DeviceUrl
+
+#: key lists a Device keeps resolved and checked (a poller repeats a handful of them)
+RESOLVED_SIZE = 256
+
+
+class _Resolved:
+    """The points one key list resolved to, what the check was made against (a different profile, transport or
+    set of capabilities resolves and checks again), and the last readings with the values made of them."""
+
+    __slots__ = ("capabilities", "last", "points", "profile", "transport")
+
+    def __init__(
+        self, points: tuple[PointDef, ...], profile: Profile, transport: Transport, capabilities: frozenset[Capability]
+    ) -> None:
+        self.points = points
+        self.profile = profile
+        self.transport = transport
+        self.capabilities = capabilities
+        self.last: tuple[tuple[Reading, ...], dict[str, Value]] = ((), {})
 
 
 class Device:
@@ -41,6 +60,7 @@ class Device:
         self.profile = profile
         self.guard = Guard(self, audit=audit, actor=actor, confirm=confirm)
         self.is_open = False
+        self._resolved: dict[tuple[str | PointDef, ...], _Resolved] = {}
 
     @property
     def capabilities(self) -> frozenset[Capability]:
@@ -76,22 +96,37 @@ class Device:
 
     # -- checks ------------------------------------------------------------------------------------------
 
-    def _require(self, capability: Capability, what: str) -> None:
-        if capability not in self.transport.capabilities:
+    def _require(self, capability: Capability, what: str, offered: frozenset[Capability] | None = None) -> None:
+        """Raise unless the transport offers ``capability`` (``offered``: its capabilities, if just read)."""
+        offered = self.transport.capabilities if offered is None else offered
+        if capability not in offered:
             raise UnsupportedOperationError(
                 f"{self.transport.name} ({self.transport.describe()}) cannot {what} "
-                f"(it offers: {', '.join(sorted(c.value for c in self.transport.capabilities)) or 'nothing'})"
+                f"(it offers: {', '.join(sorted(c.value for c in offered)) or 'nothing'})"
             )
 
     def resolve(self, keys: Iterable[str | PointDef]) -> list[PointDef]:
         return [k if isinstance(k, PointDef) else self.profile.point(k) for k in keys]
 
-    def _check_readable(self, points: Iterable[PointDef]) -> None:
+    def _check_readable(self, points: Iterable[PointDef], offered: frozenset[Capability] | None = None) -> None:
         for point in points:
             if point.kind is Kind.PARAMETER:
-                self._require(Capability.READ_PARAMETERS, f"read parameters such as {point.key}")
+                self._require(Capability.READ_PARAMETERS, f"read parameters such as {point.key}", offered)
             else:
-                self._require(Capability.READ_MEASUREMENTS, f"read measurements such as {point.key}")
+                self._require(Capability.READ_MEASUREMENTS, f"read measurements such as {point.key}", offered)
+
+    def _resolve_readable(self, keys: tuple[str | PointDef, ...], offered: frozenset[Capability]) -> _Resolved:
+        """``keys`` resolved and checked readable with the ``offered`` capabilities, kept for the next read."""
+        points = tuple(self.resolve(keys))
+        self._check_readable(points, offered)  # raises before anything is kept
+        resolved = _Resolved(points, self.profile, self.transport, offered)
+        try:
+            if len(self._resolved) >= RESOLVED_SIZE:
+                self._resolved.clear()
+            self._resolved[keys] = resolved
+        except TypeError:  # a PointDef among the keys (not hashable): resolved each time
+            pass
+        return resolved
 
     def validate_write(self, key: str | PointDef, value: float | int | str) -> tuple[PointDef, int]:
         """Resolve and validate one write; returns the point and its raw value. Sends nothing."""
@@ -108,11 +143,26 @@ class Device:
 
     def read(self, *keys: str | PointDef) -> dict[str, Value]:
         """Read parameters and/or measurements by key or manual address; values in engineering units."""
-        points = self.resolve(keys)
-        self._check_readable(points)
-        self._require_open()
-        readings = self.transport.read_points(points)
-        return {r.point.key: r.value(self.transport.name) for r in readings}
+        transport, offered = self.transport, self.transport.capabilities
+        try:
+            resolved = self._resolved.get(keys)
+        except TypeError:  # a PointDef among the keys (not hashable)
+            resolved = None
+        if (
+            resolved is None
+            or resolved.profile is not self.profile
+            or resolved.transport is not transport
+            or resolved.capabilities != offered
+        ):
+            resolved = self._resolve_readable(keys, offered)
+        if not self.is_open:
+            self._require_open()
+        readings = tuple(transport.read_points(resolved.points))
+        last_readings, values = resolved.last
+        if readings != last_readings:  # the same readings (often the same objects) give the same (immutable) values
+            values = {r.point.key: r.value(transport.name) for r in readings}
+            resolved.last = (readings, values)  # one assignment: another thread sees the old pair or the new one
+        return dict(values)
 
     def read_value(self, key: str | PointDef) -> Value:
         return next(iter(self.read(key).values()))

@@ -8,6 +8,7 @@ engineering units happens here, once, for every transport.
 from __future__ import annotations
 
 import enum
+import functools
 import math
 import re
 from collections.abc import Mapping
@@ -171,8 +172,7 @@ class PointDef:
         factor = self.scale if scale is None else scale
         if factor == 1:
             return raw
-        decimals = max(0, round(-math.log10(factor))) if 0 < factor < 1 else 0
-        return round(raw * factor, decimals)
+        return round(raw * factor, _decimals(factor))
 
     def _shown(self, raw: int) -> str:
         return f"{self.to_engineering(raw)} {self.unit}".rstrip()
@@ -259,6 +259,12 @@ class PointDef:
         return self._from_engineering(converted, text.strip(), bare=not unit)
 
 
+@functools.lru_cache(maxsize=64)
+def _decimals(step: float) -> int:
+    """Decimal places of a step such as 0.1 (1) or 0.01 (2); 0 for a step of 1 or more."""
+    return max(0, round(-math.log10(step))) if 0 < step < 1 else 0
+
+
 def _finite(value: object) -> float | None:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return None
@@ -308,11 +314,7 @@ class Value:
             return f"{label.en} ({self.raw})"
         if self.point.enum is not None:
             return f"unknown value {self.raw}"
-        if isinstance(self.value, float):
-            digits = max(0, round(-math.log10(self.resolution))) if 0 < self.resolution < 1 else 0
-            shown = f"{self.value:.{digits}f}"
-        else:
-            shown = str(self.value)
+        shown = f"{self.value:.{_decimals(self.resolution)}f}" if isinstance(self.value, float) else str(self.value)
         return f"{shown} {self.unit}".rstrip()
 
     def as_json(self) -> dict[str, object]:

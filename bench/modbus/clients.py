@@ -121,8 +121,13 @@ def minimalmodbus_ops(port: str, baud: int, fc: str) -> Ops:
     return (lambda: instrument.write_register(WRITE_ADDRESS, WRITE_VALUE, functioncode=6)), instrument.serial.close
 
 
-def exact_ops(port: str, baud: int, fc: str, silence: bool) -> Ops:
-    """A hand-written loop: write the request, read exactly the predicted length; optionally keep the silence."""
+def exact_ops(port: str, baud: int, fc: str, silence: bool, watch: bool = False) -> Ops:
+    """A hand-written loop: write the request, read exactly the predicted length; optionally keep the silence.
+
+    ``watch``: keep the silence by watching the line after each answer (``select`` for the silent interval, an
+    answer followed by bytes refused) instead of sleeping before the next request: the least a client that
+    checks for trailing bytes does.
+    """
     import serial
 
     from starterbus.transports.modbus.frames import ReadRequest, WriteRequest, expected_response_length
@@ -135,7 +140,7 @@ def exact_ops(port: str, baud: int, fc: str, silence: bool) -> Ops:
     state = {"quiet_at": 0.0}
 
     def op() -> bytes:
-        if silence:
+        if silence and not watch:
             delay = state["quiet_at"] - time.monotonic()
             if delay > 0:
                 time.sleep(delay)
@@ -146,7 +151,11 @@ def exact_ops(port: str, baud: int, fc: str, silence: bool) -> Ops:
             if not select.select([fd], [], [], max(0.0, deadline - time.monotonic()))[0]:
                 raise TimeoutError("no answer")
             data += os.read(fd, size - len(data))
-        state["quiet_at"] = time.monotonic() + quiet
+        if watch:
+            if select.select([fd], [], [], quiet)[0]:
+                raise RuntimeError("bytes followed the answer within the silent interval")
+        else:
+            state["quiet_at"] = time.monotonic() + quiet
         return data
 
     return op, ser.close

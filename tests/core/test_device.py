@@ -13,6 +13,7 @@ import pytest
 
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import (
+    NotOpenError,
     PluginError,
     UnknownPointError,
     UnsupportedOperationError,
@@ -99,3 +100,48 @@ def test_open_device_errors() -> None:
         open_device("modbus-rtu:///dev/null", "jjr9999")
     with pytest.raises(UnsupportedOperationError, match="has no devicenet interface"):
         open_device("devicenet://virtual/x?mac=5", "jjr5000")
+
+
+class OtherTransport(RecordingTransport):
+    name = "other"
+
+
+def test_a_kept_resolution_is_never_used_for_another_profile_transport_or_capabilities(
+    jjr5000: Profile, jjr8000: Profile
+) -> None:
+    everything = frozenset(Capability)
+    transport = RecordingTransport(jjr5000, everything)
+    device = Device(transport, jjr5000).open()
+    assert device.read("current_limit")["current_limit"].point is jjr5000.point("current_limit")
+    assert device.read("current_limit")["current_limit"].point is jjr5000.point("current_limit")  # kept
+    device.profile = jjr8000  # the same key is another point (another address) in another model
+    value = device.read("current_limit")["current_limit"]
+    assert value.point is jjr8000.point("current_limit") and value.point.address != "0x0103"
+    transport.caps = frozenset({Capability.READ_MEASUREMENTS})
+    with pytest.raises(UnsupportedOperationError, match="read parameters such as current_limit"):
+        device.read("current_limit")
+    assert device.read("phase_a_current")["phase_a_current"].point is jjr8000.point("phase_a_current")
+    transport.caps = everything
+    assert device.read("current_limit")["current_limit"].point is jjr8000.point("current_limit")
+    other = OtherTransport(jjr8000, everything)  # the same raw values, another source
+    assert device.read("current_limit")["current_limit"].source == "recording"
+    device.transport = other
+    assert device.read("current_limit")["current_limit"].source == "other"
+    other.memory["current_limit"] = 300
+    assert device.read("current_limit")["current_limit"].raw == 300
+
+
+def test_repeated_reads_give_fresh_dicts_and_follow_every_change(jjr5000: Profile) -> None:
+    transport = RecordingTransport(jjr5000, frozenset(Capability))
+    device = Device(transport, jjr5000).open()
+    first = device.read("current_limit", "ramp_time")
+    first["current_limit"] = first["ramp_time"]  # the caller's dict is the caller's
+    second = device.read("current_limit", "ramp_time")
+    assert second["current_limit"].key == "current_limit" and second is not first
+    transport.memory["current_limit"] = 420
+    assert device.read("current_limit", "ramp_time")["current_limit"].value == 420
+    point = jjr5000.point("ramp_time")  # PointDef keys are not hashable: resolved each time, never refused
+    assert device.read(point, "0x0103")["current_limit"].value == 420
+    device.close()
+    with pytest.raises(NotOpenError):
+        device.read("current_limit", "ramp_time")  # kept, but the closed device is still refused

@@ -130,6 +130,10 @@ class ScriptedLink(Link):
         out, self.buffer = self.buffer, b""
         return out
 
+    def transfer(self, frame: bytes, size: int, deadline: float, limit: int, wait: float) -> bytes:
+        self.write(frame)
+        return self.read(size, deadline, limit)
+
     def close(self) -> None:
         self.closed = True
 

@@ -12,8 +12,8 @@ from typing import TYPE_CHECKING
 import pytest
 
 from starterbus.core.device import open_device
-from starterbus.core.errors import ChecksumError, ConfigurationError, DecodeError
-from starterbus.transports.modbus.client import plan_reads, value_positions
+from starterbus.core.errors import ChecksumError, ConfigurationError, DecodeError, RemoteDeviceError, TimeoutError
+from starterbus.transports.modbus.client import ModbusRtuTransport, plan_reads, value_positions
 from starterbus.transports.modbus.crc import append_crc
 from starterbus.transports.modbus.frames import (
     ExceptionResponse,
@@ -158,3 +158,31 @@ def test_reads_in_any_order_and_repeated_keys(make_sim: SimFactory) -> None:
         for _ in range(2):  # the second time from the cached plan
             readings = device.transport.read_points(device.resolve(keys))
             assert [r.raw for r in readings] == [params[k] for k in keys]
+
+
+def test_the_counters_count_what_the_wire_saw(peer: PtyPeer) -> None:
+    """A good answer, one after a timeout, an exception answer, then no answer at all (two attempts each)."""
+    refusal = ExceptionResponse(2, 3, 2).encode()
+    peer.serve([GOOD4, None, GOOD4, refusal, None, None])
+    url = f"modbus-rtu://{peer.path}?unit=2&baudrate=19200&timeout=0.1&retries=1"
+    with open_device(url, "jjr5000") as device:
+        transport = device.transport
+        assert isinstance(transport, ModbusRtuTransport)
+        seen: list[object] = []
+        for _ in range(4):
+            try:
+                transport.read_registers(0x0100, 4)
+            except (RemoteDeviceError, TimeoutError) as exc:
+                seen.append(type(exc))
+            c = transport.counters()
+            seen.append((c.transactions, c.requests, c.retries, c.timeouts, c.errors, c.bytes_sent, c.bytes_received))
+        silence = transport.config.serial.silence
+    assert seen == [
+        (1, 1, 0, 0, 0, 8, 13),
+        (2, 3, 1, 0, 0, 24, 26),
+        RemoteDeviceError,
+        (3, 4, 1, 0, 0, 32, 31),  # a refusal is an answer (5 bytes), not an error
+        TimeoutError,
+        (4, 6, 2, 1, 1, 48, 31),
+    ]
+    assert c.wire_time == pytest.approx((48 + 31) * 11 / 19200 + 2 * 6 * silence)

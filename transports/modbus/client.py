@@ -15,8 +15,6 @@ from collections.abc import Iterator, Sequence
 from starterbus.core.errors import (
     ConfigurationError,
     RemoteDeviceError,
-    StarterbusError,
-    TimeoutError,
     UnsupportedOperationError,
 )
 from starterbus.core.model import PointDef, Reading
@@ -36,7 +34,6 @@ from starterbus.transports.modbus.annotate import exception_meaning
 from starterbus.transports.modbus.config import ModbusRtuConfig
 from starterbus.transports.modbus.frames import (
     BROADCAST,
-    EXCEPTION_FRAME_LENGTH,
     ExceptionResponse,
     ReadRequest,
     ReadResponse,
@@ -169,31 +166,10 @@ class ModbusRtuTransport(Transport):
         return self._run(Exchange(request, self.config.policy, self._char_time))
 
     def _run(self, exchange: Exchange) -> Response | None:
-        line = self._line if self._line is not None else self.line  # the property raises "not open"
-        retries = line.retries
-        try:
-            response = line.run(exchange)
-        except StarterbusError as exc:
-            self._tally(exchange, line.retries - retries, 0, isinstance(exc, TimeoutError))
-            raise
+        response = (self._line or self.line).run(exchange, self._counters)  # the property raises "not open"
         if isinstance(response, ExceptionResponse):
-            self._tally(exchange, line.retries - retries, EXCEPTION_FRAME_LENGTH, False)
             raise self._remote_error(exchange.request, response)
-        self._tally(exchange, line.retries - retries, 0 if response is None else exchange.answer_length, False)
         return response
-
-    def _tally(self, exchange: Exchange, retries: int, received: int, timeout: bool) -> None:
-        """Count one transaction: its frames (``retries`` repeats; the line serialises, so the delta of its
-        retry counter is this transaction's), the bytes of the good answer, the wire time at the line's speed."""
-        c, sent = self._counters, 1 + retries
-        c.transactions += 1
-        c.requests += sent
-        c.retries += retries
-        c.timeouts += timeout
-        c.errors += received == 0 and not exchange.broadcast
-        c.bytes_sent += sent * len(exchange.frame)
-        c.bytes_received += received
-        c.wire_time += (sent * len(exchange.frame) + received) * self._char_time + 2 * sent * self.config.serial.silence
 
     def _prepare(self, cache: dict[tuple[int, int], Exchange], key: tuple[int, int], request: Request) -> Exchange:
         exchange = Exchange(request, self.config.policy, self._char_time)  # an invalid request raises here
@@ -214,9 +190,11 @@ class ModbusRtuTransport(Transport):
         if exchange is None:  # a broadcast transport never gets this far, so never has a read cached
             self._no_broadcast_reads()
             exchange = self._prepare(self._reads, (address, count), ReadRequest(self.unit, address, count))
-        response = self._run(exchange)
-        assert isinstance(response, ReadResponse)
-        return response.values
+        response = (self._line or self.line).run(exchange, self._counters)  # as _run, one call less
+        if isinstance(response, ReadResponse):
+            return response.values
+        assert isinstance(response, ExceptionResponse)
+        raise self._remote_error(exchange.request, response)
 
     def write_register(self, address: int, value: int) -> None:
         """Raw FC06 (checked echo; nothing to check for a broadcast)."""
@@ -236,10 +214,13 @@ class ModbusRtuTransport(Transport):
     def _read_points(self, points: Sequence[PointDef]) -> list[Reading]:
         key = tuple(map(id, points))  # the profile's point objects live as long as the transport
         known = self._points.get(key) or self._point_requests(points, key)
+        line = self._line or self.line
         values: tuple[int, ...] = ()
         for exchange in known.exchanges:
-            response = self._run(exchange)
-            assert isinstance(response, ReadResponse)
+            response = line.run(exchange, self._counters)  # as _run, one call less
+            if not isinstance(response, ReadResponse):
+                assert isinstance(response, ExceptionResponse)
+                raise self._remote_error(exchange.request, response)
             values += response.values
         last_values, last_readings = known.last
         if values == last_values:  # the same words: the same (immutable) readings

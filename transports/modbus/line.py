@@ -15,7 +15,8 @@ import threading
 import time
 from collections.abc import Callable
 
-from starterbus.core.errors import ConfigurationError, DecodeError, TimeoutError, TransportError
+from starterbus.core.errors import ConfigurationError, DecodeError, StarterbusError, TimeoutError, TransportError
+from starterbus.core.transport import TransportCounters
 from starterbus.transports.modbus.exchange import Exchange, TransactionPolicy
 from starterbus.transports.modbus.frames import Request, Response
 from starterbus.transports.modbus.guard import LineGuard, hex_bytes
@@ -116,83 +117,119 @@ class RtuLine:
         """
         return self.run(self.prepare(request, policy))
 
-    def run(self, exchange: Exchange) -> Response | None:
-        """:meth:`transact` for a prepared request (the same exchange may be run any number of times)."""
+    def run(self, exchange: Exchange, counters: TransportCounters | None = None) -> Response | None:
+        """:meth:`transact` for a prepared request (the same exchange may be run any number of times); what the
+        transaction put on the wire is added to ``counters`` (the asking transport's: the line serialises).
+
+        Each attempt: wait until the guard lets the request start, write it, read the answer (at least the header
+        and at most the whole answer in the first read: on a pty, usually all of it; anything but a whole good
+        answer goes on in :meth:`_receive_rest`), then deliver it only if the guard lets it through: not sooner
+        than the wire allows, and followed by silence (the silent interval's wait is here, not before the next
+        request). The usual case runs in this one function: it is every transaction's CPU.
+        """
         with self.lock:
-            if self._broken or self._closed:
-                self._usable_link()
             self.transactions += 1
+            attempt = 0
             try:
-                return self._attempts(exchange)
-            except TransportError as exc:
-                if not isinstance(exc, TimeoutError):
+                if self._broken or self._closed:
+                    self._usable_link()
+                guard, link, clock = self.guard, self.link, self._clock
+                while True:
+                    attempt += 1
+                    started = clock()  # no later than the request's first byte
+                    if not guard.send_now(started):
+                        started = self._wait_quiet(exchange)
+                        guard.sent(started)
+                    self.requests += 1
+                    if exchange.broadcast:
+                        link.write(exchange.frame)
+                        guard.broadcast_sent(clock(), exchange.wire, exchange.policy.turnaround)
+                        if counters is not None:
+                            self._count(counters, exchange, attempt, 0, None)
+                        return None
+                    try:
+                        deadline, length = started + exchange.budget, exchange.answer_length
+                        data = link.transfer(exchange.frame, exchange.header_length, deadline, length, exchange.budget)
+                        at = clock()
+                        response = exchange.quick_decode(data) if len(data) == length else None
+                        if response is None:
+                            data, response, at = self._receive_rest(exchange, data, at, deadline)
+                        error = guard.answer_complete(len(exchange.frame), data, at)
+                        if error is not None:
+                            raise error
+                        try:
+                            extra = link.take_input() if link.wait_readable(guard.trail_until - at) else b""
+                        except TransportError:  # the connection closed after the answer: no byte followed it
+                            self._broken = True
+                            extra = b""
+                        if extra:
+                            raise guard.trailing(data, extra)
+                        guard.delivered()
+                        if counters is None:
+                            return response
+                        if attempt == 1:  # the usual case, as _count counts it
+                            c, sent = counters, len(exchange.frame)
+                            c.transactions += 1
+                            c.requests += 1
+                            c.bytes_sent += sent
+                            c.bytes_received += len(data)
+                            c.wire_time += (sent + len(data)) * self.char_time + 2 * self._silence
+                        else:
+                            self._count(counters, exchange, attempt, len(data), None)
+                        return response
+                    except (TimeoutError, DecodeError) as exc:
+                        self._failed(exchange, exc, attempt)
+            except StarterbusError as exc:
+                if isinstance(exc, TransportError) and not isinstance(exc, TimeoutError):
                     self._broken = True  # the next transaction reopens / reconnects
+                if counters is not None:
+                    self._count(counters, exchange, max(1, attempt), 0, exc)
                 raise
 
-    def _attempts(self, exchange: Exchange) -> Response | None:
-        attempts = exchange.attempts
-        guard = self.guard
-        for attempt in range(1, attempts + 1):
-            if not guard.send_now(self._clock()):
-                guard.sent(self._wait_quiet(exchange))
-            self.link.write(exchange.frame)
-            sent_at = self._clock()
-            self.requests += 1
-            if exchange.broadcast:
-                guard.broadcast_sent(sent_at, exchange.wire, exchange.policy.turnaround)
-                return None
-            try:
-                return self._receive(exchange, sent_at)
-            except (TimeoutError, DecodeError) as exc:
-                guard.failed(self._clock(), exchange.quarantine)  # the next request waits the quarantine
-                if attempt == attempts:
-                    note = f" (attempt {attempt} of {attempts}"
-                    note += ")" if exchange.may_retry else "; a write is not repeated unless retry_writes=1)"
-                    exc.args = (str(exc) + note,)
-                    raise
-                self.retries += 1
-        raise AssertionError("unreachable")  # pragma: no cover
+    def _count(
+        self, c: TransportCounters, exchange: Exchange, sent: int, received: int, failure: StarterbusError | None
+    ) -> None:
+        """Count one transaction: ``sent`` frames (repeats included), the ``received`` bytes of the answer it
+        delivered (0: none), the wire time at the line's speed with a silence after every frame."""
+        c.transactions += 1
+        c.requests += sent
+        c.retries += sent - 1
+        c.timeouts += isinstance(failure, TimeoutError)
+        c.errors += received == 0 and not exchange.broadcast
+        c.bytes_sent += sent * len(exchange.frame)
+        c.bytes_received += received
+        c.wire_time += (sent * len(exchange.frame) + received) * self.char_time + 2 * sent * self._silence
 
-    def _receive(self, exchange: Exchange, sent_at: float) -> Response:
-        """The answer: at least the header and at most the whole answer in the first read (on a pty, usually
-        all of it); the rest of a normal answer in one more read. Anything unusual goes to the receiver."""
-        deadline = sent_at + exchange.budget
+    def _failed(self, exchange: Exchange, exc: TimeoutError | DecodeError, attempt: int) -> None:
+        """Attempt ``attempt`` failed with ``exc``: the line is quarantined; raise ``exc`` if it was the last."""
+        self.guard.failed(self._clock(), exchange.quarantine)  # the next request waits the quarantine
+        attempts = exchange.attempts
+        if attempt >= attempts:
+            note = f" (attempt {attempt} of {attempts}"
+            note += ")" if exchange.may_retry else "; a write is not repeated unless retry_writes=1)"
+            exc.args = (str(exc) + note,)
+            raise exc
+        self.retries += 1
+
+    def _receive_rest(
+        self, exchange: Exchange, data: bytes, last_rx: float, deadline: float
+    ) -> tuple[bytes, Response, float]:
+        """Anything but a whole good answer in the first read: (the answer, its decoding, when it was complete).
+
+        ``data`` is what the first read gave (at least the header unless the time ran out). The rest of a normal
+        answer is one more read; anything unusual goes to the receiver, which checks each piece and names what
+        is wrong.
+        """
         needed, length = exchange.header_length, exchange.answer_length
-        data = self.link.read(needed, deadline, length, wait=exchange.budget)
-        received_at = self._clock()
         if needed <= len(data) < length and exchange.good_so_far(data):
             rest = self.link.read(length - len(data), deadline)
             if rest:
                 data += rest
-                received_at = self._clock()
-        if len(data) == length:
-            response = exchange.quick_decode(data)
-            if response is not None:
-                return self._deliver(exchange, data, response, received_at)
-        return self._receive_rest(exchange, data, needed, received_at, deadline)
-
-    def _deliver(self, exchange: Exchange, answer: bytes, response: Response, at: float) -> Response:
-        """``response`` (``answer``, complete at ``at``) if the guard lets it through: not sooner than the wire
-        allows, and followed by silence (the silent interval's wait is here, not before the next request)."""
-        guard = self.guard
-        error = guard.answer_complete(len(exchange.frame), answer, at)
-        if error is not None:
-            raise error
-        try:
-            extra = self.link.take_input() if self.link.wait_readable(guard.trail_until - at) else b""
-        except TransportError:  # the connection closed after the answer: no byte followed it
-            self._broken = True
-            extra = b""
-        if extra:
-            raise guard.trailing(answer, extra)
-        guard.delivered()
-        return response
-
-    def _receive_rest(self, exchange: Exchange, data: bytes, needed: int, last_rx: float, deadline: float) -> Response:
-        """Anything but a good normal answer: the receiver checks the bytes so far and each piece to come.
-
-        ``data`` is what the reads so far gave (at least ``needed`` bytes unless the time ran out).
-        """
+                last_rx = self._clock()
+            if len(data) == length:
+                response = exchange.quick_decode(data)
+                if response is not None:
+                    return data, response, last_rx
         receiver = ResponseReceiver(exchange.request)
         while True:
             if needed:  # ``data`` is what a read of at least ``needed`` bytes gave
@@ -211,7 +248,7 @@ class RtuLine:
             if event is not NEED_DATA:
                 if receiver.trailing:  # an exception answer read together with what followed it
                     raise self.guard.trailing(receiver.frame, receiver.trailing)
-                return self._deliver(exchange, receiver.frame, event, last_rx)
+                return receiver.frame, event, last_rx
             needed = receiver.bytes_needed()
             if needed:
                 data = self.link.read(needed, deadline, receiver.expected_length - len(receiver.received))

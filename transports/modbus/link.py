@@ -140,14 +140,35 @@ class Link:
         return TransportError(f"{self.name}: {what} failed: {exc}")
 
     def write(self, data: bytes) -> None:
+        self.transfer(data, 0, 0.0, 0, 0.0)
+
+    def transfer(self, frame: bytes, size: int, deadline: float, limit: int, wait: float) -> bytes:
+        """:meth:`write` ``frame``, then :meth:`read` ``size`` to ``limit`` bytes (``wait``: seconds from now to
+        ``deadline``): every transaction's I/O in one call; the whole answer usually comes with one ``select``."""
         try:
-            sent = self._write(data)
+            sent = self._write(frame)
         except BlockingIOError:
             sent = 0
         except OSError as exc:
             raise self._fail("write", exc) from exc
-        if sent < len(data):
-            self._write_rest(memoryview(data)[sent:])
+        if sent < len(frame):
+            self._write_rest(memoryview(frame)[sent:])
+        if not size:
+            return b""
+        if not select.select(self._fds, _NOTHING, _NOTHING, wait)[0]:
+            return b""
+        try:
+            out = self._read(limit)
+        except BlockingIOError:
+            out = b""
+        except OSError as exc:
+            raise self._fail("read", exc) from exc
+        else:
+            if not out:
+                raise self._hung_up()
+        if len(out) >= size:
+            return out
+        return out + self.read(size - len(out), deadline, limit - len(out))
 
     def _write_rest(self, view: memoryview) -> None:
         while view:
@@ -174,15 +195,7 @@ class Link:
             if wait <= 0 or not select.select(self._fds, _NOTHING, _NOTHING, wait)[0]:
                 break
             wait = None
-            try:  # as _recv, inline: this is every transaction's read
-                chunk = self._read(limit - len(out))
-            except BlockingIOError:
-                continue
-            except OSError as exc:
-                raise self._fail("read", exc) from exc
-            if not chunk:
-                raise self._hung_up()
-            out += chunk
+            out += self._recv(limit - len(out))
         return out
 
     def _recv(self, size: int) -> bytes:
@@ -285,6 +298,10 @@ class PySerialLink(Link):
             self._port.write(data)
         except (serial.SerialException, OSError) as exc:
             raise self._fail("write", exc) from exc
+
+    def transfer(self, frame: bytes, size: int, deadline: float, limit: int, wait: float) -> bytes:
+        self.write(frame)
+        return self.read(size, deadline, limit, wait)
 
     def read(self, size: int, deadline: float, limit: int = 0, wait: float | None = None) -> bytes:
         """At least ``size`` bytes (fewer only when ``deadline`` has passed), never more than ``size``."""
