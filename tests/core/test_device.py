@@ -124,6 +124,7 @@ def test_a_kept_resolution_is_never_used_for_another_profile_transport_or_capabi
     transport.caps = everything
     assert device.read("current_limit")["current_limit"].point is jjr8000.point("current_limit")
     other = OtherTransport(jjr8000, everything)  # the same raw values, another source
+    other.open()
     assert device.read("current_limit")["current_limit"].source == "recording"
     device.transport = other
     assert device.read("current_limit")["current_limit"].source == "other"
