@@ -96,6 +96,9 @@ class ModbusRtuTransport(Transport):
         super().__init__(url, profile)
         self.config = config or ModbusRtuConfig.from_url(url, profile)
         self.unit = self.config.unit
+        where = "broadcast" if self.config.broadcast else f"unit {self.unit}"
+        self._where = f"{self.config.target} {where}"
+        self._source = f"{TRANSPORT} {self._where}"  # a status's source, made once: a poller asks every round
         self.max_read = max_read_registers(profile)
         self.control = ControlWordState()
         self._line: RtuLine | None = None
@@ -143,8 +146,7 @@ class ModbusRtuTransport(Transport):
         return ALL_CAPABILITIES
 
     def describe(self) -> str:
-        where = "broadcast" if self.config.broadcast else f"unit {self.unit}"
-        return f"{self.config.target} {where}"
+        return self._where
 
     # -- transactions ------------------------------------------------------------------------------------------
 
@@ -259,7 +261,7 @@ class ModbusRtuTransport(Transport):
     def _poll(self, points: Sequence[PointDef], status: bool) -> PollResult:
         self._no_broadcast_reads()
         plan = self.poll_plans.get(points, status)
-        return run_poll_plan(self.read_registers, plan, points, self.profile, f"{TRANSPORT} {self.describe()}")
+        return run_poll_plan(self.read_registers, plan, points, self.profile, self._source)
 
     def plan(self, points: Sequence[PointDef], status: bool) -> list[PlannedRequest]:
         return self.poll_plans.describe(self.poll_plans.get(points, status), self.unit)
@@ -288,7 +290,7 @@ class ModbusRtuTransport(Transport):
             self.profile,
             readings[0].raw,
             [r.raw for r in readings[1:]],
-            source=f"{TRANSPORT} {self.describe()}",
+            source=self._source,
             current_source=TRANSPORT,
         )
 
