@@ -100,10 +100,7 @@ class Device:
         """Raise unless the transport offers ``capability`` (``offered``: its capabilities, if just read)."""
         offered = self.transport.capabilities if offered is None else offered
         if capability not in offered:
-            raise UnsupportedOperationError(
-                f"{self.transport.name} ({self.transport.describe()}) cannot {what} "
-                f"(it offers: {', '.join(sorted(c.value for c in offered)) or 'nothing'})"
-            )
+            raise self.transport.refusal(capability, what)
 
     def resolve(self, keys: Iterable[str | PointDef]) -> list[PointDef]:
         return [k if isinstance(k, PointDef) else self.profile.point(k) for k in keys]

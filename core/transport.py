@@ -192,9 +192,13 @@ class Transport(ABC):
         """Why this transport lacks ``capability`` here, for the refusal (default: what it offers)."""
         return f"it offers: {', '.join(sorted(c.value for c in self.capabilities)) or 'nothing'}"
 
+    def refusal(self, capability: Capability, what: str) -> UnsupportedOperationError:
+        """The error for asking ``what`` of a transport that lacks ``capability``, with the plugin's reason."""
+        return self.unsupported(what, self._why_not(capability))
+
     def _check_capability(self, capability: Capability, what: str) -> None:
         if capability not in self.capabilities:
-            raise self.unsupported(what, self._why_not(capability))
+            raise self.refusal(capability, what)
 
     def _check_reads(self, points: Sequence[PointDef]) -> None:
         for point in points:
