@@ -165,16 +165,7 @@ class RtuLine:
                         if extra:
                             raise guard.trailing(data, extra)
                         guard.delivered()
-                        if counters is None:
-                            return response
-                        if attempt == 1:  # the usual case, as _count counts it
-                            c, sent = counters, len(exchange.frame)
-                            c.transactions += 1
-                            c.requests += 1
-                            c.bytes_sent += sent
-                            c.bytes_received += len(data)
-                            c.wire_time += (sent + len(data)) * self.char_time + 2 * self._silence
-                        else:
+                        if counters is not None:
                             self._count(counters, exchange, attempt, len(data), None)
                         return response
                     except (TimeoutError, DecodeError) as exc:
