@@ -93,6 +93,11 @@ def answers(request: PkwRequest, response: PkwResponse) -> bool:
     return code == ResponseCode.CANNOT_EXECUTE
 
 
+#: tasks an earlier session may have left for the slave to answer, unless the URL says otherwise: the one being
+#: executed and the one a session that died before sending "no task" left in the output image
+DEFAULT_INHERITED = 2
+
+
 @dataclass(slots=True)
 class Freshness:
     """The book of one slave's PKW exchanges. ``stale_cycles`` / ``stale_time``: how old an input may be."""
@@ -104,7 +109,7 @@ class Freshness:
     accepted_indl: int | None = None
     start: Mark | None = None  # before the first exchange: what the slave did earlier is unknown
     verify_start: bool = False  # treat that unknown past as an orphan on every INDL
-    inherited: int = 2  # how many tasks an earlier session may have left for the slave to answer
+    inherited: int = DEFAULT_INHERITED  # how many tasks an earlier session may have left for the slave to answer
     chain: int = 0  # start-chain fences answered so far (while the past is unknown)
 
     @property

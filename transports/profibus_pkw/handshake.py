@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 
 from starterbus.core.errors import DecodeError, RemoteDeviceError, StarterbusError, TimeoutError
 from starterbus.core.model import Label
-from starterbus.transports.profibus_pkw.freshness import Freshness, Mark, answers, pkw_bytes
+from starterbus.transports.profibus_pkw.freshness import DEFAULT_INHERITED, Freshness, Mark, answers, pkw_bytes
 from starterbus.transports.profibus_pkw.telegram import (
     NO_TASK,
     PROTOCOL,
@@ -122,7 +122,7 @@ class Limits:
     stale_cycles: int = 0
     stale_time: float = 0.0
     verify_start: bool = False  # the session's first task waits for the start chain of fences (freshness.py)
-    inherited: int = 2  # with verify_start: tasks an earlier session may have left for the slave to answer
+    inherited: int = DEFAULT_INHERITED  # with verify_start: tasks an earlier session may have left unanswered
 
     def __post_init__(self) -> None:
         if self.max_cycles < 2:

@@ -29,6 +29,7 @@ from starterbus.core.status import CW_START, Command, ControlWordState, Status, 
 from starterbus.core.transport import Capability, Transport
 from starterbus.core.url import DeviceUrl
 from starterbus.transports.profibus_pkw.channels import Channel, GatewayChannel, SimChannel, get_slave
+from starterbus.transports.profibus_pkw.freshness import DEFAULT_INHERITED
 from starterbus.transports.profibus_pkw.handshake import MAX_INHERITED, Limits, PkwEngine
 from starterbus.transports.profibus_pkw.link import CyclicLink
 from starterbus.transports.profibus_pkw.settings import profibus_settings
@@ -120,7 +121,7 @@ class LinkSettings:
             url.get_int("stale_cycles", 1 if gateway else 0, 0, 10_000),
             url.get_float("stale_time", 0.0, 0.0, 60.0),
             verify_start=True,  # a task an earlier session left on the slave must not answer our first one
-            inherited=url.get_int("inherited", 2, 0, MAX_INHERITED),
+            inherited=url.get_int("inherited", DEFAULT_INHERITED, 0, MAX_INHERITED),
         )
         hold = url.get_int("hold", 3, 1, 1000)
         pulse = url.get_float("pulse", 0.05 if gateway else 0.0, 0.0, 10.0)
