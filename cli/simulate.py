@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import argparse
-import json
 import signal
 import sys
 import threading
 import time
 from pathlib import Path
 
+from starterbus.cli.output import emit_json_line
 from starterbus.cli.plugin_args import ARGPARSE, OptionMapper, declared, plugin_order, warn
 from starterbus.cli.sim_script import parse_script
 from starterbus.core.errors import ConfigurationError, PluginError, StarterbusError
@@ -143,7 +143,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
                 "units": {str(a): p.name for a, p in units},
                 "front_ends": [{"listen": sim.describe(), "urls": sim.client_urls()} for sim in running],
             }
-            print(json.dumps(listing, ensure_ascii=False), flush=True)
+            emit_json_line(listing)
         else:
             for sim in running:
                 for line in sim.describe():
