@@ -47,7 +47,7 @@ if TYPE_CHECKING:
     )
     from starterbus.core.model import Access, EnumTable, Kind, Label, PointDef, Reading, Value
     from starterbus.core.plugin_options import OptionValues, PluginOption, SimOption, resolve_options
-    from starterbus.core.polling import PlannedRequest, PollResult, TransportCounters
+    from starterbus.core.polling import PlannedRequest, PollResult, PollTask, TransportCounters, run_task
     from starterbus.core.profile import Profile, load_profile_file
     from starterbus.core.registry import get_profile, get_transport
     from starterbus.core.sharing import SharedPool
@@ -153,6 +153,8 @@ _LAZY = {
     "SharedPool": "starterbus.core.sharing",
     "ALL_CAPABILITIES": "starterbus.core.transport",
     "PollResult": "starterbus.core.polling",
+    "PollTask": "starterbus.core.polling",
+    "run_task": "starterbus.core.polling",
     "PlannedRequest": "starterbus.core.polling",
     "TransportCounters": "starterbus.core.polling",
 }
@@ -202,6 +204,7 @@ __all__ = [
     "PluginOption",
     "PointDef",
     "PollResult",
+    "PollTask",
     "Profile",
     "ProfileError",
     "Proposal",
@@ -243,6 +246,7 @@ __all__ = [
     "parse_hex",
     "parse_host_port",
     "resolve_options",
+    "run_task",
     "shutdown_bus",
     "status_with_currents",
 ]

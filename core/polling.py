@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import dataclasses
+import select
+from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from starterbus.core.model import Reading
@@ -93,3 +96,45 @@ class TransportCounters:
             value = getattr(self, f.name)
             out[f.name] = round(value, 6) if isinstance(value, float) else value
         return out
+
+
+class PollTask(ABC):
+    """One poll in progress that a poller advances without blocking, so one thread can keep many lines busy.
+
+    The driver waits until :attr:`fd` is readable or the monotonic time :attr:`wake_at` has come, whichever is
+    first, and calls :meth:`advance` with the time it read after waiting; it repeats while :attr:`done` is
+    False (``fd`` may change between calls: a reconnect). Then :meth:`result` gives the poll's result or raises
+    its error. The task owns its line from the first :meth:`advance` until it is done; :meth:`cancel` gives
+    the line back unfinished (a poller that stops). Made by :meth:`Transport.start_poll
+    <starterbus.core.transport.Transport.start_poll>`.
+    """
+
+    fd: int = -1
+    wake_at: float = 0.0
+    done: bool = False
+
+    @abstractmethod
+    def advance(self, now: float) -> None:
+        """Do what is due at ``now`` (read what arrived, send, time out); never blocks."""
+
+    @abstractmethod
+    def result(self) -> PollResult:
+        """The poll's result once :attr:`done`; raises the poll's error (a ``StarterbusError``)."""
+
+    @abstractmethod
+    def cancel(self) -> None:
+        """Stop where it is and give the line back (idempotent); :meth:`result` then raises."""
+
+
+def run_task(task: PollTask, clock: Callable[[], float]) -> PollResult:
+    """Drive ``task`` to its end in the calling thread (one task, blocking): what a poller does for many."""
+    try:
+        while True:
+            task.advance(clock())
+            if task.done:
+                return task.result()
+            wait = task.wake_at - clock()
+            if wait > 0:
+                select.select([task.fd] if task.fd >= 0 else [], [], [], wait)
+    finally:
+        task.cancel()

@@ -22,7 +22,7 @@ from typing import Any
 from starterbus.core.errors import NotOpenError, UnsupportedOperationError
 from starterbus.core.model import Kind, PointDef, Reading
 from starterbus.core.plugin import Annotation, RunningSimulator, TransportPlugin
-from starterbus.core.polling import PlannedRequest, PollResult, TransportCounters
+from starterbus.core.polling import PlannedRequest, PollResult, PollTask, TransportCounters
 from starterbus.core.profile import Profile
 from starterbus.core.status import Command, Status
 from starterbus.core.url import DeviceUrl
@@ -35,6 +35,7 @@ __all__ = [
     "Capability",
     "PlannedRequest",
     "PollResult",
+    "PollTask",
     "RunningSimulator",
     "Transport",
     "TransportCounters",
@@ -65,7 +66,7 @@ _READS = frozenset({Capability.READ_MEASUREMENTS, Capability.READ_PARAMETERS})
 #: the public methods the template owns: a subclass overrides the hook ``_NAME`` instead
 TEMPLATE_METHODS = (
     "open", "close", "read_points", "write_parameter", "read_status", "send_command", "identify",
-    "preview_write", "preview_command", "poll",
+    "preview_write", "preview_command", "poll", "start_poll",
 )  # fmt: skip
 
 #: the hook that serves each capability (both reads share one)
@@ -85,10 +86,10 @@ class Transport(ABC):
     and the URL, before :meth:`open` and after :meth:`close`), apply the rules every transport shares (a
     capability not declared raises :meth:`unsupported`; no points, no request) and then call the protected
     hooks a plugin overrides: ``_open``, ``_close``, ``_read_points``, ``_write_parameter``, ``_read_status``,
-    ``_send_command``, ``_identify``, ``_preview_write``, ``_preview_command``, ``_poll``. A hook runs only
-    in the state it needs, so it never checks it. ``open`` and ``close`` are idempotent and a closed transport
-    may be opened again (a poller reconnects). Use as a context manager; not shared between threads unless
-    documented.
+    ``_send_command``, ``_identify``, ``_preview_write``, ``_preview_command``, ``_poll``, ``_start_poll``. A
+    hook runs only in the state it needs, so it never checks it. ``open`` and ``close`` are idempotent and a
+    closed transport may be opened again (a poller reconnects). Use as a context manager; not shared between
+    threads unless documented.
     """
 
     #: the plugin name (entry point / URL scheme)
@@ -257,13 +258,23 @@ class Transport(ABC):
     def poll(self, points: Sequence[PointDef], status: bool) -> PollResult:
         """The status (if ``status``) and ``points`` in as few requests as the transport can (the hook
         ``_poll``; by default ``_read_status`` then ``_read_points``)."""
+        self._check_poll(points, status)
+        return self._poll(points, status)
+
+    def start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
+        """:meth:`poll` as a :class:`PollTask` a poller advances without blocking (many lines, one thread), or
+        None where this transport (or this connection of it) polls only by blocking: then call :meth:`poll`.
+        Nothing is sent before the task's first ``advance``."""
+        self._check_poll(points, status)
+        return self._start_poll(points, status)
+
+    def _check_poll(self, points: Sequence[PointDef], status: bool) -> None:
         if self._state is not _OPEN:
             raise self._not_open()
         if status:
             self._check_capability(Capability.STATUS, "read the status")
         if points and not self.capabilities >= _READS:
             self._check_reads(points)
-        return self._poll(points, status)
 
     # -- hooks (override what the capabilities declare; the template has checked the state) ------------------
 
@@ -292,6 +303,10 @@ class Transport(ABC):
     def _poll(self, points: Sequence[PointDef], status: bool) -> PollResult:
         """A transport that can merge the status and the points into fewer requests overrides this."""
         return PollResult(self._read_status() if status else None, self._read_points(points) if points else [])
+
+    def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
+        """A transport whose poll can run as a :class:`PollTask` returns one (default: None, blocking only)."""
+        return None
 
     # -- polling helpers (plain overridable methods: no state) ----------------------------------------------
 

@@ -125,9 +125,9 @@ class ScriptedLink(Link):
             nxt = self._next()
             self.clock.now = nxt if nxt is not None and nxt <= deadline else deadline
 
-    def take_input(self) -> bytes:
+    def take_input(self, limit: int = 512) -> bytes:
         self._arrive()
-        out, self.buffer = self.buffer, b""
+        out, self.buffer = self.buffer[:limit], self.buffer[limit:]
         return out
 
     def transfer(self, frame: bytes, size: int, deadline: float, limit: int, wait: float) -> bytes:

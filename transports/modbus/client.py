@@ -26,6 +26,7 @@ from starterbus.core.transport import (
     Capability,
     PlannedRequest,
     PollResult,
+    PollTask,
     Transport,
     TransportCounters,
 )
@@ -42,7 +43,8 @@ from starterbus.transports.modbus.frames import (
     WriteRequest,
 )
 from starterbus.transports.modbus.line import Exchange, Link, RtuLine
-from starterbus.transports.modbus.poll_plan import PollPlans
+from starterbus.transports.modbus.line_task import LineTask
+from starterbus.transports.modbus.poll_plan import PollPlans, sort_out
 from starterbus.transports.modbus.poll_plan import run as run_poll_plan
 from starterbus.transports.modbus.slave import PROTOCOL, TRANSPORT, max_read_registers
 from starterbus.transports.modbus.timing import char_time
@@ -262,6 +264,30 @@ class ModbusRtuTransport(Transport):
         self._no_broadcast_reads()
         plan = self.poll_plans.get(points, status)
         return run_poll_plan(self.read_registers, plan, points, self.profile, self._source)
+
+    def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
+        line = self._line or self.line
+        if line.link.fd < 0:  # pyserial without a file descriptor: blocking reads only
+            return None
+        self._no_broadcast_reads()
+        plan = self.poll_plans.get(points, status)
+        exchanges = [
+            self._reads.get(request) or self._prepare(self._reads, request, ReadRequest(self.unit, *request))
+            for request in plan.requests
+        ]
+
+        def finish(responses: list[Response]) -> PollResult:
+            values: tuple[int, ...] = ()
+            for response in responses:
+                assert isinstance(response, ReadResponse)  # _refuse_exceptions let nothing else through
+                values += response.values
+            return sort_out(plan, values, points, self.profile, self._source)
+
+        return LineTask(line, exchanges, self._counters, self._refuse_exceptions, finish)
+
+    def _refuse_exceptions(self, exchange: Exchange, response: Response) -> None:
+        if isinstance(response, ExceptionResponse):
+            raise self._remote_error(exchange.request, response)
 
     def plan(self, points: Sequence[PointDef], status: bool) -> list[PlannedRequest]:
         return self.poll_plans.describe(self.poll_plans.get(points, status), self.unit)

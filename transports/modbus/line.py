@@ -53,6 +53,18 @@ class RtuLine:
     def name(self) -> str:
         return self._name
 
+    @property
+    def clock(self) -> Callable[[], float]:
+        return self._clock
+
+    @property
+    def broken(self) -> bool:
+        """A transport error broke the link: the next transaction reopens / reconnects it."""
+        return self._broken or self._closed
+
+    def mark_broken(self) -> None:
+        self._broken = True
+
     def check_settings(self, settings: SerialSettings) -> None:
         if settings != self.settings:
             raise ConfigurationError(
@@ -66,7 +78,7 @@ class RtuLine:
             self._closed = True
             self.link.close()
 
-    def _usable_link(self) -> Link:
+    def usable_link(self) -> Link:
         """The link, reopened (serial) or reconnected (TCP) if a transport error broke it."""
         if self._closed:
             raise TransportError(f"{self.name} is closed")
@@ -86,10 +98,7 @@ class RtuLine:
             wait = guard.quiet_at - now
             if wait > 0:
                 if now >= give_up:
-                    raise TransportError(
-                        f"{self.name}: the line did not fall silent within {exchange.quiet_limit:g} s "
-                        f"(last bytes {hex_bytes(guard.last_stray)})"
-                    )
+                    raise self.never_silent(exchange)
                 ready = link.wait_readable(min(wait, give_up - now))
                 data = link.take_input() if ready else b""
                 now = clock()
@@ -104,6 +113,18 @@ class RtuLine:
                     return now
                 now = clock()
             guard.stray(data, now, exchange.quarantine)
+
+    def never_silent(self, exchange: Exchange) -> TransportError:
+        return TransportError(
+            f"{self.name}: the line did not fall silent within {exchange.quiet_limit:g} s "
+            f"(last bytes {hex_bytes(self.guard.last_stray)})"
+        )
+
+    def no_answer(self, exchange: Exchange) -> TimeoutError:
+        return TimeoutError(
+            f"{self.name}: no answer from unit {exchange.request.unit} within "
+            f"{exchange.policy.timeout:g} s to {exchange.frame.hex(' ').upper()}"
+        )
 
     def prepare(self, request: Request, policy: TransactionPolicy) -> Exchange:
         """``request`` made ready for :meth:`run` (encoded and checked: an invalid request raises here)."""
@@ -132,7 +153,7 @@ class RtuLine:
             attempt = 0
             try:
                 if self._broken or self._closed:
-                    self._usable_link()
+                    self.usable_link()
                 guard, link, clock = self.guard, self.link, self._clock
                 while True:
                     attempt += 1
@@ -145,7 +166,7 @@ class RtuLine:
                         link.write(exchange.frame)
                         guard.broadcast_sent(clock(), exchange.wire, exchange.policy.turnaround)
                         if counters is not None:
-                            self._count(counters, exchange, attempt, 0, None)
+                            self.count(counters, exchange, attempt, 0, None)
                         return None
                     try:
                         deadline, length = started + exchange.budget, exchange.answer_length
@@ -166,18 +187,18 @@ class RtuLine:
                             raise guard.trailing(data, extra)
                         guard.delivered()
                         if counters is not None:
-                            self._count(counters, exchange, attempt, len(data), None)
+                            self.count(counters, exchange, attempt, len(data), None)
                         return response
                     except (TimeoutError, DecodeError) as exc:
-                        self._failed(exchange, exc, attempt)
+                        self.failed(exchange, exc, attempt)
             except StarterbusError as exc:
                 if isinstance(exc, TransportError) and not isinstance(exc, TimeoutError):
                     self._broken = True  # the next transaction reopens / reconnects
                 if counters is not None:
-                    self._count(counters, exchange, max(1, attempt), 0, exc)
+                    self.count(counters, exchange, max(1, attempt), 0, exc)
                 raise
 
-    def _count(
+    def count(
         self, c: TransportCounters, exchange: Exchange, sent: int, received: int, failure: StarterbusError | None
     ) -> None:
         """Count one transaction: ``sent`` frames (repeats included), the ``received`` bytes of the answer it
@@ -191,7 +212,7 @@ class RtuLine:
         c.bytes_received += received
         c.wire_time += (sent * len(exchange.frame) + received) * self.char_time + 2 * sent * self._silence
 
-    def _failed(self, exchange: Exchange, exc: TimeoutError | DecodeError, attempt: int) -> None:
+    def failed(self, exchange: Exchange, exc: TimeoutError | DecodeError, attempt: int) -> None:
         """Attempt ``attempt`` failed with ``exc``: the line is quarantined; raise ``exc`` if it was the last."""
         self.guard.failed(self._clock(), exchange.quarantine)  # the next request waits the quarantine
         attempts = exchange.attempts
@@ -230,10 +251,7 @@ class RtuLine:
                 if event is NEED_DATA and len(data) < needed:
                     if receiver.received:
                         raise receiver.truncated_error()
-                    raise TimeoutError(
-                        f"{self.name}: no answer from unit {exchange.request.unit} within "
-                        f"{exchange.policy.timeout:g} s to {exchange.frame.hex(' ').upper()}"
-                    )
+                    raise self.no_answer(exchange)
             else:
                 event = receiver.next_event()
             if event is not NEED_DATA:

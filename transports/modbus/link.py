@@ -216,11 +216,12 @@ class Link:
         """True as soon as bytes are there to read; False after ``timeout`` seconds of nothing."""
         return bool(select.select(self._fds, _NOTHING, _NOTHING, max(0.0, timeout))[0])
 
-    def take_input(self) -> bytes:
-        """Whatever input is waiting, without waiting (b"" if none): how input is discarded."""
+    def take_input(self, limit: int = _READ_CHUNK) -> bytes:
+        """Whatever input is waiting, up to ``limit`` bytes, without waiting (b"" if none): how input is
+        discarded, and how a poller that waits on many lines at once reads."""
         if not select.select(self._fds, _NOTHING, _NOTHING, 0)[0]:
             return b""
-        return self._recv(_READ_CHUNK)
+        return self._recv(limit)
 
     def close(self) -> None:
         if not self.closed:
@@ -315,9 +316,9 @@ class PySerialLink(Link):
             self._pending = self._port_read(1, timeout)
         return bool(self._pending)
 
-    def take_input(self) -> bytes:
-        out, self._pending = self._pending, b""
-        return out + self._port_read(_READ_CHUNK, 0.0)
+    def take_input(self, limit: int = _READ_CHUNK) -> bytes:
+        out, self._pending = self._pending[:limit], self._pending[limit:]
+        return out + self._port_read(limit - len(out), 0.0) if len(out) < limit else out
 
     def close(self) -> None:
         if not self.closed:

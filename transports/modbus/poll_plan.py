@@ -159,5 +159,12 @@ def run(
     values: tuple[int, ...] = ()
     for start, count in plan.requests:
         values += read_registers(start, count)
+    return sort_out(plan, values, points, profile, source)
+
+
+def sort_out(
+    plan: PollPlan, values: Sequence[int], points: Sequence[PointDef], profile: Profile, source: str
+) -> PollResult:
+    """The poll's result from the ``values`` of the plan's answers, one after another."""
     status = decode_status(profile, [values[i] for i in plan.status_at], source) if plan.status_at else None
     return PollResult(status, [Reading(p, values[i]) for p, i in zip(points, plan.points_at, strict=True)])
