@@ -103,10 +103,10 @@ class PollTask(ABC):
 
     The driver waits until :attr:`fd` is readable or the monotonic time :attr:`wake_at` has come, whichever is
     first, and calls :meth:`advance` with the time it read after waiting; it repeats while :attr:`done` is
-    False (``fd`` may change between calls: a reconnect). Then :meth:`result` gives the poll's result or raises
-    its error. The task owns its line from the first :meth:`advance` until it is done; :meth:`cancel` gives
-    the line back unfinished (a poller that stops). Made by :meth:`Transport.start_poll
-    <starterbus.core.transport.Transport.start_poll>`.
+    False (``fd`` may change between calls: a reconnect; -1: wait for ``wake_at`` only). Then :meth:`result`
+    gives the poll's result or raises its error. The task owns its line from the first :meth:`advance` until
+    it is done; :meth:`cancel` gives the line back unfinished (a poller that stops). Made by
+    :meth:`Transport.start_poll <starterbus.core.transport.Transport.start_poll>`.
     """
 
     fd: int = -1

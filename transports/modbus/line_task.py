@@ -204,8 +204,9 @@ class LineTask(PollTask):
     def _receive(self, exchange: Exchange, now: float) -> bool:
         """Read what arrived; on a whole answer go on to the trailing silence. False: wait more."""
         line, receiver = self.line, self._receiver
+        self.fd = line.link.fd  # watched again after a look-again-later
         if receiver is None:
-            chunk = line.link.take_input(exchange.answer_length - len(self._data))
+            chunk = line.link.read_ready(exchange.answer_length - len(self._data))
             if chunk:
                 self._at = line.clock()
                 self._data += chunk
@@ -219,8 +220,16 @@ class LineTask(PollTask):
             ):
                 receiver = self._receiver = ResponseReceiver(exchange.request)
                 receiver.feed(data)
+            elif chunk and not line.guard.min_char_time and exchange.answer_length - len(data) > 1:
+                # the rest of a normal answer cannot be here sooner than the baud rate brings it: look again
+                # when all but its last byte can have come, instead of at every byte (only where no wire
+                # timing is checked: pty, TCP); the last byte is read as soon as it is there
+                self.fd = -1
+                rest = (exchange.answer_length - len(data) - 1) * line.char_time
+                self.wake_at = min(self._deadline, self._at + rest)
+                return False
         else:
-            chunk = line.link.take_input(max(1, receiver.expected_length - len(receiver.received)))
+            chunk = line.link.read_ready(max(1, receiver.expected_length - len(receiver.received)))
             if chunk:
                 self._at = line.clock()
                 receiver.feed(chunk)

@@ -1,0 +1,367 @@
+"""One bus of a fleet: its devices' schedule, their polls and what they put on the wire; one transaction at a
+time per bus, devices on their own periods.
+
+Each poll is one :meth:`Transport.poll <starterbus.core.transport.Transport.poll>`: the status and the configured
+points through the transport's poll plan (on Modbus RTU every register once, merged into the fewest requests),
+run by the bus's own thread (:meth:`BusWorker.run`) or, where the transports offer it, as a
+:class:`~starterbus.core.polling.PollTask` that one thread advances for many buses (:mod:`starterbus.fleet.mux`).
+A device is polled on a grid of its period, so a poll that starts late (the line was busy) does not push the
+following ones back.
+
+A device that stops answering is marked offline at once (its values are dropped, never shown as fresh). From
+then on it is only probed (:mod:`starterbus.fleet.probing`): one attempt with a short timeout, with exponential
+backoff and jitter up to ``max_backoff``, and all probes of a line within a bounded share of its time; it comes
+back by itself. It never touches other buses. Commands and writes for a device are queued to its bus worker
+(:meth:`FleetPoller.submit <starterbus.fleet.poller.FleetPoller.submit>`), so they take their turn on the line
+like any poll.
+
+Each bus worker adds up what its transports report putting on the wire (:meth:`FleetPoller.line_stats`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import heapq
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from starterbus.core.device import Device, open_device
+from starterbus.core.errors import (
+    StarterbusError,
+    TimeoutError,
+    TransportError,
+    UnsupportedOperationError,
+)
+from starterbus.core.model import PointDef, Value
+from starterbus.core.polling import PollResult
+from starterbus.core.status import Status
+from starterbus.core.transport import TransportCounters
+from starterbus.fleet.config import BusConfig, DeviceConfig
+from starterbus.fleet.line_stats import LineStats
+from starterbus.fleet.plan import poll_points
+from starterbus.fleet.probing import ProbeBudget, backoff
+from starterbus.fleet.sample import Sample
+
+if TYPE_CHECKING:
+    from starterbus.fleet.poller import FleetPoller
+
+_PR_SET_TIMERSLACK = 29
+
+
+def precise_timers() -> None:
+    """Linux: 1 us timer slack for the calling polling thread instead of 50 us, so that a wait for the line's silent
+    interval ends when the interval does (a line's throughput is a chain of such waits). Best effort."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+@dataclass
+class DeviceRuntime:
+    """What the poller knows about one device right now."""
+
+    config: DeviceConfig
+    device: Device | None = None
+    online: bool | None = None  # None: not polled yet
+    last_ok: float | None = None  # monotonic time of the last good poll
+    last_sample: Sample | None = None
+    errors: int = 0
+    polls: int = 0
+    failures_in_a_row: int = 0
+    next_due: float = 0.0
+    skipped: set[str] = field(default_factory=set)  # keys this transport cannot read, reported once
+    points: list[PointDef] | None = None  # what each poll reads, resolved once the device is open
+    status: bool = False  # whether each poll reads the status
+    slowest_request: float = 0.0  # longest time per request of a good poll, s (floor of the probe timeout)
+    probes: int = 0
+    slot: int = -1  # its place in its bus's list of devices
+
+
+@dataclass(slots=True)
+class Attempt:
+    """One poll of one device being made: when it started, whether it is a probe, what it reads."""
+
+    runtime: DeviceRuntime
+    start: float
+    probe: bool
+    device: Device | None = None
+    points: list[PointDef] = field(default_factory=list)
+    before: TransportCounters | None = None
+
+    def policy(self, timeout: float | None) -> contextlib.AbstractContextManager[None]:
+        """A probe's policy (one short attempt), else the transport's own."""
+        if timeout is None or self.device is None:
+            return contextlib.nullcontext()
+        return self.device.transport.probe_policy(timeout)
+
+
+class BusWorker:
+    """One bus: the devices' schedule (a queue of due times), their polls and jobs, the line's counts."""
+
+    def __init__(self, bus: BusConfig, poller: FleetPoller) -> None:
+        self.bus = bus
+        self.poller = poller
+        self.devices = [DeviceRuntime(d, slot=i) for i, d in enumerate(bus.devices)]
+        self.jobs: list[tuple[str, Callable[[Device], Any], Future[Any]]] = []
+        self.wake = threading.Event()
+        self.thread = threading.Thread(target=self.run, name=f"bus-{bus.name}", daemon=True)
+        self.stats = LineStats(bus.name, started=poller.clock())
+        self.budget = ProbeBudget(poller.probing.share, poller.probing.timeout or 1.0, poller.clock())
+        self.queue = [(0.0, i) for i in range(len(self.devices))]  # (due, device index), a heap
+        self.rounds_left = poller.rounds
+        self.done_in_round: set[int] = set()
+        self.finished = False  # the rounds asked for are done
+        self.notify: Callable[[], None] = self.wake.set  # tells whoever drives the bus that a job is queued
+
+    @property
+    def transactions(self) -> int:
+        return self.stats.wire.transactions
+
+    # -- the schedule ----------------------------------------------------------------------------------------
+
+    def next_due(self, now: float) -> tuple[float, int]:
+        """(due time, device index) of the next poll: the head of the queue, once probes that the line's probe
+        budget holds back have been moved to when it allows them."""
+        queue = self.queue
+        while True:
+            due, index = queue[0]
+            later = self.start_time(due, self.devices[index], now)
+            if later <= due:
+                return due, index
+            heapq.heapreplace(queue, (later, index))
+
+    def take(self, due: float) -> DeviceRuntime:
+        """The device at the head of the queue (due at ``due``) leaves it to be polled."""
+        _, index = heapq.heappop(self.queue)
+        runtime = self.devices[index]
+        runtime.next_due = due
+        return runtime
+
+    def polled(self, runtime: DeviceRuntime) -> None:
+        """Back in the queue at its next due time; counts the rounds asked for (``finished`` when done)."""
+        index = runtime.slot
+        heapq.heappush(self.queue, (runtime.next_due, index))
+        if self.rounds_left is not None:
+            self.done_in_round.add(index)
+            if len(self.done_in_round) == len(self.devices):
+                self.done_in_round.clear()
+                self.rounds_left -= 1
+                if self.rounds_left <= 0:
+                    self.finished = True
+                self.queue = [(0.0, i) for i in range(len(self.devices))]
+
+    def start_time(self, due: float, runtime: DeviceRuntime, now: float) -> float:
+        """When a device's poll due at ``due`` may start: then, or for a probe of an offline device, once the
+        line's probe budget allows it."""
+        if due <= now and self._probing(runtime):
+            wait = self.budget.wait(now)
+            if wait > 0:
+                return now + wait
+        return due
+
+    def _probing(self, runtime: DeviceRuntime) -> bool:
+        """An offline device is probed, not polled (unless probes are switched off)."""
+        return runtime.online is False and self.poller.probing.timeout is not None
+
+    # -- the bus's own thread (transports that poll only by blocking) ------------------------------------------
+
+    def run(self, first: DeviceRuntime | None = None) -> None:
+        """Poll the bus until the poller stops or the rounds are done; ``first``: a device already taken from
+        the queue (the multiplexer hands over a bus whose transport cannot poll without blocking)."""
+        poller = self.poller
+        self.stats.started = poller.clock() if first is None else self.stats.started
+        precise_timers()
+        try:
+            if first is not None:
+                self._poll(first)
+                self.polled(first)
+            while not poller.stopping.is_set() and not self.finished:
+                self.run_jobs()
+                now = poller.clock()
+                due, _ = self.next_due(now)
+                wait = due - now
+                if wait > 0:
+                    self.wake.wait(wait)
+                    self.wake.clear()
+                    continue
+                runtime = self.take(due)
+                self._poll(runtime)
+                if self.bus.delay:
+                    poller.stopping.wait(self.bus.delay)
+                self.polled(runtime)
+        finally:
+            self.shut_down()
+
+    def shut_down(self) -> None:
+        self.run_jobs()
+        for runtime in self.devices:
+            self._close(runtime)
+        self.stats.stopped = self.poller.clock()
+
+    def run_jobs(self) -> None:
+        while self.jobs:
+            name, fn, future = self.jobs.pop(0)
+            runtime = next(r for r in self.devices if r.config.name == name)
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                device = self._ensure_open(runtime)
+                before, began = self._counters(device), self.poller.clock()
+                try:
+                    future.set_result(fn(device))
+                finally:
+                    self._count(device, before, began)
+            except BaseException as exc:  # delivered to the caller through the future
+                future.set_exception(exc)
+
+    # -- counting -----------------------------------------------------------------------------------------
+
+    @staticmethod
+    def _counters(device: Device) -> TransportCounters | None:
+        counters = device.transport.counters()
+        return counters.copy() if counters is not None else None
+
+    def _count(
+        self, device: Device, before: TransportCounters | None, began: float, ended: float | None = None
+    ) -> TransportCounters:
+        """What one poll or job put on the wire (a transport that does not count: one transaction)."""
+        after = device.transport.counters()
+        if before is None or after is None:
+            delta = TransportCounters(transactions=1, requests=1)
+        else:
+            delta = after.minus(before)
+        delta.busy_time = (self.poller.clock() if ended is None else ended) - began  # the time the line was held
+        self.stats.wire.add(delta)
+        return delta
+
+    # -- one device ---------------------------------------------------------------------------------------
+
+    def _ensure_open(self, runtime: DeviceRuntime) -> Device:
+        if runtime.device is None:
+            device = open_device(runtime.config.url, runtime.config.model)
+            device.open()
+            runtime.device = device
+        return runtime.device
+
+    def _close(self, runtime: DeviceRuntime) -> None:
+        if runtime.device is not None:
+            try:
+                runtime.device.close()
+            except StarterbusError:
+                pass
+            runtime.device = None
+
+    def _what_to_read(self, runtime: DeviceRuntime, device: Device) -> list[PointDef]:
+        """The points each poll reads, resolved once; keys the transport cannot read are reported once."""
+        if runtime.points is None:
+            points, runtime.status, skipped = poll_points(runtime.config, device)
+            runtime.skipped |= skipped
+            runtime.points = points
+        return runtime.points
+
+    def probe_timeout(self, attempt: Attempt) -> float | None:
+        return self.poller.probing.timeout_for(attempt.runtime.slowest_request) if attempt.probe else None
+
+    def begin(self, runtime: DeviceRuntime) -> Attempt:
+        """A poll of ``runtime`` starts now."""
+        return Attempt(runtime, self.poller.clock(), self._probing(runtime))
+
+    def prepare(self, attempt: Attempt) -> Device:
+        """The device opened (raises what opening raises), what the poll reads, the counters before it."""
+        runtime = attempt.runtime
+        device = self._ensure_open(runtime)
+        attempt.points = self._what_to_read(runtime, device)
+        attempt.before = self._counters(device)
+        attempt.device = device
+        return device
+
+    def _poll(self, runtime: DeviceRuntime) -> None:
+        """One poll, blocking."""
+        attempt = self.begin(runtime)
+        result: PollResult | None = None
+        error: StarterbusError | None = None
+        try:
+            device = self.prepare(attempt)
+            with attempt.policy(self.probe_timeout(attempt)):
+                result = device.transport.poll(attempt.points, runtime.status)
+        except StarterbusError as exc:
+            error = exc
+        self.end(attempt, result, error)
+
+    def end(
+        self, attempt: Attempt, result: PollResult | None, error: StarterbusError | None, ended: float | None = None
+    ) -> None:
+        """A poll is over (``result``, or ``error``; ``ended``: when it gave the line back, if not now): count
+        it, set the device's state and next time, emit the sample."""
+        poller = self.poller
+        runtime, start, probe = attempt.runtime, attempt.start, attempt.probe
+        config = runtime.config
+        device = attempt.device
+        wire = self._count(device, attempt.before, start, ended) if device is not None else None
+        status: Status | None = None
+        values: dict[str, Value] = {}
+        online = True
+        if result is not None and device is not None:
+            try:
+                status = result.status
+                if status is not None:
+                    device.guard.note_status(status)  # a queued write's state rule need not read it again
+                values = {r.point.key: r.value(device.transport.name) for r in result.readings}
+            except StarterbusError as exc:
+                error = exc
+        if isinstance(error, (TimeoutError, TransportError)):
+            online = False
+            if not isinstance(error, TimeoutError):
+                self._close(runtime)  # port or socket gone: reopen on the next attempt
+        elif error is not None and not isinstance(error, UnsupportedOperationError):
+            status, values = None, {}  # the device answered, but with an error or garbage
+        now = poller.clock()
+        if probe:
+            runtime.probes += 1
+            self.stats.probes += 1
+            self.budget.spend(now - start, now)
+        if error is not None:
+            runtime.errors += 1
+        runtime.polls += 1
+        if online:
+            runtime.failures_in_a_row = 0
+            # the next slot of the device's grid; a poll more than a period late starts a new grid
+            due = runtime.next_due + config.period
+            runtime.next_due = due if due > start else start + config.period
+            if status is not None or values:
+                runtime.last_ok = now
+            if wire is not None and wire.requests and not probe:
+                runtime.slowest_request = max(runtime.slowest_request, (now - start) / wire.requests)
+        else:
+            runtime.failures_in_a_row += 1
+            runtime.next_due = now + backoff(
+                runtime.failures_in_a_row, config.period, poller.config.max_backoff, poller.rng
+            )
+        runtime.online = online
+        self.stats.polls += 1
+        sample = Sample(
+            device=config.name,
+            bus=config.bus,
+            model=config.model,
+            time=time.time(),
+            online=online,
+            status=status if online else None,
+            values=values if online else {},
+            error=None if error is None else str(error),
+            errors=runtime.errors,
+            unreadable=tuple(sorted(runtime.skipped)),
+            wire=wire,
+            probe=probe,
+        )
+        runtime.last_sample = sample
+        poller._emit(sample)
+
+
+__all__ = ["BusWorker", "DeviceRuntime"]

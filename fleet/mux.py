@@ -1,0 +1,293 @@
+"""One thread polling many buses at once: each poll a :class:`~starterbus.core.polling.PollTask`, all waited on
+with one selector.
+
+A thread per bus spends most of its CPU handing the interpreter lock to the other bus threads around every
+``select`` and ``read``; one thread that waits on every line's descriptor and timer at once does the same work
+without the hand-overs and wakes for whichever line is due (bench/fleet/rtu_scale.py measures both). Per bus
+the rules are those of :class:`~starterbus.fleet.bus_worker.BusWorker`, which keeps the schedule and the
+bookkeeping: one poll at a time, devices on their grids, probes within the line's budget, ``delay`` between
+polls. A job (command, write) for a device on a multiplexed bus runs in a thread of its own while that bus
+is lent to it; its other buses go on. A bus whose transport polls only by blocking (``start_poll`` gives
+None: a pyserial port without a file descriptor) is handed to a thread of its own at its first poll.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import selectors
+import threading
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from starterbus.core.errors import StarterbusError
+from starterbus.core.polling import PollResult, PollTask
+from starterbus.fleet.bus_worker import Attempt, BusWorker, DeviceRuntime, precise_timers
+
+if TYPE_CHECKING:
+    from starterbus.fleet.poller import FleetPoller
+
+#: longest sleep when nothing is due (a stop or a job wakes the thread at once anyway)
+IDLE = 1.0
+#: select() takes descriptors below this (glibc's FD_SETSIZE)
+FD_SETSIZE = 1024
+
+
+class Waiter:
+    """Waits until registered descriptors are readable, with a timeout to the microsecond: ``select`` (epoll
+    counts whole milliseconds, which would stretch every silent interval by up to one), or the platform's
+    selector (epoll) while a descriptor is beyond ``select``'s limit."""
+
+    def __init__(self) -> None:
+        self._data: dict[int, _Bus | None] = {}
+        self._fds: list[int] = []
+        self._selector: selectors.BaseSelector | None = None
+
+    def register(self, fd: int, data: _Bus | None) -> None:
+        self._data[fd] = data
+        self._changed()
+
+    def unregister(self, fd: int) -> None:
+        del self._data[fd]
+        self._changed()
+
+    def _changed(self) -> None:
+        self._fds = list(self._data)
+        if self._selector is not None:
+            self._selector.close()
+            self._selector = None
+        if self._fds and max(self._fds) >= FD_SETSIZE:
+            self._selector = selectors.DefaultSelector()
+            for fd, data in self._data.items():
+                self._selector.register(fd, selectors.EVENT_READ, data)
+
+    def wait(self, timeout: float) -> list[_Bus | None]:
+        """The data of the descriptors that are readable, after at most ``timeout`` seconds."""
+        if self._selector is not None:
+            return [key.data for key, _ in self._selector.select(timeout)]
+        ready = select.select(self._fds, (), (), timeout)[0]
+        return [self._data[fd] for fd in ready]
+
+    def close(self) -> None:
+        if self._selector is not None:
+            self._selector.close()
+
+
+@dataclass(slots=True)
+class _Bus:
+    worker: BusWorker
+    task: PollTask | None = None
+    attempt: Attempt | None = None
+    fd: int = -1  # the descriptor registered for the task
+    free_at: float = 0.0  # the bus's ``delay`` after a poll
+    lent: threading.Thread | None = None  # a job thread that has the bus
+    returned: bool = False  # the job thread is done with it
+    handed_over: bool = False  # to a thread of its own
+
+
+class Multiplexer:
+    """Polls the given buses from one thread (:meth:`start`); stops with the poller."""
+
+    def __init__(self, poller: FleetPoller, workers: list[BusWorker]) -> None:
+        self.poller = poller
+        self.buses = [_Bus(w) for w in workers]
+        self.thread = threading.Thread(target=self._run, name="bus-mux", daemon=True)
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._waiter = Waiter()
+        self._waiter.register(self._wake_r, None)
+        for bus in self.buses:
+            bus.worker.notify = self.wake
+
+    def start(self) -> None:
+        self.thread.start()
+
+    def wake(self) -> None:
+        """Look at the buses again now (a job was queued, the poller stops)."""
+        try:
+            os.write(self._wake_w, b"!")
+        except (BlockingIOError, OSError):  # already woken (pipe full), or closed after the end
+            pass
+
+    @property
+    def alive(self) -> bool:
+        return self.thread.is_alive() or any(b.lent is not None and b.lent.is_alive() for b in self.buses)
+
+    # -- the loop --------------------------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        poller = self.poller
+        clock = poller.clock
+        precise_timers()
+        for bus in self.buses:
+            bus.worker.stats.started = clock()
+        try:
+            while not poller.stopping.is_set():
+                now = clock()
+                until = now + IDLE
+                busy = False
+                for bus in self.buses:
+                    if bus.handed_over:
+                        continue
+                    if bus.task is None:
+                        self._service(bus, now)
+                    if bus.task is not None:
+                        until = min(until, bus.task.wake_at)
+                        busy = True
+                    elif bus.lent is not None:
+                        busy = True
+                    elif not bus.worker.finished:
+                        until = min(until, bus.free_at if bus.free_at > now else bus.worker.next_due(now)[0])
+                        busy = True
+                if not busy:
+                    break  # every bus has done its rounds (or has a thread of its own)
+                ready = self._waiter.wait(max(0.0, until - clock()))
+                now = clock()
+                for which in ready:
+                    if which is None:
+                        self._drain()
+                    else:
+                        self._service(which, now)
+                for bus in self.buses:
+                    if bus.task is not None and bus.task.wake_at <= now:
+                        self._service(bus, now)
+        finally:
+            self._shut_down()
+
+    def _service(self, bus: _Bus, now: float) -> None:
+        """Advance the bus's poll; when it is over, start the next one that is due at once (the line's
+        silence after the last answer is already behind it)."""
+        while True:
+            task = bus.task
+            if task is not None:
+                task.advance(now)
+                if not task.done:
+                    if task.fd != bus.fd:
+                        self._watch(bus, task.fd)
+                    return
+                attempt, bus.task, bus.attempt = bus.attempt, None, None
+                assert attempt is not None
+                try:
+                    result: PollResult | None = task.result()
+                    error: StarterbusError | None = None
+                except StarterbusError as exc:
+                    result, error = None, exc
+                worker = bus.worker
+                if error is None and not attempt.probe and not worker.bus.delay and worker.queue:
+                    # a good poll leaves the line silent and healthy: the next request goes out first, this
+                    # poll's bookkeeping follows while its answer is on the way
+                    ended = self.poller.clock()
+                    following = self._next(bus, now) and self._task(bus)
+                    if following:
+                        following.advance(self.poller.clock())
+                    self._end(bus, attempt, result, error, ended)
+                    if following and not following.done:
+                        if following.fd != bus.fd:
+                            self._watch(bus, following.fd)
+                        return
+                    now = self.poller.clock()
+                    continue
+                self._end(bus, attempt, result, error)
+                now = self.poller.clock()
+            if not self._next(bus, now):
+                if bus.fd >= 0:
+                    self._watch(bus, -1)
+                return
+
+    @staticmethod
+    def _task(bus: _Bus) -> PollTask | None:
+        return bus.task
+
+    def _next(self, bus: _Bus, now: float) -> bool:
+        """Between polls: return a lent bus, lend it for queued jobs, or start the poll that is due (True)."""
+        worker = bus.worker
+        if bus.lent is not None:
+            if not bus.returned:
+                return False
+            bus.lent.join()
+            bus.lent = None
+        if worker.jobs:
+            bus.returned = False
+            bus.lent = threading.Thread(target=self._jobs, args=(bus,), name=f"jobs-{worker.bus.name}", daemon=True)
+            bus.lent.start()
+            return False
+        if worker.finished or bus.free_at > now or self.poller.stopping.is_set():
+            return False
+        due, _ = worker.next_due(now)
+        if due > now:
+            return False
+        runtime = worker.take(due)
+        attempt = bus.attempt = worker.begin(runtime)
+        try:
+            device = worker.prepare(attempt)
+            with attempt.policy(worker.probe_timeout(attempt)):
+                task = device.transport.start_poll(attempt.points, runtime.status)
+        except StarterbusError as exc:
+            bus.attempt = None
+            self._end(bus, attempt, None, exc)
+            return True
+        if task is None:
+            self._hand_over(bus, runtime)
+            return False
+        bus.task = task
+        return True
+
+    def _jobs(self, bus: _Bus) -> None:
+        try:
+            bus.worker.run_jobs()
+        finally:
+            bus.returned = True
+            self.wake()
+
+    def _watch(self, bus: _Bus, fd: int) -> None:
+        if bus.fd >= 0:
+            self._waiter.unregister(bus.fd)
+        bus.fd = fd
+        if fd >= 0:
+            self._waiter.register(fd, bus)
+
+    def _end(
+        self,
+        bus: _Bus,
+        attempt: Attempt,
+        result: PollResult | None,
+        error: StarterbusError | None,
+        ended: float | None = None,
+    ) -> None:
+        worker = bus.worker
+        worker.end(attempt, result, error, ended)
+        if worker.bus.delay:
+            bus.free_at = self.poller.clock() + worker.bus.delay
+        worker.polled(attempt.runtime)
+
+    def _hand_over(self, bus: _Bus, runtime: DeviceRuntime) -> None:
+        """This bus polls by blocking: it gets a thread of its own, starting with ``runtime``'s poll."""
+        bus.handed_over = True
+        bus.attempt = None
+        worker = bus.worker
+        worker.notify = worker.wake.set
+        worker.thread = threading.Thread(target=worker.run, args=(runtime,), name=f"bus-{worker.bus.name}", daemon=True)
+        worker.thread.start()
+
+    def _drain(self) -> None:
+        try:
+            while os.read(self._wake_r, 512):
+                pass
+        except (BlockingIOError, OSError):
+            pass
+
+    def _shut_down(self) -> None:
+        for bus in self.buses:
+            if bus.task is not None:
+                bus.task.cancel()
+                self._watch(bus, -1)
+                bus.task = None
+        for bus in self.buses:
+            if bus.lent is not None:
+                bus.lent.join()
+            if not bus.handed_over:
+                bus.worker.shut_down()
+        self._waiter.close()
+        os.close(self._wake_r)
+        os.close(self._wake_w)
