@@ -1,14 +1,16 @@
 """Benchmark: the fleet poller at scale on real-speed RTU lines, with its own CPU measured apart.
 
-Run: ``python bench/fleet/rtu_scale.py [--sizes 20 200 992] [--lines 16] [--seconds 20] [--period 1.0]``
+Run: ``python bench/fleet/rtu_scale.py [--sizes 20 200 992] [--lines 16] [--seconds 20] [--period 1.0]
+[--floor] [--baseline]``
 
 For each size N: ``--lines`` RTU lines at 19200 baud, each a line emulator process
 (``bench/modbus/line_emulator.py``: bytes paced at 11 bits a character, half duplex); ONE simulator process
 (this script with ``serve``) serving every line's units (JJR5000 and SSD1 alternating, units 1..62 at most);
-and the poller in this process, polling the status (status word + phase currents: one FC03 of 4 registers per
-device, the poll plan) of the N devices at ``--period``. 62 devices fit a line at 19200 baud and 1 s: one such
-FC03 takes 16.04 ms of wire (21 characters + two 3.5-character silences), 62 of them 0.995 s; 16 lines x 62 =
-992 devices is the fleet of "1000 devices on 16 lines".
+and the poller in this process (one thread for every line: fleet/mux.py), polling the status (status word +
+phase currents: one FC03 of 4 registers per device, the poll plan) of the N devices at ``--period``. 62
+devices fit a line at 19200 baud and 1 s: one such FC03 takes 16.04 ms of wire (21 characters + two
+3.5-character silences), 62 of them 0.995 s; 16 lines x 62 = 992 devices is the fleet of "1000 devices on 16
+lines".
 
 The window opens once every device has answered once and closes ``--seconds`` later. Reported per size:
 
@@ -22,8 +24,11 @@ The window opens once every device has answered once and closes ``--seconds`` la
   turnarounds the emulator saw (master: answer delivered -> next request; slave: request -> answer; the plan
   counts 3.5 characters = 2.005 ms for each) and how often the master broke the 3.5-character silence;
 * the CPU of the rig (the simulator process and the emulators), since all of it shares the machine's cores;
-* with ``--floor``: the rig's own limit, without the poller: one thread per line sends the same FC03 to every
-  unit back to back through the transport; its rate against the wire limit of the plan (1 / wire per round).
+* with ``--floor``: the rig's own limit, without the poller: one thread sends the same FC03 to every unit of
+  every line back to back (the poller's LineTask, waited on with select, no schedule and no samples); its rate
+  against the wire limit of the plan (1 / wire per round);
+* with ``--baseline``: the same size again with a thread per bus (``FleetPoller(multiplex=False)``, the poller
+  before fleet/mux.py), then the ratio of the two pollers' CPU and their slowest lines side by side.
 """
 
 from __future__ import annotations
@@ -119,52 +124,78 @@ def fleet_text(emulators: list[Emulator], counts: list[int], period: float) -> s
 
 
 def direct_loop(emulators: list[Emulator], counts: list[int], seconds: float) -> list[float]:
-    """The floor without the poller: per line one thread reading every unit's status FC03 (the same request as
-    the poll plan) through the transport, back to back, for ``seconds``. Returns transactions/s per line."""
-    from starterbus.core.device import open_device
+    """The floor without the poller: one thread sending every unit's status FC03 (the same request as the poll
+    plan) on every line back to back, each transaction a LineTask (the poller's own) waited on with select.
+    Returns transactions/s per line."""
+    import select
+
+    from starterbus.core.device import Device, open_device
     from starterbus.core.errors import StarterbusError
+    from starterbus.core.polling import PollResult
     from starterbus.transports.modbus.client import ModbusRtuTransport
+    from starterbus.transports.modbus.frames import ReadRequest, Response
+    from starterbus.transports.modbus.line_task import LineTask
+
+    lines: list[list[Device]] = []
+    for index, count in enumerate(counts):
+        url = f"modbus-rtu://{emulators[index].client}?baudrate={BAUD}&timeout=0.2&retries=1"
+        lines.append([open_device(f"{url}&unit={u}", MODELS[u % 2]).open() for u in range(1, count + 1)])
+
+    def task(device: Device) -> LineTask:
+        transport = device.transport
+        assert isinstance(transport, ModbusRtuTransport)
+        exchange = transport.line.prepare(ReadRequest(transport.unit, 1, 4), transport.config.policy)
+
+        def finish(responses: list[Response]) -> PollResult:
+            return PollResult(None, [])
+
+        return LineTask(transport.line, [exchange], transport.counters(), lambda e, r: None, finish)
 
     done = [0] * len(counts)
     failed: list[str] = []
-    stop = threading.Event()
-
-    def run(index: int) -> None:
-        url = f"modbus-rtu://{emulators[index].client}?baudrate={BAUD}&timeout=0.2&retries=1"
-        devices = [open_device(f"{url}&unit={u}", MODELS[u % 2]) for u in range(1, counts[index] + 1)]
-        for device in devices:
-            device.open()
-        try:
-            while not stop.is_set():
-                for device in devices:
-                    transport = device.transport
-                    assert isinstance(transport, ModbusRtuTransport)
+    turn = [0] * len(counts)
+    tasks = [task(devices[0]) for devices in lines]
+    now = time.monotonic()
+    start = now + 1.0
+    end = start + seconds
+    before: list[int] = []
+    try:
+        while now < end:
+            if not before and now >= start:
+                before, t0 = list(done), now
+            for i in range(len(tasks)):
+                if tasks[i].wake_at <= now:
+                    tasks[i].advance(now)
+                while tasks[i].done:
                     try:
-                        transport.read_registers(1, 4)
+                        tasks[i].result()
+                        done[i] += 1
                     except StarterbusError as exc:
-                        failed.append(f"{transport.describe()}: {exc}")
-                        continue
-                    done[index] += 1
-        finally:
+                        failed.append(str(exc))
+                    turn[i] = (turn[i] + 1) % len(lines[i])
+                    tasks[i] = task(lines[i][turn[i]])
+                    tasks[i].advance(time.monotonic())
+            wait = min(t.wake_at for t in tasks) - time.monotonic()
+            fds = {t.fd: i for i, t in enumerate(tasks) if t.fd >= 0}
+            ready = select.select(list(fds), [], [], max(0.0, wait))[0]
+            now = time.monotonic()
+            for fd in ready:
+                tasks[fds[fd]].advance(now)
+        t1 = now
+    finally:
+        for current in tasks:
+            current.cancel()
+        for devices in lines:
             for device in devices:
                 device.close()
-
-    threads = [threading.Thread(target=run, args=(i,), daemon=True) for i in range(len(counts))]
-    for thread in threads:
-        thread.start()
-    time.sleep(1.0)
-    before, t0 = list(done), time.monotonic()
-    time.sleep(seconds)
-    after, t1 = list(done), time.monotonic()
-    stop.set()
-    for thread in threads:
-        thread.join(timeout=5)
     if failed:
         print(f"  without the poller: {len(failed)} failed transactions, e.g. {failed[0]}", flush=True)
-    return [(a - b) / (t1 - t0) for a, b in zip(after, before, strict=True)]
+    return [(a - b) / (t1 - t0) for a, b in zip(done, before, strict=True)]
 
 
-def measure(n: int, lines: int, seconds: float, period: float, floor: bool = False) -> dict[str, object]:
+def measure(
+    n: int, lines: int, seconds: float, period: float, floor: bool = False, multiplex: bool = True
+) -> dict[str, object]:
     from starterbus.fleet.config import parse_fleet
     from starterbus.fleet.plan import fleet_plan
     from starterbus.fleet.poller import FleetPoller, Sample
@@ -198,7 +229,7 @@ def measure(n: int, lines: int, seconds: float, period: float, floor: bool = Fal
                 else:
                     errors[0] += 1
 
-        poller = FleetPoller(config, count)
+        poller = FleetPoller(config, count, multiplex=multiplex)
         with poller:
             if not seen.wait(60.0):
                 raise RuntimeError(f"devices never answered: {[d for d, c in good.items() if not c][:5]}")
@@ -257,6 +288,7 @@ def measure(n: int, lines: int, seconds: float, period: float, floor: bool = Fal
         )
     return {
         "devices": n,
+        "poller": "one thread (multiplexed)" if multiplex else "a thread per bus",
         "lines": len(used),
         "window_s": window,
         "rounds_per_s_min": min(rates.values()),
@@ -276,7 +308,7 @@ def report(result: dict[str, object]) -> None:
     assert isinstance(lines, list)
     of_limit = [line["of_limit"] for line in lines]
     print(
-        f"{result['devices']:>5} devices on {result['lines']:>2} lines: "
+        f"{result['devices']:>5} devices on {result['lines']:>2} lines, {result['poller']}: "
         f"rounds/s min {result['rounds_per_s_min']:.3f} mean {result['rounds_per_s_mean']:.3f}; "
         f"lines at {min(of_limit):.3f}..{max(of_limit):.3f} of their plan's limit; "
         f"poller CPU {result['poller_cpu_cores']:.3f} of a core "
@@ -288,7 +320,7 @@ def report(result: dict[str, object]) -> None:
     direct = [line["direct_of_wire_limit"] for line in lines if line["direct_of_wire_limit"] is not None]
     if direct:
         print(
-            f"  without the poller (one thread per line reading the same FC03 back to back): "
+            f"  without the poller (one thread sending the same FC03 to every unit of every line back to back): "
             f"{min(direct):.3f}..{max(direct):.3f} of the wire limit of the plan (1 / wire time per round)"
         )
     head = f"  {'line':<7} {'dev':>3} {'rounds/s':>8} {'limit':>6} {'of lim':>6} {'wire %':>6} {'emul %':>6} {'t/o':>4}"
@@ -302,6 +334,22 @@ def report(result: dict[str, object]) -> None:
             f"{line['silence_broken']:>6}",
             flush=True,
         )
+
+
+def compare(result: dict[str, object], base: dict[str, object]) -> None:
+    """One line of ratios: the multiplexed poller against a thread per bus, run side by side."""
+
+    def lowest(r: dict[str, object]) -> float:
+        lines = r["per_line"]
+        assert isinstance(lines, list)
+        return min(float(line["of_limit"]) for line in lines)
+
+    cpu, base_cpu = float(result["poller_cpu_cores"]), float(base["poller_cpu_cores"])  # type: ignore[arg-type]
+    print(
+        f"  one thread vs a thread per bus: poller CPU {cpu:.3f} / {base_cpu:.3f} = {cpu / base_cpu:.2f}x; "
+        f"slowest line {lowest(result):.3f} / {lowest(base):.3f} of its plan's limit",
+        flush=True,
+    )
 
 
 def main() -> None:
@@ -321,12 +369,22 @@ def main() -> None:
     parser.add_argument(
         "--floor", action="store_true", help="also measure the rig without the poller (the same FC03 back to back)"
     )
+    parser.add_argument(
+        "--baseline",
+        action="store_true",
+        help="also run the poller with a thread per bus (multiplex=False) right after, and print the ratios",
+    )
     args = parser.parse_args()
     results = []
     for n in args.sizes:
         result = measure(n, args.lines, args.seconds, args.period, args.floor)
         report(result)
         results.append(result)
+        if args.baseline:
+            base = measure(n, args.lines, args.seconds, args.period, multiplex=False)
+            report(base)
+            results.append(base)
+            compare(result, base)
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2), encoding="utf-8")
 
