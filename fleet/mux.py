@@ -20,7 +20,7 @@ import threading
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from starterbus.core.errors import StarterbusError
+from starterbus.core.errors import StarterbusError, TransportError
 from starterbus.core.polling import PollResult, PollTask
 from starterbus.fleet.bus_worker import Attempt, BusWorker, DeviceRuntime, precise_timers
 
@@ -82,6 +82,7 @@ class _Bus:
     free_at: float = 0.0  # the bus's ``delay`` after a poll
     lent: threading.Thread | None = None  # a job thread that has the bus
     returned: bool = False  # the job thread is done with it
+    crash: StarterbusError | None = None  # what went wrong where a task raised what it should not
     handed_over: bool = False  # to a thread of its own
 
 
@@ -161,7 +162,7 @@ class Multiplexer:
         while True:
             task = bus.task
             if task is not None:
-                task.advance(now)
+                self._step(bus, task, now)
                 if not task.done:
                     if task.fd != bus.fd:
                         self._watch(bus, task.fd)
@@ -172,7 +173,8 @@ class Multiplexer:
                     result: PollResult | None = task.result()
                     error: StarterbusError | None = None
                 except StarterbusError as exc:
-                    result, error = None, exc
+                    result, error = None, bus.crash or exc
+                bus.crash = None
                 worker = bus.worker
                 if error is None and not attempt.probe and not worker.bus.delay and worker.queue:
                     # a good poll leaves the line silent and healthy: the next request goes out first, this
@@ -180,7 +182,7 @@ class Multiplexer:
                     ended = self.poller.clock()
                     following = self._next(bus, now) and self._task(bus)
                     if following:
-                        following.advance(self.poller.clock())
+                        self._step(bus, following, self.poller.clock())
                     self._end(bus, attempt, result, error, ended)
                     if following and not following.done:
                         if following.fd != bus.fd:
@@ -194,6 +196,15 @@ class Multiplexer:
                 if bus.fd >= 0:
                     self._watch(bus, -1)
                 return
+
+    @staticmethod
+    def _step(bus: _Bus, task: PollTask, now: float) -> None:
+        """``task.advance(now)``; a defect in a transport fails its poll instead of stopping every bus."""
+        try:
+            task.advance(now)
+        except Exception as exc:
+            task.cancel()
+            bus.crash = TransportError(f"{bus.worker.bus.name}: the poll failed: {type(exc).__name__}: {exc}")
 
     @staticmethod
     def _task(bus: _Bus) -> PollTask | None:
