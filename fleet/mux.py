@@ -143,7 +143,11 @@ class Multiplexer:
                         busy = True
                 if not busy:
                     break  # every bus has done its rounds (or has a thread of its own)
-                ready = self._waiter.wait(max(0.0, until - clock()))
+                try:
+                    ready = self._waiter.wait(max(0.0, until - clock()))
+                except OSError:  # a descriptor closed under a task (by another thread): fail that poll
+                    ready = []
+                    self._drop_closed()
                 now = clock()
                 for which in ready:
                     if which is None:
@@ -280,6 +284,17 @@ class Multiplexer:
         worker.notify = worker.wake.set
         worker.thread = threading.Thread(target=worker.run, args=(runtime,), name=f"bus-{worker.bus.name}", daemon=True)
         worker.thread.start()
+
+    def _drop_closed(self) -> None:
+        for bus in self.buses:
+            if bus.task is not None and bus.fd >= 0:
+                try:
+                    os.fstat(bus.fd)
+                except OSError as exc:
+                    bus.task.cancel()
+                    bus.crash = TransportError(f"{bus.worker.bus.name}: the line was closed under the poll: {exc}")
+                    self._watch(bus, -1)
+                    self._service(bus, self.poller.clock())
 
     def _drain(self) -> None:
         try:

@@ -73,7 +73,7 @@ class LineTask(PollTask):
         self._at = 0.0  # when the last byte of the answer so far was read
         self._answer: tuple[bytes, Response] | None = None  # TRAIL: the answer waiting for its silence
         self._outcome: PollResult | StarterbusError | None = None
-        self.fd = line.link.fd
+        self.fd = -1  # nothing to watch before the line is taken (and reopened if it broke)
         self.wake_at = 0.0
         self.done = False
 
