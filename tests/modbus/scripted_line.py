@@ -4,6 +4,7 @@ the blocking :class:`RtuLine` (waiting advances the clock to the next event) and
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 
 from starterbus.core.errors import StarterbusError
@@ -29,10 +30,14 @@ Responder = Callable[[int, bytes, float], list[tuple[float, bytes]]]  # (request
 
 
 class ScriptedLink(Link):
-    """A link whose input arrives at scripted times; waiting advances the fake clock to the next event."""
+    """A link whose input arrives at scripted times; waiting advances the fake clock to the next event.
+
+    Its :attr:`fd` is a number no file has: :func:`drive` reads it as "wake me when input is here"."""
+
+    _numbers = itertools.count(10_000)
 
     def __init__(self, clock: FakeClock, responder: Responder) -> None:
-        self.fd = -1
+        self.fd = next(self._numbers)
         self.name = "scripted"
         self.real_serial = False
         self.closed = False
@@ -85,6 +90,9 @@ class ScriptedLink(Link):
         out, self.buffer = self.buffer[:limit], self.buffer[limit:]
         return out
 
+    def read_ready(self, limit: int) -> bytes:
+        return self.take_input(limit)
+
     def transfer(self, frame: bytes, size: int, deadline: float, limit: int, wait: float) -> bytes:
         self.write(frame)
         return self.read(size, deadline, limit)
@@ -131,8 +139,9 @@ def fault_responder(schedule: list[tuple[str, float]], timeout: float) -> Respon
 
 
 def drive(task: LineTask, late: Callable[[], float] = lambda: 0.0, steps: int = 10_000) -> PollResult | StarterbusError:
-    """Advance ``task`` as a poller would: when its line's input is readable or at :attr:`wake_at`, whichever
-    comes first, plus ``late()`` seconds (a poller busy with other lines); returns its result or its error."""
+    """Advance ``task`` as a poller would: when its line's input is readable (unless its fd is -1) or at
+    :attr:`wake_at`, whichever comes first, plus ``late()`` seconds (a poller busy with other lines); returns
+    its result or its error."""
     for _ in range(steps):
         link = task.line.link
         assert isinstance(link, ScriptedLink)
@@ -144,11 +153,9 @@ def drive(task: LineTask, late: Callable[[], float] = lambda: 0.0, steps: int = 
             except StarterbusError as exc:
                 return exc
         due = task.wake_at
-        link._arrive()
-        if link.buffer:  # readable now
-            due = clock.now
-        else:
-            arrival = link._next()
+        if task.fd >= 0:  # it waits for its input too
+            link._arrive()
+            arrival = clock.now if link.buffer else link._next()
             if arrival is not None:
                 due = min(due, arrival)
         clock.now = max(clock.now, due) + late()

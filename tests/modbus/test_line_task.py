@@ -132,6 +132,29 @@ def test_an_answer_sent_twice_is_never_delivered_even_when_the_task_looks_late()
     assert isinstance(outcome, DecodeError) and outcome.field == "trailing"
 
 
+@pytest.mark.parametrize("wire_check", [False, True])
+def test_a_partial_answer_is_looked_at_again_when_the_rest_can_be_there(wire_check: bool) -> None:
+    """Without wire timing (pty, TCP) the task stops watching its input until all but the last byte of the
+    rest can have come at the baud rate; bytes after the answer still make it suspect."""
+
+    def split(n: int, frame: bytes, at: float) -> list[tuple[float, bytes]]:
+        answer = numbered(n, frame)
+        return [(at + 0.01, answer[:3]), (at + 0.0101, answer[3:] + b"\x00")]  # the rest with a byte too many
+
+    line, link, clock = make_line(split, wire_check=wire_check)
+    poll = Poll(line, policy=ONCE)
+    poll.task.advance(clock.now)
+    clock.now = link.writes[0][0] + 0.01
+    poll.task.advance(clock.now)  # the first 3 of 9 bytes
+    if wire_check:  # the answer's timing is checked: each byte is read when it comes
+        deadline = link.writes[0][0] + poll.exchanges[0].budget
+        assert poll.task.fd == link.fd and poll.task.wake_at == pytest.approx(deadline)
+    else:
+        assert poll.task.fd == -1 and poll.task.wake_at == pytest.approx(clock.now + 5 * line.char_time)
+    outcome = drive(poll.task)
+    assert isinstance(outcome, DecodeError) and outcome.field == "trailing", outcome
+
+
 def test_a_late_task_reads_an_answer_that_came_after_the_deadline_as_its_own() -> None:
     """Bytes after the request answer it or nobody (the quarantine rules out earlier requests): a task
     advanced late takes what arrived before it decides on a timeout."""

@@ -154,7 +154,6 @@ def test_cancel_before_the_first_advance_sends_nothing() -> None:
 
 def test_a_line_held_by_another_thread_makes_the_task_wait_then_it_proceeds() -> None:
     line, link, clock = make_line(on_time)
-    link.fd = 99  # a descriptor a poller would wait on
     held, release = threading.Event(), threading.Event()
 
     def other_user() -> None:
