@@ -92,21 +92,21 @@ def task_read(drive: Driver) -> Reader:
 @given(schedule=schedules, seed=st.integers(0, 2**16))
 def test_a_task_on_a_pty_never_returns_a_foreign_value(schedule: list[Step], seed: int) -> None:
     with pty_peer(schedule, seed) as (path, peer):
-        run(f"modbus-rtu://{path}?{PARAMS}&retries=1", peer, 60, seed, task_read(on_time))
+        run(f"modbus-rtu://{path}?{PARAMS}&retries=1", peer, 40, seed, task_read(on_time))
 
 
 @FEW
 @given(schedule=schedules, seed=st.integers(0, 2**16))
 def test_a_task_advanced_late_on_a_pty_never_returns_a_foreign_value(schedule: list[Step], seed: int) -> None:
     with pty_peer(schedule, seed) as (path, peer):
-        run(f"modbus-rtu://{path}?{PARAMS}&retries=1", peer, 60, seed, task_read(late_by_up_to(LATE, seed)))
+        run(f"modbus-rtu://{path}?{PARAMS}&retries=1", peer, 40, seed, task_read(late_by_up_to(LATE, seed)))
 
 
 @FEW
 @given(schedule=schedules, seed=st.integers(0, 2**16))
 def test_a_task_advanced_late_over_tcp_never_returns_a_foreign_value(schedule: list[Step], seed: int) -> None:
     with tcp_peer(schedule, seed) as (address, peer):
-        run(f"modbus-rtu+tcp://{address}?{PARAMS}&retries=1", peer, 60, seed, task_read(late_by_up_to(LATE, seed)))
+        run(f"modbus-rtu+tcp://{address}?{PARAMS}&retries=1", peer, 40, seed, task_read(late_by_up_to(LATE, seed)))
 
 
 def test_an_exception_answer_ends_start_poll_with_the_device_refusal() -> None:
