@@ -15,7 +15,7 @@ import socket
 import sys
 import threading
 import tty
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 
@@ -38,6 +38,14 @@ FEW = settings(max_examples=5, deadline=None, derandomize=True, database=None, s
 MANY = settings(FEW, max_examples=14)
 
 
+#: how a test reads ``count`` registers from ``address``: the transport's blocking read, or a poll task
+Reader = Callable[[ModbusRtuTransport, int, int], tuple[int, ...]]
+
+
+def blocking_read(transport: ModbusRtuTransport, address: int, count: int) -> tuple[int, ...]:
+    return transport.read_registers(address, count)
+
+
 @dataclass
 class Tally:
     values: int = 0
@@ -45,7 +53,12 @@ class Tally:
 
 
 def read_and_check(
-    transport: ModbusRtuTransport, peer: SequencePeer, reads: int, seed: int, counts: tuple[int, ...] = (2, 2, 2, 1, 4)
+    transport: ModbusRtuTransport,
+    peer: SequencePeer,
+    reads: int,
+    seed: int,
+    counts: tuple[int, ...] = (2, 2, 2, 1, 4),
+    read: Reader = blocking_read,
 ) -> Tally:
     """``reads`` FC03 of random address and count; every returned value must answer the last request sent."""
     rng = random.Random(seed)
@@ -56,7 +69,7 @@ def read_and_check(
         # mostly one shape, so that a stray answer would pass the length and byte count checks
         address, count = rng.randrange(0x1000), rng.choice(counts)
         try:
-            values = transport.read_registers(address, count)
+            values = read(transport, address, count)
         except (DecodeError, TimeoutError, RemoteDeviceError) as exc:
             name = type(exc).__name__
             tally.errors[name] = tally.errors.get(name, 0) + 1
@@ -130,9 +143,9 @@ def rtu_transport(url: str) -> Iterator[ModbusRtuTransport]:
         yield transport
 
 
-def run(url: str, peer: SequencePeer, reads: int, seed: int) -> Tally:
+def run(url: str, peer: SequencePeer, reads: int, seed: int, read: Reader = blocking_read) -> Tally:
     with rtu_transport(url) as transport:
-        tally = read_and_check(transport, peer, reads, seed)
+        tally = read_and_check(transport, peer, reads, seed, read=read)
     assert tally.values + sum(tally.errors.values()) == reads
     if peer.sent_faults.get("ok") and peer.skipped == 0:
         assert tally.values, tally  # good answers are values (the checks above had something to check)

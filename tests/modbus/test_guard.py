@@ -3,21 +3,16 @@ transcripts against a scripted link whose bytes arrive at exact times (no pty, n
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from starterbus.core.errors import DecodeError, TimeoutError
+from starterbus.tests.modbus.scripted_line import SILENCE, fault_responder, make_line, numbered
 from starterbus.transports.modbus.exchange import TransactionPolicy
 from starterbus.transports.modbus.frames import ReadRequest, ReadResponse
 from starterbus.transports.modbus.guard import LineGuard
-from starterbus.transports.modbus.line import RtuLine
-from starterbus.transports.modbus.link import Link, SerialSettings
-
-SILENCE = 0.002
-BAUD = 19200
+from starterbus.transports.modbus.link import SerialSettings
 
 # -- the guard alone ---------------------------------------------------------------------------------------------
 
@@ -60,94 +55,6 @@ def test_trailing_bytes_name_the_answer_and_what_followed() -> None:
 
 
 # -- the driver on a fake clock ----------------------------------------------------------------------------------
-
-
-class FakeClock:
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
-
-
-Responder = Callable[[int, bytes, float], list[tuple[float, bytes]]]  # (request #, frame, sent at) -> arrivals
-
-
-class ScriptedLink(Link):
-    """A link whose input arrives at scripted times; waiting advances the fake clock to the next event."""
-
-    def __init__(self, clock: FakeClock, responder: Responder) -> None:
-        self.fd = -1
-        self.name = "scripted"
-        self.real_serial = False
-        self.closed = False
-        self.clock = clock
-        self.responder = responder
-        self.inbox: list[tuple[float, bytes]] = []
-        self.buffer = b""
-        self.writes: list[tuple[float, bytes]] = []
-
-    def _arrive(self) -> None:
-        now = self.clock.now
-        due = [item for item in self.inbox if item[0] <= now]
-        self.inbox = [item for item in self.inbox if item[0] > now]
-        for _, data in due:
-            self.buffer += data
-
-    def _next(self) -> float | None:
-        return min((t for t, _ in self.inbox), default=None)
-
-    def write(self, data: bytes) -> None:
-        self.writes.append((self.clock.now, data))
-        self.inbox += self.responder(len(self.writes) - 1, data, self.clock.now)
-        self.inbox.sort(key=lambda item: item[0])
-
-    def wait_readable(self, timeout: float) -> bool:
-        self._arrive()
-        if self.buffer:
-            return True
-        nxt = self._next()
-        until = self.clock.now + max(0.0, timeout)
-        if nxt is not None and nxt <= until:
-            self.clock.now = nxt
-            self._arrive()
-            return True
-        self.clock.now = until
-        return False
-
-    def read(self, size: int, deadline: float, limit: int = 0, wait: float | None = None) -> bytes:
-        limit = max(size, limit)
-        while True:
-            self._arrive()
-            if len(self.buffer) >= size or self.clock.now >= deadline:
-                out, self.buffer = self.buffer[:limit], self.buffer[limit:]
-                return out
-            nxt = self._next()
-            self.clock.now = nxt if nxt is not None and nxt <= deadline else deadline
-
-    def take_input(self, limit: int = 512) -> bytes:
-        self._arrive()
-        out, self.buffer = self.buffer[:limit], self.buffer[limit:]
-        return out
-
-    def transfer(self, frame: bytes, size: int, deadline: float, limit: int, wait: float) -> bytes:
-        self.write(frame)
-        return self.read(size, deadline, limit)
-
-    def close(self) -> None:
-        self.closed = True
-
-
-def make_line(responder: Responder, **serial: object) -> tuple[RtuLine, ScriptedLink, FakeClock]:
-    clock = FakeClock()
-    link = ScriptedLink(clock, responder)
-    settings_ = SerialSettings(baudrate=BAUD, silence=SILENCE, **serial)  # type: ignore[arg-type]
-    return RtuLine(lambda: link, settings_, clock=clock), link, clock
-
-
-def numbered(n: int, frame: bytes) -> bytes:
-    """The answer to request #n: its registers hold n, n+1, ..."""
-    return ReadResponse(frame[0], tuple(n + k for k in range(frame[5]))).encode()
 
 
 POLICY = TransactionPolicy(timeout=0.1, retries=0, quarantine=0.3)
@@ -218,26 +125,7 @@ def test_replay_random_fault_schedules_never_return_a_foreign_value(schedule: li
     silence; 300 schedules x 30 reads."""
     policy = TransactionPolicy(timeout=0.1, retries=1, quarantine=0.3)
 
-    def responder(n: int, frame: bytes, at: float) -> list[tuple[float, bytes]]:
-        fault, x = schedule[n % len(schedule)]
-        answer = numbered(n, frame)
-        budget = (len(frame) + len(answer)) * 11 / BAUD + policy.timeout
-        on_time = at + 0.001 + x * 0.09
-        if fault == "late":  # after the deadline, before the quarantine can end
-            return [(at + budget + 0.0001 + x * 0.29, answer)]
-        if fault == "twice":
-            return [(on_time, answer), (on_time + x * SILENCE, answer)]
-        if fault == "trailing":
-            return [(on_time, answer), (on_time + x * SILENCE, b"\x00")]
-        if fault == "garbage":
-            return [(on_time, b"\x02\x03" + answer)]
-        if fault == "split":
-            return [(on_time, answer[:3]), (on_time + 0.005, answer[3:])]
-        if fault == "silent":
-            return []
-        return [(on_time, answer)]
-
-    line, link, _ = make_line(responder)
+    line, link, _ = make_line(fault_responder(schedule, policy.timeout))
     values = 0
     for _ in range(30):
         try:

@@ -103,6 +103,8 @@ class LineTask(PollTask):
             exchange = self._exchanges[self._index]
             self.line.guard.failed(self.line.clock(), exchange.quarantine)
             self.line.count(self._counters, exchange, max(1, self._attempt), 0, None)
+        elif self._step is _Step.QUIET and self._attempt > 1:  # a retry waiting: the attempts sent are counted
+            self.line.count(self._counters, self._exchanges[self._index], self._attempt - 1, 0, None)
         self._step = _Step.OVER
         self._release()
         if not self.done:
@@ -116,6 +118,7 @@ class LineTask(PollTask):
             step = self._step
             if step is _Step.START:
                 if not self._start():
+                    self.fd = -1  # the line's input is its holder's until it is free: look again soon
                     self.wake_at = now + LOCK_RETRY
                     return
             elif step is _Step.QUIET:
@@ -178,11 +181,11 @@ class LineTask(PollTask):
         line = self.line
         line.guard.sent(started)
         line.requests += 1
-        line.link.write(exchange.frame)
         self._deadline = started + exchange.budget
         self._data, self._receiver = b"", None
-        self._step = _Step.ANSWER
+        self._step = _Step.ANSWER  # before the write: cancelled during it, the line is quarantined
         self.wake_at = self._deadline
+        line.link.write(exchange.frame)
 
     def _in_transaction(self, step: Callable[[Exchange, float], bool], now: float) -> bool:
         """Run an ANSWER or TRAIL step; a bad or missing answer fails the attempt (retried within the policy)."""
