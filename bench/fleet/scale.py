@@ -192,7 +192,7 @@ def thread_cpu() -> dict[str, float]:
 
 def thread_group(name: str) -> str:
     """Which part of the benchmark a thread belongs to, by the names the package gives its threads."""
-    if name.startswith("bus-rtu"):
+    if name.startswith("bus-rtu") or name.startswith(("bus-mux", "jobs-rtu")):  # one thread polls every RTU line
         return "rtu_workers"
     if name.startswith("bus-"):
         return "dnet_workers"
