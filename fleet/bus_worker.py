@@ -157,6 +157,13 @@ class BusWorker:
                     self.finished = True
                 self.queue = [(0.0, i) for i in range(len(self.devices))]
 
+    def ends_round(self, runtime: DeviceRuntime) -> bool:
+        """Whether ``runtime``'s poll, once over, completes a round of the rounds asked for (the next poll then
+        starts only after :meth:`polled`, which decides whether there is one)."""
+        if self.rounds_left is None:
+            return False
+        return len(self.done_in_round | {runtime.slot}) == len(self.devices)
+
     def start_time(self, due: float, runtime: DeviceRuntime, now: float) -> float:
         """When a device's poll due at ``due`` may start: then, or for a probe of an offline device, once the
         line's probe budget allows it."""
@@ -180,8 +187,7 @@ class BusWorker:
         precise_timers()
         try:
             if first is not None:
-                self._poll(first)
-                self.polled(first)
+                self._poll_and_pause(first)
             while not poller.stopping.is_set() and not self.finished:
                 self.run_jobs()
                 now = poller.clock()
@@ -191,13 +197,16 @@ class BusWorker:
                     self.wake.wait(wait)
                     self.wake.clear()
                     continue
-                runtime = self.take(due)
-                self._poll(runtime)
-                if self.bus.delay:
-                    poller.stopping.wait(self.bus.delay)
-                self.polled(runtime)
+                self._poll_and_pause(self.take(due))
         finally:
             self.shut_down()
+
+    def _poll_and_pause(self, runtime: DeviceRuntime) -> None:
+        """One poll, then the bus's ``delay`` before anything else goes on its line."""
+        self._poll(runtime)
+        if self.bus.delay:
+            self.poller.stopping.wait(self.bus.delay)
+        self.polled(runtime)
 
     def shut_down(self) -> None:
         self.run_jobs()
@@ -281,6 +290,11 @@ class BusWorker:
         attempt.before = self._counters(device)
         attempt.device = device
         return device
+
+    def abandon(self, attempt: Attempt) -> None:
+        """A poll cut short (the poller stops): what it put on the line is counted; it gives no sample."""
+        if attempt.device is not None:
+            self._count(attempt.device, attempt.before, attempt.start)
 
     def _poll(self, runtime: DeviceRuntime) -> None:
         """One poll, blocking."""

@@ -92,23 +92,28 @@ class Multiplexer:
         self.poller = poller
         self.buses = [_Bus(w) for w in workers]
         self.thread = threading.Thread(target=self._run, name="bus-mux", daemon=True)
-        self._wake_r, self._wake_w = os.pipe()
-        os.set_blocking(self._wake_r, False)
-        os.set_blocking(self._wake_w, False)
+        self._wake_r, self._wake_w = -1, -1  # a pipe from start() to the end of the loop
+        self._wake_lock = threading.Lock()  # closing the pipe vs writing to it: never to a reused descriptor
         self._waiter = Waiter()
-        self._waiter.register(self._wake_r, None)
         for bus in self.buses:
             bus.worker.notify = self.wake
 
     def start(self) -> None:
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._waiter.register(self._wake_r, None)
         self.thread.start()
 
     def wake(self) -> None:
-        """Look at the buses again now (a job was queued, the poller stops)."""
-        try:
-            os.write(self._wake_w, b"!")
-        except (BlockingIOError, OSError):  # already woken (pipe full), or closed after the end
-            pass
+        """Look at the buses again now (a job was queued, the poller stops); nothing once the loop is over."""
+        with self._wake_lock:
+            if self._wake_w < 0:
+                return
+            try:
+                os.write(self._wake_w, b"!")
+            except BlockingIOError:  # already woken (the pipe is full)
+                pass
 
     @property
     def alive(self) -> bool:
@@ -137,9 +142,12 @@ class Multiplexer:
                         busy = True
                     elif bus.lent is not None:
                         busy = True
-                    elif not bus.worker.finished:
-                        until = min(until, bus.free_at if bus.free_at > now else bus.worker.next_due(now)[0])
+                    elif bus.worker.jobs or not bus.worker.finished:
                         busy = True
+                        if bus.free_at > now:  # its ``delay`` first, then a job or a poll
+                            until = min(until, bus.free_at)
+                        elif not bus.worker.finished:
+                            until = min(until, bus.worker.next_due(now)[0])
                 if not busy:
                     break  # every bus has done its rounds (or has a thread of its own)
                 ready = self._waiter.wait(max(0.0, until - clock()))
@@ -174,9 +182,16 @@ class Multiplexer:
                 except StarterbusError as exc:
                     result, error = None, exc
                 worker = bus.worker
-                if error is None and not attempt.probe and not worker.bus.delay and worker.queue:
+                if (
+                    error is None
+                    and not attempt.probe
+                    and not worker.bus.delay
+                    and worker.queue
+                    and not worker.ends_round(attempt.runtime)
+                ):
                     # a good poll leaves the line silent and healthy: the next request goes out first, this
-                    # poll's bookkeeping follows while its answer is on the way
+                    # poll's bookkeeping follows while its answer is on the way (not after the last poll of a
+                    # round: whether another poll follows is decided by that bookkeeping)
                     ended = self.poller.clock()
                     following = self._next(bus, now) and self._task(bus)
                     if following:
@@ -200,19 +215,22 @@ class Multiplexer:
         return bus.task
 
     def _next(self, bus: _Bus, now: float) -> bool:
-        """Between polls: return a lent bus, lend it for queued jobs, or start the poll that is due (True)."""
+        """Between polls: return a lent bus, lend it for queued jobs, or start the poll that is due (True);
+        jobs and polls alike only once the bus's ``delay`` after the last poll is over."""
         worker = bus.worker
         if bus.lent is not None:
             if not bus.returned:
                 return False
             bus.lent.join()
             bus.lent = None
+        if bus.free_at > now:
+            return False
         if worker.jobs:
             bus.returned = False
             bus.lent = threading.Thread(target=self._jobs, args=(bus,), name=f"jobs-{worker.bus.name}", daemon=True)
             bus.lent.start()
             return False
-        if worker.finished or bus.free_at > now or self.poller.stopping.is_set():
+        if worker.finished or self.poller.stopping.is_set():
             return False
         due, _ = worker.next_due(now)
         if due > now:
@@ -283,11 +301,16 @@ class Multiplexer:
                 bus.task.cancel()
                 self._watch(bus, -1)
                 bus.task = None
+                if bus.attempt is not None:
+                    bus.worker.abandon(bus.attempt)
+                    bus.attempt = None
         for bus in self.buses:
             if bus.lent is not None:
                 bus.lent.join()
             if not bus.handed_over:
                 bus.worker.shut_down()
         self._waiter.close()
-        os.close(self._wake_r)
-        os.close(self._wake_w)
+        with self._wake_lock:
+            os.close(self._wake_r)
+            os.close(self._wake_w)
+            self._wake_r, self._wake_w = -1, -1

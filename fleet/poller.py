@@ -99,11 +99,16 @@ class FleetPoller:
 
     def join(self, timeout: float | None = None) -> None:
         deadline = None if timeout is None else time.monotonic() + timeout
-        threads = [self.mux.thread] if self.mux is not None else []
-        threads += [w.thread for w in self.workers]  # a bus the multiplexer handed over has one too
-        for thread in threads:
+
+        def wait_for(thread: threading.Thread) -> None:
             if thread.is_alive():
                 thread.join(None if deadline is None else max(0.0, deadline - time.monotonic()))
+
+        if self.mux is not None:
+            wait_for(self.mux.thread)
+        # then each bus's thread, as it is now: one the multiplexer handed a bus to is known once it is over
+        for worker in self.workers:
+            wait_for(worker.thread)
 
     @property
     def running(self) -> bool:
