@@ -51,6 +51,9 @@ if TYPE_CHECKING:
 
 _PR_SET_TIMERSLACK = 29
 
+#: a job for one device of a bus: its name, what to do with it, the future of the result
+Job = tuple[str, Callable[[Device], Any], Future[Any]]
+
 
 def precise_timers() -> None:
     """Linux: 1 us timer slack for the calling polling thread instead of 50 us, so that a wait for the line's silent
@@ -109,7 +112,9 @@ class BusWorker:
         self.bus = bus
         self.poller = poller
         self.devices = [DeviceRuntime(d, slot=i) for i, d in enumerate(bus.devices)]
-        self.jobs: list[tuple[str, Callable[[Device], Any], Future[Any]]] = []
+        self.jobs: list[Job] = []
+        self._jobs_lock = threading.RLock()  # held by run_after_the_end while it runs its job
+        self.closed = False  # shut down: jobs are no longer queued (see :meth:`queue_job`)
         self.wake = threading.Event()
         self.thread = threading.Thread(target=self.run, name=f"bus-{bus.name}", daemon=True)
         self.stats = LineStats(bus.name, started=poller.clock())
@@ -209,14 +214,41 @@ class BusWorker:
         self.polled(runtime)
 
     def shut_down(self) -> None:
+        """The end: the jobs queued until now run, the devices are closed."""
+        with self._jobs_lock:
+            self.closed = True
         self.run_jobs()
-        for runtime in self.devices:
-            self._close(runtime)
+        self._close_all()
         self.stats.stopped = self.poller.clock()
 
+    def _close_all(self) -> None:
+        for runtime in self.devices:
+            self._close(runtime)
+
+    def queue_job(self, job: Job) -> bool:
+        """Queue a job for whoever drives the bus; False once the bus is shut down (nobody would run it)."""
+        with self._jobs_lock:
+            if self.closed:
+                return False
+            self.jobs.append(job)
+            return True
+
+    def run_after_the_end(self, job: Job) -> None:
+        """A job that came after :meth:`shut_down`: run in the calling thread, on its device opened for it."""
+        with self._jobs_lock:  # one such job at a time: no other thread uses the bus any more
+            self.jobs.append(job)
+            try:
+                self.run_jobs()
+            finally:
+                self._close_all()
+
+    def _next_job(self) -> Job | None:
+        with self._jobs_lock:
+            return self.jobs.pop(0) if self.jobs else None
+
     def run_jobs(self) -> None:
-        while self.jobs:
-            name, fn, future = self.jobs.pop(0)
+        while (job := self._next_job()) is not None:
+            name, fn, future = job
             runtime = next(r for r in self.devices if r.config.name == name)
             if not future.set_running_or_notify_cancel():
                 continue

@@ -130,14 +130,17 @@ class FleetPoller:
         return [r for w in self.workers for r in w.devices]
 
     def submit(self, device: str, fn: Callable[[Device], T]) -> Future[T]:
-        """Run ``fn(device)`` on the device's bus, between polls; returns a Future of its result."""
+        """Run ``fn(device)`` on the device's bus, between polls; returns a Future of its result. Before the
+        poller starts, and once it is over, the job runs at once in the calling thread (after the end on the
+        device opened for it and closed again)."""
         for worker in self.workers:
             if any(r.config.name == device for r in worker.devices):
                 future: Future[T] = Future()
-                worker.jobs.append((device, fn, future))
-                if self._driven(worker):
+                if not worker.queue_job((device, fn, future)):
+                    worker.run_after_the_end((device, fn, future))
+                elif self._driven(worker):
                     worker.notify()
-                else:
+                else:  # not started yet: at once, on the device the polls will use
                     worker.run_jobs()
                 return future
         raise StarterbusError(f"no device named {device!r} in the fleet")

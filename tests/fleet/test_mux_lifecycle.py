@@ -35,7 +35,8 @@ def test_stop_with_polls_in_flight_cancels_them_and_gives_the_line_back(lines: L
         assert release.wait(10.0)
         return device.read_value("current_limit").raw
 
-    with open_device(sim.url(1, timeout=0.5), "jjr5000") as kept:  # shares line0 with the poller
+    kept = open_device(sim.url(1, timeout=0.5), "jjr5000").open()  # shares line0 with the poller
+    try:
         poller.start()
         try:
             samples.wait_for(lambda ss: sim.counters.requests >= 1 and sum(s.bus == "line1" for s in ss) >= 3)
@@ -60,6 +61,11 @@ def test_stop_with_polls_in_flight_cancels_them_and_gives_the_line_back(lines: L
         reader.start()
         reader.join(10.0)
         assert read == [sim.starters[1].params["current_limit"]], "the line is free for a blocking user"
+    finally:  # closing takes the line's lock too: in a thread, so that a lock never given back fails the test
+        closer = threading.Thread(target=kept.close, daemon=True)
+        closer.start()
+        closer.join(10.0)
+    assert not closer.is_alive()
     assert not [key for key in leases() if sim.client_path in key]
 
 
@@ -138,6 +144,21 @@ def test_after_the_end_the_poller_writes_to_no_descriptor(lines: Lines, samples:
     finally:
         for fd in {r, w, wake_w}:
             os.close(fd)
+
+
+@pytest.mark.parametrize("multiplex", [True, False])
+def test_a_job_after_the_end_runs_at_once_and_leaves_no_device_open(
+    lines: Lines, samples: Samples, multiplex: bool
+) -> None:
+    poller = FleetPoller(lines.fleet(buses=1), samples, rounds=1, multiplex=multiplex)
+    poller.start()
+    poller.join(30.0)
+    assert not poller.running and all(w.closed for w in poller.workers)
+    future = poller.submit("b0u3", lambda d: d.read_value("current_limit").raw)
+    assert future.result(0) == lines.starter("b0u3").params["current_limit"]
+    assert not [key for key in leases() if lines.sims[0].client_path in key]
+    requests = sum(s.wire.requests for s in samples.list if s.wire is not None)
+    assert poller.line_stats()["line0"].wire.requests == lines.sims[0].counters.requests > requests
 
 
 def test_a_poller_never_started_holds_no_descriptor() -> None:
