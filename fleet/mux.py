@@ -115,9 +115,13 @@ class Multiplexer:
             except BlockingIOError:  # already woken (the pipe is full)
                 pass
 
+    def lent(self) -> list[threading.Thread]:
+        """The threads running jobs now."""
+        return [b.lent for b in self.buses if b.lent is not None]
+
     @property
     def alive(self) -> bool:
-        return self.thread.is_alive() or any(b.lent is not None and b.lent.is_alive() for b in self.buses)
+        return self.thread.is_alive() or any(t.is_alive() for t in self.lent())
 
     # -- the loop --------------------------------------------------------------------------------------------
 

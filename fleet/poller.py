@@ -90,12 +90,21 @@ class FleetPoller:
         return self
 
     def stop(self, timeout: float = 10.0) -> None:
+        """Stop polling and wait (up to ``timeout``) until every bus is done; called from one of the poller's
+        own threads (``on_sample``, a job) it does not wait: those threads may wait for the caller."""
         self.stopping.set()
         for worker in self.workers:
             worker.wake.set()
         if self.mux is not None:
             self.mux.wake()
-        self.join(timeout)
+        if threading.current_thread() not in self._threads():
+            self.join(timeout)
+
+    def _threads(self) -> list[threading.Thread]:
+        threads = [w.thread for w in self.workers]
+        if self.mux is not None:
+            threads += [self.mux.thread, *self.mux.lent()]
+        return threads
 
     def join(self, timeout: float | None = None) -> None:
         deadline = None if timeout is None else time.monotonic() + timeout

@@ -24,7 +24,7 @@ if TYPE_CHECKING:
 
 def test_stop_with_polls_in_flight_cancels_them_and_gives_the_line_back(lines: Lines, samples: Samples) -> None:
     """Bus line0 first polls unit 9, which never answers; bus line1 is lent to a job when stop() comes."""
-    config = lines.fleet("timeout=1.5&retries=0", buses=2, units={0: (9, 1)})
+    config = lines.fleet("timeout=2&retries=0", buses=2, units={0: (9, 1)})
     sim = lines.sims[0]
     poller = FleetPoller(config, samples)
     assert poller.mux is not None
@@ -125,6 +125,32 @@ def test_a_bus_s_delay_comes_after_every_poll_before_polls_and_jobs(
             assert at - last_end >= delay - 1e-6, (kind, at - last_end, kinds)
 
 
+@pytest.mark.parametrize("multiplex", [True, False])
+def test_stop_from_on_sample_returns_at_once_and_ends_the_poller(
+    lines: Lines, samples: Samples, multiplex: bool
+) -> None:
+    """The polling thread cannot wait for itself, nor for buses waiting to hand it their samples."""
+    poller = FleetPoller(lines.fleet(), samples, multiplex=multiplex)
+    failed: list[BaseException] = []
+    returned = threading.Event()
+
+    def stop_at_the_fifth(sample: Sample) -> None:
+        if len(samples.list) == 4:
+            try:
+                poller.stop(timeout=60.0)
+            except BaseException as exc:
+                failed.append(exc)
+            returned.set()
+
+    samples.hooks.append(stop_at_the_fifth)
+    poller.start()
+    assert returned.wait(10.0), "stop() from on_sample waited for the poller's threads"
+    poller.join(30.0)
+    assert failed == [] and not poller.running
+    assert len(samples.list) < 5 + len(poller.workers), "each bus ends with the poll it was making"
+    assert not [key for key in leases() if any(sim.client_path in key for sim in lines.sims)]
+
+
 def test_after_the_end_the_poller_writes_to_no_descriptor(lines: Lines, samples: Samples) -> None:
     """Once the loop is over its wake-up pipe is closed: a later stop() must not write to whatever file now has
     that descriptor number."""
@@ -134,6 +160,8 @@ def test_after_the_end_the_poller_writes_to_no_descriptor(lines: Lines, samples:
     wake_w = poller.mux._wake_w
     poller.join(30.0)
     assert not poller.running
+    with pytest.raises(OSError):
+        os.fstat(wake_w)  # closed at the end
     r, w = os.pipe()
     try:
         os.dup2(w, wake_w)  # a file opened later that got the number
@@ -172,11 +200,19 @@ def test_a_poller_never_started_holds_no_descriptor() -> None:
     assert set(os.listdir("/proc/self/fd")) == before
 
 
+def _in_use(fd: int) -> bool:
+    try:
+        os.fstat(fd)
+    except OSError:
+        return False
+    return True
+
+
 def test_the_waiter_takes_descriptors_beyond_select_s_limit() -> None:
     waiter = Waiter()
     low_r, low_w = os.pipe()
     high_r, high_w = os.pipe()
-    far = FD_SETSIZE + 500
+    far = next(fd for fd in range(FD_SETSIZE + 500, FD_SETSIZE + 600) if not _in_use(fd))
     os.dup2(high_r, far)
     marker = object()
     try:
