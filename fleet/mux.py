@@ -197,7 +197,7 @@ class Multiplexer:
                     # poll's bookkeeping follows while its answer is on the way (not after the last poll of a
                     # round: whether another poll follows is decided by that bookkeeping)
                     ended = self.poller.clock()
-                    following = self._next(bus, now) and self._task(bus)
+                    following = self._next(bus, now, lend=False) and self._task(bus)
                     if following:
                         following.advance(self.poller.clock())
                     self._end(bus, attempt, result, error, ended)
@@ -218,9 +218,10 @@ class Multiplexer:
     def _task(bus: _Bus) -> PollTask | None:
         return bus.task
 
-    def _next(self, bus: _Bus, now: float) -> bool:
+    def _next(self, bus: _Bus, now: float, lend: bool = True) -> bool:
         """Between polls: return a lent bus, lend it for queued jobs, or start the poll that is due (True);
-        jobs and polls alike only once the bus's ``delay`` after the last poll is over."""
+        jobs and polls alike only once the bus's ``delay`` after the last poll is over. ``lend=False``: the last
+        poll's bookkeeping is still to come, queued jobs wait for it (a job would use its device meanwhile)."""
         worker = bus.worker
         if bus.lent is not None:
             if not bus.returned:
@@ -230,6 +231,8 @@ class Multiplexer:
         if bus.free_at > now:
             return False
         if worker.jobs:
+            if not lend:
+                return False
             bus.returned = False
             bus.lent = threading.Thread(target=self._jobs, args=(bus,), name=f"jobs-{worker.bus.name}", daemon=True)
             bus.lent.start()

@@ -6,11 +6,14 @@ from __future__ import annotations
 import dataclasses
 import random
 import threading
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
+
+import pytest
 
 from starterbus.core.device import Device
 from starterbus.core.sharing import leases
 from starterbus.core.transport import TransportCounters
+from starterbus.fleet.bus_worker import BusWorker
 from starterbus.fleet.poller import FleetPoller
 from starterbus.fleet.probing import ProbeSettings
 from starterbus.fleet.sample import Sample
@@ -164,6 +167,42 @@ def test_a_job_has_the_bus_while_the_other_buses_go_on(lines: Lines, samples: Sa
     assert wire.transactions == sum(_wire(s)[0] for s in polls) + delta.transactions
     assert not any(t.name.startswith("jobs-") for t in threading.enumerate())
     assert _open_lines(lines) == []
+
+
+def test_a_job_waits_for_the_bookkeeping_of_the_poll_before_it(
+    lines: Lines, samples: Samples, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A job queued while a poll is on the wire starts after that poll is counted and emitted (not while: its
+    transactions would be counted twice, in the poll's sample and in the job)."""
+    poller = FleetPoller(lines.fleet(buses=1), samples)
+    overlaps: list[str] = []
+    end = BusWorker.end
+
+    def ends(worker: BusWorker, *args: Any) -> None:
+        overlaps.extend(t.name for t in threading.enumerate() if t.name == f"jobs-{worker.bus.name}")
+        end(worker, *args)
+
+    monkeypatch.setattr(BusWorker, "end", ends)
+    jobs: list[TransportCounters] = []
+
+    def job(device: Device) -> int:
+        before = device.transport.counters()
+        assert before is not None
+        before = before.copy()
+        raw = device.read_value("current_limit").raw
+        after = device.transport.counters()
+        assert after is not None
+        jobs.append(after.minus(before))
+        return raw
+
+    with poller:
+        for n in range(8):
+            mark = samples.mark()
+            samples.wait_for(lambda ss: len(ss) > mark)  # noqa: B023 (waited for here, in this iteration)
+            device = f"b0u{1 + n % 3}"
+            assert poller.submit(device, job).result(10.0) == lines.starter(device).params["current_limit"]
+    assert overlaps == []
+    assert len(jobs) == 8 and all(j.requests == 1 for j in jobs), "each job's delta: its own read alone"
 
 
 def test_a_device_that_goes_away_is_probed_and_comes_back_while_its_neighbours_go_on(
