@@ -19,6 +19,7 @@ from starterbus.fleet.probing import ProbeSettings
 from starterbus.fleet.sample import Sample
 
 if TYPE_CHECKING:
+    from starterbus.fleet.demo import DemoFleet
     from starterbus.tests.fleet.conftest import Lines, Samples
 
 DEVICES = {f"b{n}u{u}" for n in range(3) for u in (1, 2, 3)}
@@ -124,6 +125,19 @@ def test_a_bus_that_polls_only_by_blocking_is_handed_a_thread_and_waited_for(lin
         assert len(polls) == 2 and all(s.online for s in polls), (device, [s.error for s in polls])
         assert polls[-1].values["current_limit"].raw == lines.starter(device).params["current_limit"]
     assert _open_lines(lines) == []
+
+
+def test_buses_of_other_transports_keep_threads_of_their_own(demo: DemoFleet, samples: Samples) -> None:
+    poller = FleetPoller(demo.config, samples, rounds=1)
+    assert poller.mux is not None
+    assert [b.worker.bus.name for b in poller.mux.buses] == ["rtu-line-1", "rtu-line-2"]
+    poller.start()
+    poller.join(30.0)
+    assert not poller.running
+    assert sorted(s.device for s in samples.list) == sorted(demo.starters), "one poll of every device"
+    assert all(s.online for s in samples.list), [(s.device, s.error) for s in samples.list]
+    for sample, thread in zip(samples.list, samples.threads, strict=True):
+        assert thread == ("bus-mux" if sample.bus.startswith("rtu-") else f"bus-{sample.bus}")
 
 
 def test_a_job_has_the_bus_while_the_other_buses_go_on(lines: Lines, samples: Samples) -> None:
