@@ -25,9 +25,8 @@ import heapq
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import (
@@ -41,6 +40,7 @@ from starterbus.core.polling import PollResult
 from starterbus.core.status import Status
 from starterbus.core.transport import TransportCounters
 from starterbus.fleet.config import BusConfig, DeviceConfig
+from starterbus.fleet.jobs import Job, JobQueue
 from starterbus.fleet.line_stats import LineStats
 from starterbus.fleet.plan import poll_points
 from starterbus.fleet.probing import ProbeBudget, backoff
@@ -50,9 +50,6 @@ if TYPE_CHECKING:
     from starterbus.fleet.poller import FleetPoller
 
 _PR_SET_TIMERSLACK = 29
-
-#: a job for one device of a bus: its name, what to do with it, the future of the result
-Job = tuple[str, Callable[[Device], Any], Future[Any]]
 
 
 def precise_timers() -> None:
@@ -112,9 +109,7 @@ class BusWorker:
         self.bus = bus
         self.poller = poller
         self.devices = [DeviceRuntime(d, slot=i) for i, d in enumerate(bus.devices)]
-        self.jobs: list[Job] = []
-        self._jobs_lock = threading.RLock()  # held by run_after_the_end while it runs its job
-        self.closed = False  # shut down: jobs are no longer queued (see :meth:`queue_job`)
+        self.jobs = JobQueue()
         self.wake = threading.Event()
         self.thread = threading.Thread(target=self.run, name=f"bus-{bus.name}", daemon=True)
         self.stats = LineStats(bus.name, started=poller.clock())
@@ -214,53 +209,44 @@ class BusWorker:
         self.polled(runtime)
 
     def shut_down(self) -> None:
-        """The end: the jobs queued until now run, the devices are closed."""
-        with self._jobs_lock:
-            self.closed = True
-        self.run_jobs()
-        self._close_all()
+        """The end: the jobs queued until now run, the devices are closed (a job submitted meanwhile waits, then
+        runs after the end: :meth:`run_after_the_end`)."""
+        with self.jobs.lock:
+            self.jobs.close()
+            self.run_jobs()
+            self._close_all()
         self.stats.stopped = self.poller.clock()
 
     def _close_all(self) -> None:
         for runtime in self.devices:
             self._close(runtime)
 
-    def queue_job(self, job: Job) -> bool:
-        """Queue a job for whoever drives the bus; False once the bus is shut down (nobody would run it)."""
-        with self._jobs_lock:
-            if self.closed:
-                return False
-            self.jobs.append(job)
-            return True
-
     def run_after_the_end(self, job: Job) -> None:
         """A job that came after :meth:`shut_down`: run in the calling thread, on its device opened for it."""
-        with self._jobs_lock:  # one such job at a time: no other thread uses the bus any more
-            self.jobs.append(job)
+        with self.jobs.lock:  # one such job at a time: no other thread uses the bus any more
             try:
-                self.run_jobs()
+                self._run(job)
             finally:
                 self._close_all()
 
-    def _next_job(self) -> Job | None:
-        with self._jobs_lock:
-            return self.jobs.pop(0) if self.jobs else None
-
     def run_jobs(self) -> None:
-        while (job := self._next_job()) is not None:
-            name, fn, future = job
-            runtime = next(r for r in self.devices if r.config.name == name)
-            if not future.set_running_or_notify_cancel():
-                continue
+        while (job := self.jobs.pop()) is not None:
+            self._run(job)
+
+    def _run(self, job: Job) -> None:
+        name, fn, future = job
+        runtime = next(r for r in self.devices if r.config.name == name)
+        if not future.set_running_or_notify_cancel():
+            return
+        try:
+            device = self._ensure_open(runtime)
+            before, began = self._counters(device), self.poller.clock()
             try:
-                device = self._ensure_open(runtime)
-                before, began = self._counters(device), self.poller.clock()
-                try:
-                    future.set_result(fn(device))
-                finally:
-                    self._count(device, before, began)
-            except BaseException as exc:  # delivered to the caller through the future
-                future.set_exception(exc)
+                future.set_result(fn(device))
+            finally:
+                self._count(device, before, began)
+        except BaseException as exc:  # delivered to the caller through the future
+            future.set_exception(exc)
 
     # -- counting -----------------------------------------------------------------------------------------
 

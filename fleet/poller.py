@@ -145,7 +145,7 @@ class FleetPoller:
         for worker in self.workers:
             if any(r.config.name == device for r in worker.devices):
                 future: Future[T] = Future()
-                if not worker.queue_job((device, fn, future)):
+                if not worker.jobs.put((device, fn, future)):
                     worker.run_after_the_end((device, fn, future))
                 elif self._driven(worker):
                     worker.notify()

@@ -181,7 +181,7 @@ def test_a_job_after_the_end_runs_at_once_and_leaves_no_device_open(
     poller = FleetPoller(lines.fleet(buses=1), samples, rounds=1, multiplex=multiplex)
     poller.start()
     poller.join(30.0)
-    assert not poller.running and all(w.closed for w in poller.workers)
+    assert not poller.running and all(w.jobs.closed for w in poller.workers)
     future = poller.submit("b0u3", lambda d: d.read_value("current_limit").raw)
     assert future.result(0) == lines.starter("b0u3").params["current_limit"]
     assert not [key for key in leases() if lines.sims[0].client_path in key]
