@@ -83,6 +83,7 @@ class _Bus:
     lent: threading.Thread | None = None  # a job thread that has the bus
     returned: bool = False  # the job thread is done with it
     handed_over: bool = False  # to a thread of its own
+    failed: bool = False  # stopped by an error that is not its line's (see Multiplexer._serve)
 
 
 class Multiplexer:
@@ -137,10 +138,10 @@ class Multiplexer:
                 until = now + IDLE
                 busy = False
                 for bus in self.buses:
-                    if bus.handed_over:
+                    if bus.handed_over or bus.failed:
                         continue
                     if bus.task is None:
-                        self._service(bus, now)
+                        self._serve(bus, now)
                     if bus.task is not None:
                         until = min(until, bus.task.wake_at)
                         busy = True
@@ -160,12 +161,23 @@ class Multiplexer:
                     if which is None:
                         self._drain()
                     else:
-                        self._service(which, now)
+                        self._serve(which, now)
                 for bus in self.buses:
                     if bus.task is not None and bus.task.wake_at <= now:
-                        self._service(bus, now)
+                        self._serve(bus, now)
         finally:
             self._shut_down()
+
+    def _serve(self, bus: _Bus, now: float) -> None:
+        """:meth:`_service`; an exception that is not the line's (``on_sample`` raised, a bug) stops this bus
+        alone, reported as an uncaught exception in a bus's own thread is, and the other buses go on."""
+        try:
+            self._service(bus, now)
+        except Exception as exc:
+            bus.failed = True
+            self._stop_bus(bus)
+            bus.worker.shut_down()
+            threading.excepthook(threading.ExceptHookArgs((type(exc), exc, exc.__traceback__, self.thread)))
 
     def _service(self, bus: _Bus, now: float) -> None:
         """Advance the bus's poll; when it is over, start the next one that is due at once (the line's
@@ -302,19 +314,24 @@ class Multiplexer:
         except (BlockingIOError, OSError):
             pass
 
+    def _stop_bus(self, bus: _Bus) -> None:
+        """Cancel the bus's poll in flight (what it sent is counted), wait for a job that has the bus."""
+        if bus.task is not None:
+            bus.task.cancel()
+            bus.task = None
+        self._watch(bus, -1)
+        if bus.attempt is not None:
+            bus.worker.abandon(bus.attempt)
+            bus.attempt = None
+        if bus.lent is not None:
+            bus.lent.join()
+            bus.lent = None
+
     def _shut_down(self) -> None:
+        for bus in self.buses:  # every line given back first
+            self._stop_bus(bus)
         for bus in self.buses:
-            if bus.task is not None:
-                bus.task.cancel()
-                self._watch(bus, -1)
-                bus.task = None
-                if bus.attempt is not None:
-                    bus.worker.abandon(bus.attempt)
-                    bus.attempt = None
-        for bus in self.buses:
-            if bus.lent is not None:
-                bus.lent.join()
-            if not bus.handed_over:
+            if not bus.handed_over and not bus.failed:
                 bus.worker.shut_down()
         self._waiter.close()
         with self._wake_lock:
