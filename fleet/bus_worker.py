@@ -25,9 +25,8 @@ import heapq
 import threading
 import time
 from collections.abc import Callable
-from concurrent.futures import Future
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import (
@@ -41,6 +40,7 @@ from starterbus.core.polling import PollResult
 from starterbus.core.status import Status
 from starterbus.core.transport import TransportCounters
 from starterbus.fleet.config import BusConfig, DeviceConfig
+from starterbus.fleet.jobs import Job, JobQueue
 from starterbus.fleet.line_stats import LineStats
 from starterbus.fleet.plan import poll_points
 from starterbus.fleet.probing import ProbeBudget, backoff
@@ -109,7 +109,7 @@ class BusWorker:
         self.bus = bus
         self.poller = poller
         self.devices = [DeviceRuntime(d, slot=i) for i, d in enumerate(bus.devices)]
-        self.jobs: list[tuple[str, Callable[[Device], Any], Future[Any]]] = []
+        self.jobs = JobQueue()
         self.wake = threading.Event()
         self.thread = threading.Thread(target=self.run, name=f"bus-{bus.name}", daemon=True)
         self.stats = LineStats(bus.name, started=poller.clock())
@@ -157,6 +157,13 @@ class BusWorker:
                     self.finished = True
                 self.queue = [(0.0, i) for i in range(len(self.devices))]
 
+    def ends_round(self, runtime: DeviceRuntime) -> bool:
+        """Whether ``runtime``'s poll, once over, completes a round of the rounds asked for (the next poll then
+        starts only after :meth:`polled`, which decides whether there is one)."""
+        if self.rounds_left is None:
+            return False
+        return len(self.done_in_round | {runtime.slot}) == len(self.devices)
+
     def start_time(self, due: float, runtime: DeviceRuntime, now: float) -> float:
         """When a device's poll due at ``due`` may start: then, or for a probe of an offline device, once the
         line's probe budget allows it."""
@@ -180,8 +187,7 @@ class BusWorker:
         precise_timers()
         try:
             if first is not None:
-                self._poll(first)
-                self.polled(first)
+                self._poll_and_pause(first)
             while not poller.stopping.is_set() and not self.finished:
                 self.run_jobs()
                 now = poller.clock()
@@ -191,35 +197,56 @@ class BusWorker:
                     self.wake.wait(wait)
                     self.wake.clear()
                     continue
-                runtime = self.take(due)
-                self._poll(runtime)
-                if self.bus.delay:
-                    poller.stopping.wait(self.bus.delay)
-                self.polled(runtime)
+                self._poll_and_pause(self.take(due))
         finally:
             self.shut_down()
 
+    def _poll_and_pause(self, runtime: DeviceRuntime) -> None:
+        """One poll, then the bus's ``delay`` before anything else goes on its line."""
+        self._poll(runtime)
+        if self.bus.delay:
+            self.poller.stopping.wait(self.bus.delay)
+        self.polled(runtime)
+
     def shut_down(self) -> None:
-        self.run_jobs()
-        for runtime in self.devices:
-            self._close(runtime)
+        """The end: the jobs queued until now run, the devices are closed (a job submitted meanwhile waits, then
+        runs after the end: :meth:`run_after_the_end`)."""
+        with self.jobs.lock:
+            self.jobs.close()
+            self.run_jobs()
+            self._close_all()
         self.stats.stopped = self.poller.clock()
 
-    def run_jobs(self) -> None:
-        while self.jobs:
-            name, fn, future = self.jobs.pop(0)
-            runtime = next(r for r in self.devices if r.config.name == name)
-            if not future.set_running_or_notify_cancel():
-                continue
+    def _close_all(self) -> None:
+        for runtime in self.devices:
+            self._close(runtime)
+
+    def run_after_the_end(self, job: Job) -> None:
+        """A job that came after :meth:`shut_down`: run in the calling thread, on its device opened for it."""
+        with self.jobs.lock:  # one such job at a time: no other thread uses the bus any more
             try:
-                device = self._ensure_open(runtime)
-                before, began = self._counters(device), self.poller.clock()
-                try:
-                    future.set_result(fn(device))
-                finally:
-                    self._count(device, before, began)
-            except BaseException as exc:  # delivered to the caller through the future
-                future.set_exception(exc)
+                self._run(job)
+            finally:
+                self._close_all()
+
+    def run_jobs(self) -> None:
+        while (job := self.jobs.pop()) is not None:
+            self._run(job)
+
+    def _run(self, job: Job) -> None:
+        name, fn, future = job
+        runtime = next(r for r in self.devices if r.config.name == name)
+        if not future.set_running_or_notify_cancel():
+            return
+        try:
+            device = self._ensure_open(runtime)
+            before, began = self._counters(device), self.poller.clock()
+            try:
+                future.set_result(fn(device))
+            finally:
+                self._count(device, before, began)
+        except BaseException as exc:  # delivered to the caller through the future
+            future.set_exception(exc)
 
     # -- counting -----------------------------------------------------------------------------------------
 
@@ -281,6 +308,11 @@ class BusWorker:
         attempt.before = self._counters(device)
         attempt.device = device
         return device
+
+    def abandon(self, attempt: Attempt) -> None:
+        """A poll cut short (the poller stops): what it put on the line is counted; it gives no sample."""
+        if attempt.device is not None:
+            self._count(attempt.device, attempt.before, attempt.start)
 
     def _poll(self, runtime: DeviceRuntime) -> None:
         """One poll, blocking."""

@@ -84,6 +84,7 @@ class _Bus:
     returned: bool = False  # the job thread is done with it
     crash: StarterbusError | None = None  # what went wrong where a task raised what it should not
     handed_over: bool = False  # to a thread of its own
+    failed: bool = False  # stopped by an error that is not its line's (see Multiplexer._serve)
 
 
 class Multiplexer:
@@ -93,27 +94,36 @@ class Multiplexer:
         self.poller = poller
         self.buses = [_Bus(w) for w in workers]
         self.thread = threading.Thread(target=self._run, name="bus-mux", daemon=True)
-        self._wake_r, self._wake_w = os.pipe()
-        os.set_blocking(self._wake_r, False)
-        os.set_blocking(self._wake_w, False)
+        self._wake_r, self._wake_w = -1, -1  # a pipe from start() to the end of the loop
+        self._wake_lock = threading.Lock()  # closing the pipe vs writing to it: never to a reused descriptor
         self._waiter = Waiter()
-        self._waiter.register(self._wake_r, None)
         for bus in self.buses:
             bus.worker.notify = self.wake
 
     def start(self) -> None:
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._waiter.register(self._wake_r, None)
         self.thread.start()
 
     def wake(self) -> None:
-        """Look at the buses again now (a job was queued, the poller stops)."""
-        try:
-            os.write(self._wake_w, b"!")
-        except (BlockingIOError, OSError):  # already woken (pipe full), or closed after the end
-            pass
+        """Look at the buses again now (a job was queued, the poller stops); nothing once the loop is over."""
+        with self._wake_lock:
+            if self._wake_w < 0:
+                return
+            try:
+                os.write(self._wake_w, b"!")
+            except BlockingIOError:  # already woken (the pipe is full)
+                pass
+
+    def lent(self) -> list[threading.Thread]:
+        """The threads running jobs now."""
+        return [b.lent for b in self.buses if b.lent is not None]
 
     @property
     def alive(self) -> bool:
-        return self.thread.is_alive() or any(b.lent is not None and b.lent.is_alive() for b in self.buses)
+        return self.thread.is_alive() or any(t.is_alive() for t in self.lent())
 
     # -- the loop --------------------------------------------------------------------------------------------
 
@@ -129,18 +139,21 @@ class Multiplexer:
                 until = now + IDLE
                 busy = False
                 for bus in self.buses:
-                    if bus.handed_over:
+                    if bus.handed_over or bus.failed:
                         continue
                     if bus.task is None:
-                        self._service(bus, now)
+                        self._serve(bus, now)
                     if bus.task is not None:
                         until = min(until, bus.task.wake_at)
                         busy = True
                     elif bus.lent is not None:
                         busy = True
-                    elif not bus.worker.finished:
-                        until = min(until, bus.free_at if bus.free_at > now else bus.worker.next_due(now)[0])
+                    elif bus.worker.jobs or not bus.worker.finished:
                         busy = True
+                        if bus.free_at > now:  # its ``delay`` first, then a job or a poll
+                            until = min(until, bus.free_at)
+                        elif not bus.worker.finished:
+                            until = min(until, bus.worker.next_due(now)[0])
                 if not busy:
                     break  # every bus has done its rounds (or has a thread of its own)
                 try:
@@ -153,12 +166,23 @@ class Multiplexer:
                     if which is None:
                         self._drain()
                     else:
-                        self._service(which, now)
+                        self._serve(which, now)
                 for bus in self.buses:
                     if bus.task is not None and bus.task.wake_at <= now:
-                        self._service(bus, now)
+                        self._serve(bus, now)
         finally:
             self._shut_down()
+
+    def _serve(self, bus: _Bus, now: float) -> None:
+        """:meth:`_service`; an exception that is not the line's (``on_sample`` raised, a bug) stops this bus
+        alone, reported as an uncaught exception in a bus's own thread is, and the other buses go on."""
+        try:
+            self._service(bus, now)
+        except Exception as exc:
+            bus.failed = True
+            self._stop_bus(bus)
+            bus.worker.shut_down()
+            threading.excepthook(threading.ExceptHookArgs((type(exc), exc, exc.__traceback__, self.thread)))
 
     def _service(self, bus: _Bus, now: float) -> None:
         """Advance the bus's poll; when it is over, start the next one that is due at once (the line's
@@ -180,11 +204,18 @@ class Multiplexer:
                     result, error = None, bus.crash or exc
                 bus.crash = None
                 worker = bus.worker
-                if error is None and not attempt.probe and not worker.bus.delay and worker.queue:
+                if (
+                    error is None
+                    and not attempt.probe
+                    and not worker.bus.delay
+                    and worker.queue
+                    and not worker.ends_round(attempt.runtime)
+                ):
                     # a good poll leaves the line silent and healthy: the next request goes out first, this
-                    # poll's bookkeeping follows while its answer is on the way
+                    # poll's bookkeeping follows while its answer is on the way (not after the last poll of a
+                    # round: whether another poll follows is decided by that bookkeeping)
                     ended = self.poller.clock()
-                    following = self._next(bus, now) and self._task(bus)
+                    following = self._next(bus, now, lend=False) and self._task(bus)
                     if following:
                         self._step(bus, following, self.poller.clock())
                     self._end(bus, attempt, result, error, ended)
@@ -214,20 +245,26 @@ class Multiplexer:
     def _task(bus: _Bus) -> PollTask | None:
         return bus.task
 
-    def _next(self, bus: _Bus, now: float) -> bool:
-        """Between polls: return a lent bus, lend it for queued jobs, or start the poll that is due (True)."""
+    def _next(self, bus: _Bus, now: float, lend: bool = True) -> bool:
+        """Between polls: return a lent bus, lend it for queued jobs, or start the poll that is due (True);
+        jobs and polls alike only once the bus's ``delay`` after the last poll is over. ``lend=False``: the last
+        poll's bookkeeping is still to come, queued jobs wait for it (a job would use its device meanwhile)."""
         worker = bus.worker
         if bus.lent is not None:
             if not bus.returned:
                 return False
             bus.lent.join()
             bus.lent = None
+        if bus.free_at > now:
+            return False
         if worker.jobs:
+            if not lend:
+                return False
             bus.returned = False
             bus.lent = threading.Thread(target=self._jobs, args=(bus,), name=f"jobs-{worker.bus.name}", daemon=True)
             bus.lent.start()
             return False
-        if worker.finished or bus.free_at > now or self.poller.stopping.is_set():
+        if worker.finished or self.poller.stopping.is_set():
             return False
         due, _ = worker.next_due(now)
         if due > now:
@@ -303,17 +340,27 @@ class Multiplexer:
         except (BlockingIOError, OSError):
             pass
 
+    def _stop_bus(self, bus: _Bus) -> None:
+        """Cancel the bus's poll in flight (what it sent is counted), wait for a job that has the bus."""
+        if bus.task is not None:
+            bus.task.cancel()
+            bus.task = None
+        self._watch(bus, -1)
+        if bus.attempt is not None:
+            bus.worker.abandon(bus.attempt)
+            bus.attempt = None
+        if bus.lent is not None:
+            bus.lent.join()
+            bus.lent = None
+
     def _shut_down(self) -> None:
+        for bus in self.buses:  # every line given back first
+            self._stop_bus(bus)
         for bus in self.buses:
-            if bus.task is not None:
-                bus.task.cancel()
-                self._watch(bus, -1)
-                bus.task = None
-        for bus in self.buses:
-            if bus.lent is not None:
-                bus.lent.join()
-            if not bus.handed_over:
+            if not bus.handed_over and not bus.failed:
                 bus.worker.shut_down()
         self._waiter.close()
-        os.close(self._wake_r)
-        os.close(self._wake_w)
+        with self._wake_lock:
+            os.close(self._wake_r)
+            os.close(self._wake_w)
+            self._wake_r, self._wake_w = -1, -1

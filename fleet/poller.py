@@ -90,20 +90,34 @@ class FleetPoller:
         return self
 
     def stop(self, timeout: float = 10.0) -> None:
+        """Stop polling and wait (up to ``timeout``) until every bus is done; called from one of the poller's
+        own threads (``on_sample``, a job) it does not wait: those threads may wait for the caller."""
         self.stopping.set()
         for worker in self.workers:
             worker.wake.set()
         if self.mux is not None:
             self.mux.wake()
-        self.join(timeout)
+        if threading.current_thread() not in self._threads():
+            self.join(timeout)
+
+    def _threads(self) -> list[threading.Thread]:
+        threads = [w.thread for w in self.workers]
+        if self.mux is not None:
+            threads += [self.mux.thread, *self.mux.lent()]
+        return threads
 
     def join(self, timeout: float | None = None) -> None:
         deadline = None if timeout is None else time.monotonic() + timeout
-        threads = [self.mux.thread] if self.mux is not None else []
-        threads += [w.thread for w in self.workers]  # a bus the multiplexer handed over has one too
-        for thread in threads:
+
+        def wait_for(thread: threading.Thread) -> None:
             if thread.is_alive():
                 thread.join(None if deadline is None else max(0.0, deadline - time.monotonic()))
+
+        if self.mux is not None:
+            wait_for(self.mux.thread)
+        # then each bus's thread, as it is now: one the multiplexer handed a bus to is known once it is over
+        for worker in self.workers:
+            wait_for(worker.thread)
 
     @property
     def running(self) -> bool:
@@ -125,14 +139,17 @@ class FleetPoller:
         return [r for w in self.workers for r in w.devices]
 
     def submit(self, device: str, fn: Callable[[Device], T]) -> Future[T]:
-        """Run ``fn(device)`` on the device's bus, between polls; returns a Future of its result."""
+        """Run ``fn(device)`` on the device's bus, between polls; returns a Future of its result. Before the
+        poller starts, and once it is over, the job runs at once in the calling thread (after the end on the
+        device opened for it and closed again)."""
         for worker in self.workers:
             if any(r.config.name == device for r in worker.devices):
                 future: Future[T] = Future()
-                worker.jobs.append((device, fn, future))
-                if self._driven(worker):
+                if not worker.jobs.put((device, fn, future)):
+                    worker.run_after_the_end((device, fn, future))
+                elif self._driven(worker):
                     worker.notify()
-                else:
+                else:  # not started yet: at once, on the device the polls will use
                     worker.run_jobs()
                 return future
         raise StarterbusError(f"no device named {device!r} in the fleet")
