@@ -13,9 +13,9 @@ None: a pyserial port without a file descriptor) is handed to a thread of its ow
 
 from __future__ import annotations
 
+import math
 import os
 import select
-import selectors
 import threading
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -35,42 +35,42 @@ FD_SETSIZE = 1024
 
 class Waiter:
     """Waits until registered descriptors are readable, with a timeout to the microsecond: ``select`` (epoll
-    counts whole milliseconds, which would stretch every silent interval by up to one), or the platform's
-    selector (epoll) while a descriptor is beyond ``select``'s limit."""
+    counts whole milliseconds, which would stretch every silent interval by up to one), or ``poll`` (whole
+    milliseconds too) while a descriptor is beyond ``select``'s limit. Neither keeps state in the kernel, so a
+    line reopened under the same descriptor number is watched like the old one."""
 
     def __init__(self) -> None:
         self._data: dict[int, _Bus | None] = {}
         self._fds: list[int] = []
-        self._selector: selectors.BaseSelector | None = None
+        self._poll: select.poll | None = None
 
     def register(self, fd: int, data: _Bus | None) -> None:
         self._data[fd] = data
-        self._changed()
+        self._fds = list(self._data)
+        if self._poll is not None:
+            self._poll.register(fd, select.POLLIN)
+        elif fd >= FD_SETSIZE:
+            self._poll = select.poll()
+            for known in self._fds:
+                self._poll.register(known, select.POLLIN)
 
     def unregister(self, fd: int) -> None:
         del self._data[fd]
-        self._changed()
-
-    def _changed(self) -> None:
         self._fds = list(self._data)
-        if self._selector is not None:
-            self._selector.close()
-            self._selector = None
-        if self._fds and max(self._fds) >= FD_SETSIZE:
-            self._selector = selectors.DefaultSelector()
-            for fd, data in self._data.items():
-                self._selector.register(fd, selectors.EVENT_READ, data)
+        if self._poll is not None:
+            self._poll.unregister(fd)
+            if not self._fds or max(self._fds) < FD_SETSIZE:
+                self._poll = None
 
     def wait(self, timeout: float) -> list[_Bus | None]:
-        """The data of the descriptors that are readable, after at most ``timeout`` seconds."""
-        if self._selector is not None:
-            return [key.data for key, _ in self._selector.select(timeout)]
+        """The data of the descriptors that are readable (or closed, or failed), after at most ``timeout`` s."""
+        if self._poll is not None:
+            return [self._data[fd] for fd, _ in self._poll.poll(math.ceil(timeout * 1000))]
         ready = select.select(self._fds, (), (), timeout)[0]
         return [self._data[fd] for fd in ready]
 
     def close(self) -> None:
-        if self._selector is not None:
-            self._selector.close()
+        self._poll = None
 
 
 @dataclass(slots=True)

@@ -10,6 +10,7 @@ wire (:meth:`FleetPoller.line_stats`).
 
 from __future__ import annotations
 
+import os
 import random
 import threading
 import time
@@ -72,6 +73,7 @@ class FleetPoller:
         self.rng = rng or random.Random()
         self.stopping = threading.Event()
         self.workers = [BusWorker(bus, self) for bus in config.buses]
+        multiplex = multiplex and os.name == "posix"  # select() on serial ports, ptys and a pipe
         shared = [w for w in self.workers if multiplex and polls_without_blocking(w.bus)]
         self.mux = Multiplexer(self, shared) if shared else None
         self._own_thread = [w for w in self.workers if w not in shared]

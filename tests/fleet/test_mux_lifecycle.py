@@ -250,6 +250,15 @@ def test_the_waiter_takes_descriptors_beyond_select_s_limit() -> None:
         os.write(low_w, b"x")
         assert sorted(map(id, waiter.wait(5.0))) == sorted([id(marker), id(None)])
         os.read(far, 1)
+        os.read(low_r, 1)
+        other_r, other_w = os.pipe()
+        os.dup2(other_r, far)  # a line reopened under the same number is watched as the old one was
+        os.close(other_r)
+        os.write(other_w, b"y")
+        assert waiter.wait(5.0) == [marker]
+        os.read(far, 1)
+        os.close(other_w)
+        os.write(low_w, b"x")
         waiter.unregister(far)  # back to select() alone
         assert waiter.wait(5.0) == [None]
         os.read(low_r, 1)
