@@ -241,7 +241,8 @@ def test_browse_lines_devices_and_read_measurements_with_units(rig: Rig) -> None
                 (k, v.en) for k, v in sorted(enum.labels.items())
             ]
             shown = await wait_value(
-                await analog.get_child("0:ValueAsText"), lambda v: v.Value is not None and bool(v.Value.Value.Text)
+                await analog.get_child("0:ValueAsText"),
+                lambda v: v.Value is not None and v.Value.Value is not None and bool(v.Value.Value.Text),
             )
             assert shown.Value is not None and shown.Value.Value.Text in {v.en for v in enum.labels.values()}
 
@@ -378,7 +379,11 @@ def test_parameter_locked_while_running_is_refused_with_bad_invalid_state(rig: R
         async with c:
             state = await ns_node(c, "crusher.Status.State")
             running = {"starting", "running"}
-            await wait_value(state, lambda v: v.Value is not None and STATES[v.Value.Value].value in running)
+
+            def is_running(v: ua.DataValue) -> bool:  # Null until the first poll of the crusher gave a status
+                return v.Value is not None and v.Value.Value is not None and STATES[v.Value.Value].value in running
+
+            await wait_value(state, is_running)
             ramp = await ns_node(c, "crusher.Parameters.ramp_time")
             with pytest.raises(ua.uaerrors.BadInvalidState):
                 await ramp.write_value(ua.DataValue(ua.Variant(20.0, ua.VariantType.Double)))

@@ -202,14 +202,16 @@ class Link:
             out += self._recv(limit - len(out))
         return out
 
-    def _recv(self, size: int) -> bytes:
+    def _recv(self, size: int, *, ended: bool = True) -> bytes:
+        """What one read gives (b"" if it would block); reading nothing means the other end closed, unless
+        ``ended`` is False (a tty in raw mode also reads nothing when there is nothing)."""
         try:
             chunk = self._read(size)
         except BlockingIOError:
             return b""
         except OSError as exc:
             raise self._fail("read", exc) from exc
-        if not chunk:
+        if not chunk and ended:
             raise self._hung_up()
         return chunk
 
@@ -231,16 +233,10 @@ class Link:
         """:meth:`take_input` when bytes are probably there (a poller was told so): read first, one system
         call instead of two."""
         if self._nonblocking:
-            try:
-                chunk = self._read(limit)
-            except BlockingIOError:
-                return b""
-            except OSError as exc:
-                raise self._fail("read", exc) from exc
+            chunk = self._recv(limit, ended=False)
             if chunk:
                 return chunk
-            # a tty in raw mode also reads b"" when there is nothing: only select tells that from the end
-        return self.take_input(limit)
+        return self.take_input(limit)  # nothing, or the end: select tells which
 
     def close(self) -> None:
         if not self.closed:
