@@ -171,8 +171,7 @@ class ModbusRtuTransport(Transport):
 
     def _run(self, exchange: Exchange) -> Response | None:
         response = (self._line or self.line).run(exchange, self._counters)  # the property raises "not open"
-        if isinstance(response, ExceptionResponse):
-            raise self._remote_error(exchange.request, response)
+        self._refuse_exceptions(exchange, response)
         return response
 
     def _prepare(self, cache: dict[tuple[int, int], Exchange], key: tuple[int, int], request: Request) -> Exchange:
@@ -181,6 +180,10 @@ class ModbusRtuTransport(Transport):
             cache.clear()
         cache[key] = exchange
         return exchange
+
+    def _read_exchange(self, request: tuple[int, int]) -> Exchange:
+        """The FC03 exchange reading ``(address, count)``, prepared once and kept."""
+        return self._reads.get(request) or self._prepare(self._reads, request, ReadRequest(self.unit, *request))
 
     def _no_broadcast_reads(self) -> None:
         if self.unit == BROADCAST:
@@ -193,7 +196,7 @@ class ModbusRtuTransport(Transport):
         exchange = self._reads.get((address, count))
         if exchange is None:  # a broadcast transport never gets this far, so never has a read cached
             self._no_broadcast_reads()
-            exchange = self._prepare(self._reads, (address, count), ReadRequest(self.unit, address, count))
+            exchange = self._read_exchange((address, count))
         response = (self._line or self.line).run(exchange, self._counters)  # as _run, one call less
         if isinstance(response, ReadResponse):
             return response.values
@@ -237,11 +240,7 @@ class ModbusRtuTransport(Transport):
         self._no_broadcast_reads()
         addresses = tuple(self._address(p) for p in points)
         plan, positions = self._plans.get(addresses) or self._plan(addresses)
-        exchanges = [
-            self._reads.get((start, count))
-            or self._prepare(self._reads, (start, count), ReadRequest(self.unit, start, count))
-            for start, count in plan
-        ]
+        exchanges = [self._read_exchange(request) for request in plan]
         known = _KnownPoints(tuple(points), exchanges, positions)
         if len(self._points) >= CACHE_SIZE:
             self._points.clear()
@@ -271,10 +270,7 @@ class ModbusRtuTransport(Transport):
             return None
         self._no_broadcast_reads()
         plan = self.poll_plans.get(points, status)
-        exchanges = [
-            self._reads.get(request) or self._prepare(self._reads, request, ReadRequest(self.unit, *request))
-            for request in plan.requests
-        ]
+        exchanges = [self._read_exchange(request) for request in plan.requests]
 
         def finish(responses: list[Response]) -> PollResult:
             values: tuple[int, ...] = ()
@@ -285,7 +281,8 @@ class ModbusRtuTransport(Transport):
 
         return LineTask(line, exchanges, self._counters, self._refuse_exceptions, finish)
 
-    def _refuse_exceptions(self, exchange: Exchange, response: Response) -> None:
+    def _refuse_exceptions(self, exchange: Exchange, response: Response | None) -> None:
+        """An exception answer becomes :class:`RemoteDeviceError`."""
         if isinstance(response, ExceptionResponse):
             raise self._remote_error(exchange.request, response)
 

@@ -192,11 +192,18 @@ class RtuLine:
                     except (TimeoutError, DecodeError) as exc:
                         self.failed(exchange, exc, attempt)
             except StarterbusError as exc:
-                if isinstance(exc, TransportError) and not isinstance(exc, TimeoutError):
-                    self._broken = True  # the next transaction reopens / reconnects
-                if counters is not None:
-                    self.count(counters, exchange, max(1, attempt), 0, exc)
+                self.given_up(counters, exchange, attempt, exc)
                 raise
+
+    def given_up(
+        self, counters: TransportCounters | None, exchange: Exchange, attempt: int, exc: StarterbusError
+    ) -> None:
+        """The transaction failed for good with ``exc`` after ``attempt`` attempts: a transport error breaks the
+        link (reopened / reconnected before the next transaction); counted in ``counters``."""
+        if isinstance(exc, TransportError) and not isinstance(exc, TimeoutError):
+            self._broken = True
+        if counters is not None:
+            self.count(counters, exchange, max(1, attempt), 0, exc)
 
     def count(
         self, c: TransportCounters, exchange: Exchange, sent: int, received: int, failure: StarterbusError | None

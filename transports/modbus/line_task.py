@@ -243,12 +243,11 @@ class LineTask(PollTask):
                     raise line.guard.trailing(receiver.frame, receiver.trailing)
                 return self._complete(exchange, receiver.frame, event)
         if now >= self._deadline:
-            received = receiver.received if receiver is not None else self._data
-            if received:
-                late = receiver or ResponseReceiver(exchange.request)
-                if receiver is None:
-                    late.feed(received)
-                raise late.truncated_error()
+            if receiver is None:
+                receiver = ResponseReceiver(exchange.request)
+                receiver.feed(self._data)
+            if receiver.received:
+                raise receiver.truncated_error()
             raise line.no_answer(exchange)
         self.wake_at = self._deadline
         return False
@@ -301,10 +300,7 @@ class LineTask(PollTask):
 
     def _transaction_failed(self, exc: StarterbusError) -> None:
         """The current transaction failed for good: count it, then end the task with ``exc``."""
-        line = self.line
-        if isinstance(exc, TransportError) and not isinstance(exc, TimeoutError):
-            line.mark_broken()  # the next transaction reopens / reconnects
-        line.count(self._counters, self._exchanges[self._index], max(1, self._attempt), 0, exc)
+        self.line.given_up(self._counters, self._exchanges[self._index], self._attempt, exc)
         self._end(exc)
 
     def _end(self, exc: StarterbusError) -> None:
