@@ -181,6 +181,12 @@ class Transport(ABC):
                 problems.append(f"{hook}() is overridden but no capability it serves is declared")
         return problems
 
+    @classmethod
+    def offers_poll_tasks(cls) -> bool:
+        """Whether this class can give :meth:`start_poll` tasks at all (it overrides ``_start_poll``); one of
+        its connections may still poll only by blocking (``start_poll`` then gives None)."""
+        return cls._start_poll is not Transport._start_poll
+
     def describe(self) -> str:
         """Where this transport talks to, for messages: URL and device address."""
         return self.url.text

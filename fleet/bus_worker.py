@@ -95,12 +95,6 @@ class Attempt:
     points: list[PointDef] = field(default_factory=list)
     before: TransportCounters | None = None
 
-    def policy(self, timeout: float | None) -> contextlib.AbstractContextManager[None]:
-        """A probe's policy (one short attempt), else the transport's own."""
-        if timeout is None or self.device is None:
-            return contextlib.nullcontext()
-        return self.device.transport.probe_policy(timeout)
-
 
 class BusWorker:
     """One bus: the devices' schedule (a queue of due times), their polls and jobs, the line's counts."""
@@ -293,8 +287,12 @@ class BusWorker:
             runtime.points = points
         return runtime.points
 
-    def probe_timeout(self, attempt: Attempt) -> float | None:
-        return self.poller.probing.timeout_for(attempt.runtime.slowest_request) if attempt.probe else None
+    def policy(self, attempt: Attempt, device: Device) -> contextlib.AbstractContextManager[None]:
+        """The rules the poll's requests follow: a probe's (one short attempt), else the transport's own."""
+        timeout = self.poller.probing.timeout_for(attempt.runtime.slowest_request) if attempt.probe else None
+        if timeout is None:
+            return contextlib.nullcontext()
+        return device.transport.probe_policy(timeout)
 
     def begin(self, runtime: DeviceRuntime) -> Attempt:
         """A poll of ``runtime`` starts now."""
@@ -321,7 +319,7 @@ class BusWorker:
         error: StarterbusError | None = None
         try:
             device = self.prepare(attempt)
-            with attempt.policy(self.probe_timeout(attempt)):
+            with self.policy(attempt, device):
                 result = device.transport.poll(attempt.points, runtime.status)
         except StarterbusError as exc:
             error = exc

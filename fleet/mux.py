@@ -192,8 +192,7 @@ class Multiplexer:
             if task is not None:
                 self._step(bus, task, now)
                 if not task.done:
-                    if task.fd != bus.fd:
-                        self._watch(bus, task.fd)
+                    self._watch(bus, task.fd)
                     return
                 attempt, bus.task, bus.attempt = bus.attempt, None, None
                 assert attempt is not None
@@ -220,16 +219,14 @@ class Multiplexer:
                         self._step(bus, following, self.poller.clock())
                     self._end(bus, attempt, result, error, ended)
                     if following and not following.done:
-                        if following.fd != bus.fd:
-                            self._watch(bus, following.fd)
+                        self._watch(bus, following.fd)
                         return
                     now = self.poller.clock()
                     continue
                 self._end(bus, attempt, result, error)
                 now = self.poller.clock()
             if not self._next(bus, now):
-                if bus.fd >= 0:
-                    self._watch(bus, -1)
+                self._watch(bus, -1)
                 return
 
     @staticmethod
@@ -273,7 +270,7 @@ class Multiplexer:
         attempt = bus.attempt = worker.begin(runtime)
         try:
             device = worker.prepare(attempt)
-            with attempt.policy(worker.probe_timeout(attempt)):
+            with worker.policy(attempt, device):
                 task = device.transport.start_poll(attempt.points, runtime.status)
         except StarterbusError as exc:
             bus.attempt = None
@@ -293,6 +290,9 @@ class Multiplexer:
             self.wake()
 
     def _watch(self, bus: _Bus, fd: int) -> None:
+        """Wait on ``fd`` for the bus (-1: on nothing) instead of what it waited on."""
+        if fd == bus.fd:
+            return
         if bus.fd >= 0:
             self._waiter.unregister(bus.fd)
         bus.fd = fd
@@ -331,7 +331,7 @@ class Multiplexer:
                     bus.task.cancel()
                     bus.crash = TransportError(f"{bus.worker.bus.name}: the line was closed under the poll: {exc}")
                     self._watch(bus, -1)
-                    self._service(bus, self.poller.clock())
+                    self._serve(bus, self.poller.clock())
 
     def _drain(self) -> None:
         try:

@@ -21,7 +21,6 @@ from typing import TypeVar
 from starterbus.core.device import Device
 from starterbus.core.errors import StarterbusError
 from starterbus.core.registry import get_profile, get_transport
-from starterbus.core.transport import Transport
 from starterbus.core.url import DeviceUrl
 from starterbus.fleet.bus_worker import BusWorker, DeviceRuntime
 from starterbus.fleet.config import BusConfig, FleetConfig
@@ -43,7 +42,7 @@ def polls_without_blocking(bus: BusConfig) -> bool:
             transport = get_transport(url.transport).open(url, get_profile(device.model))
         except StarterbusError:
             continue
-        return type(transport)._start_poll is not Transport._start_poll
+        return type(transport).offers_poll_tasks()
     return False
 
 
