@@ -46,14 +46,15 @@ class Exchange:
     """
 
     __slots__ = (
-        "answer_length", "attempts", "broadcast", "budget", "frame", "header_length", "last", "may_retry",
-        "policy", "prefix", "prefix_crc", "quarantine", "quiet_limit", "request", "wire", "words",
+        "answer_length", "attempts", "broadcast", "budget", "frame", "frame_length", "header_length", "last",
+        "may_retry", "policy", "prefix", "prefix_crc", "quarantine", "quiet_limit", "request", "wire", "words",
     )  # fmt: skip
 
     def __init__(self, request: Request, policy: TransactionPolicy, char_time: float) -> None:
         self.request = request
         self.policy = policy
         self.frame = request.encode()
+        self.frame_length = len(self.frame)
         self.broadcast = request.unit == BROADCAST
         self.answer_length = expected_response_length(request)
         self.header_length = min(EXCEPTION_FRAME_LENGTH, self.answer_length)  # an exception is complete by then

@@ -43,6 +43,7 @@ class RtuLine:
         self.lock = threading.Lock()
         self.char_time = char_time(settings.baudrate)
         self._silence = settings.silence
+        self._silences = 2 * settings.silence  # after the request and after the answer
         check = settings.wire_check if settings.wire_check is not None else self.link.real_serial
         self.guard = LineGuard(settings.silence, settings.min_char_time if check else 0.0, self.char_time)
         self.transactions = 0
@@ -175,7 +176,7 @@ class RtuLine:
                         response = exchange.quick_decode(data) if len(data) == length else None
                         if response is None:
                             data, response, at = self._receive_rest(exchange, data, at, deadline)
-                        error = guard.answer_complete(len(exchange.frame), data, at)
+                        error = guard.answer_complete(exchange.frame_length, data, at)
                         if error is not None:
                             raise error
                         try:
@@ -186,7 +187,14 @@ class RtuLine:
                         if extra:
                             raise guard.trailing(data, extra)
                         guard.delivered()
-                        if counters is not None:
+                        if counters is not None and attempt == 1:  # count() for the usual case, written out
+                            sent, received = exchange.frame_length, len(data)
+                            counters.transactions += 1
+                            counters.requests += 1
+                            counters.bytes_sent += sent
+                            counters.bytes_received += received
+                            counters.wire_time += (sent + received) * self.char_time + self._silences
+                        elif counters is not None:
                             self.count(counters, exchange, attempt, len(data), None)
                         return response
                     except (TimeoutError, DecodeError) as exc:

@@ -253,7 +253,7 @@ class LineTask(PollTask):
         return False
 
     def _complete(self, exchange: Exchange, frame: bytes, response: Response) -> bool:
-        error = self.line.guard.answer_complete(len(exchange.frame), frame, self._at)
+        error = self.line.guard.answer_complete(exchange.frame_length, frame, self._at)
         if error is not None:
             raise error
         self._answer = (frame, response)

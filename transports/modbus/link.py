@@ -220,7 +220,7 @@ class Link:
 
     def wait_readable(self, timeout: float) -> bool:
         """True as soon as bytes are there to read; False after ``timeout`` seconds of nothing."""
-        return bool(select.select(self._fds, _NOTHING, _NOTHING, max(0.0, timeout))[0])
+        return select.select(self._fds, _NOTHING, _NOTHING, timeout if timeout > 0.0 else 0.0)[0] != []
 
     def take_input(self, limit: int = _READ_CHUNK) -> bytes:
         """Whatever input is waiting, up to ``limit`` bytes, without waiting (b"" if none): how input is
