@@ -18,6 +18,7 @@ import os
 import select
 import time
 from collections.abc import Callable
+from functools import partial
 
 UNIT = 2
 ADDRESS = 0x0100
@@ -50,12 +51,14 @@ def starterbus_ops(port: str, baud: int, fc: str, device_level: bool) -> Ops:
     device = open_device(f"modbus-rtu://{port}?unit={UNIT}&baudrate={baud}", "jjr5000").open()
     transport = device.transport
     keys = ("motor_rated_current", "ramp_time", "soft_stop_time", "current_limit")
+    # partial, not lambda: the floor's op is called directly, so no Python frame of the harness's own is counted
+    op: Callable[[], object]
     if device_level:
-        op = (lambda: device.read(*keys)) if fc == "fc03" else (lambda: device.write("current_limit", WRITE_VALUE))
+        op = partial(device.read, *keys) if fc == "fc03" else partial(device.write, "current_limit", WRITE_VALUE)
     elif fc == "fc03":
-        op = lambda: transport.read_registers(ADDRESS, COUNT)  # type: ignore[attr-defined]  # noqa: E731
+        op = partial(transport.read_registers, ADDRESS, COUNT)  # type: ignore[attr-defined]
     else:
-        op = lambda: transport.write_register(WRITE_ADDRESS, WRITE_VALUE)  # type: ignore[attr-defined]  # noqa: E731
+        op = partial(transport.write_register, WRITE_ADDRESS, WRITE_VALUE)  # type: ignore[attr-defined]
     return op, device.close
 
 

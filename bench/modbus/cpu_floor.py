@@ -1,15 +1,17 @@
 """CPU per Modbus FC03 transaction against a hand-written exact-length floor, side by side (issue 14, item 4).
 
-    python bench/modbus/cpu_floor.py [--tx 2000] [--rounds 7] [--changing] [--watch-floor]
+    python bench/modbus/cpu_floor.py [--tx 50] [--rounds 200] [--changing] [--watch-floor]
 
 On a bare pty hop (``line_emulator.py`` without pacing) to a plain pymodbus server, nominal 19200 baud, one
-process measures in turn, round after round: the floor (``clients.exact_ops``: sleep out the 3.5-character
-silence, write, ``select``, read exactly the predicted length), starterbus's raw ``read_registers`` and
-``Device.read`` of the same four registers. Interleaving the three in one process makes the ratios robust to
-what else the machine is doing; the median of the rounds is reported, with the spread, and the median of the
-ratios within each round (paired: the clients of one round ran under the same load). ``--watch-floor`` adds
-a fourth client, the same loop watching the line during the silence after each answer (as starterbus does
-for the trailing-bytes rule) instead of sleeping before the request, and the ratios to it. Not run by the tests.
+process opens every client on the same port and measures them in turn, ``--tx`` transactions each, round after
+round, each round in a rotated order: the floor (``clients.exact_ops``: sleep out the 3.5-character silence,
+write, ``select``, read exactly the predicted length), starterbus's raw ``read_registers`` and ``Device.read``
+of the same four registers. Short turns interleaved this finely see the same machine, so the ratios of the
+totals are robust to what else it is doing; the median of the per-round ratios is printed too (paired: the
+clients of one round ran under the same load). A few transactions before each turn are not counted (the first
+request after another client's must find the line silent). ``--watch-floor`` adds a fourth client, the same
+loop watching the line during the silence after each answer (as starterbus does for the trailing-bytes rule)
+instead of sleeping before the request, and the ratios to it. Not run by the tests.
 """
 
 from __future__ import annotations
@@ -22,11 +24,12 @@ from collections.abc import Callable
 from starterbus.bench.modbus import clients, throughput
 
 BAUD = 19200
+WARM = 5  # transactions before each turn, not counted
 
 
-def cpu_per_tx(op: Callable[[], object], count: int) -> float:
-    """Microseconds of this process's CPU per call of ``op``."""
-    for _ in range(50):
+def cpu_per_tx(op: Callable[[], object], count: int, warm: int = 50) -> float:
+    """Microseconds of this process's CPU per call of ``op`` (after ``warm`` calls not counted)."""
+    for _ in range(warm):
         op()
     start = time.process_time()
     for _ in range(count):
@@ -34,53 +37,69 @@ def cpu_per_tx(op: Callable[[], object], count: int) -> float:
     return (time.process_time() - start) / count * 1e6
 
 
+def open_clients(port: str, watch_floor: bool) -> tuple[dict[str, Callable[[], object]], list[Callable[[], None]]]:
+    ops: dict[str, Callable[[], object]] = {}
+    closers: list[Callable[[], None]] = []
+    floors = [("floor", False), ("watch", True)] if watch_floor else [("floor", False)]
+    for name, watch in floors:
+        ops[name], close = clients.exact_ops(port, BAUD, "fc03", True, watch=watch)
+        closers.append(close)
+    for name, device_level in (("raw", False), ("device", True)):
+        ops[name], close = clients.starterbus_ops(port, BAUD, "fc03", device_level)
+        closers.append(close)
+    return ops, closers
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--tx", type=int, default=2000, help="transactions per client and round")
-    parser.add_argument("--rounds", type=int, default=7)
+    parser.add_argument("--tx", type=int, default=50, help="transactions per client and round")
+    parser.add_argument("--rounds", type=int, default=200)
     parser.add_argument("--changing", action="store_true", help="every FC03 answer differs (pymodbus server)")
     parser.add_argument("--watch-floor", action="store_true", help="also the floor that watches the silence")
     args = parser.parse_args()
     emulator = throughput.Emulator(0)
     server = throughput.start_server("pymodbus", emulator.server, BAUD, args.changing)
-    samples: dict[str, list[float]] = {"floor": [], "raw": [], "device": []}
-    floors = [("floor", False), ("watch", True)] if args.watch_floor else [("floor", False)]
-    samples.update({name: [] for name, _ in floors})
     try:
         throughput.wait_ready(emulator.client, BAUD)
-        for _ in range(args.rounds):
-            for name, watch in floors:
-                op, close = clients.exact_ops(emulator.client, BAUD, "fc03", True, watch=watch)
-                samples[name].append(cpu_per_tx(op, args.tx))
+        ops, closers = open_clients(emulator.client, args.watch_floor)
+        names = list(ops)
+        samples: dict[str, list[float]] = {name: [] for name in names}
+        try:
+            for turn in range(args.rounds):
+                shift = turn % len(names)
+                for name in names[shift:] + names[:shift]:
+                    samples[name].append(cpu_per_tx(ops[name], args.tx, WARM))
+        finally:
+            for close in closers:
                 close()
-            raw, close = clients.starterbus_ops(emulator.client, BAUD, "fc03", False)
-            samples["raw"].append(cpu_per_tx(raw, args.tx))
-            close()
-            device, close = clients.starterbus_ops(emulator.client, BAUD, "fc03", True)
-            samples["device"].append(cpu_per_tx(device, args.tx))
-            close()
     finally:
         server.terminate()
         server.wait(timeout=10)
         emulator.close()
-    median = {name: statistics.median(values) for name, values in samples.items()}
+    report(samples, args)
+
+
+def report(samples: dict[str, list[float]], args: argparse.Namespace) -> None:
+    mean = {name: statistics.fmean(values) for name, values in samples.items()}
     print(
-        f"FC03 x4 on a bare pty, {args.rounds} rounds x {args.tx} transactions"
-        f"{', registers changing' if args.changing else ''}: CPU us per transaction (median, min-max)"
+        f"FC03 x4 on a bare pty, {args.rounds} rounds x {args.tx} transactions per client"
+        f"{', registers changing' if args.changing else ''}: CPU us per transaction (mean; median of the rounds)"
     )
     for name, values in samples.items():
-        print(f"  {name:7s} {median[name]:6.1f}  ({min(values):.1f}-{max(values):.1f})")
-    ratios = [median["raw"] / median["floor"], median["device"] / median["floor"]]
+        print(f"  {name:7s} {mean[name]:6.1f}  ({statistics.median(values):.1f})")
+    floor = mean["floor"]
+    print(
+        f"  ratio to the floor: read_registers {mean['raw'] / floor:.2f}x   Device.read {mean['device'] / floor:.2f}x"
+        "   (goals 1.2x, 1.5x)"
+    )
     per_round = [(r / f, d / f) for f, r, d in zip(samples["floor"], samples["raw"], samples["device"], strict=True)]
-    print(f"  ratio to the floor: read_registers {ratios[0]:.2f}x   Device.read {ratios[1]:.2f}x   (goals 1.2x, 1.5x)")
-    print("  per round:        " + "  ".join(f"{r:.2f}/{d:.2f}" for r, d in per_round))
     paired = [statistics.median(r for r, _ in per_round), statistics.median(d for _, d in per_round)]
     print(f"  median of the per-round ratios: read_registers {paired[0]:.2f}x   Device.read {paired[1]:.2f}x")
-    if args.watch_floor:
-        watching = median["watch"]
+    if "watch" in mean:
+        watching = mean["watch"]
         print(
-            f"  ratio to the watching floor ({watching / median['floor']:.2f}x the floor): read_registers "
-            f"{median['raw'] / watching:.2f}x   Device.read {median['device'] / watching:.2f}x"
+            f"  ratio to the watching floor ({watching / floor:.2f}x the floor): read_registers "
+            f"{mean['raw'] / watching:.2f}x   Device.read {mean['device'] / watching:.2f}x"
         )
 
 
