@@ -38,27 +38,38 @@ from starterbus.core import (
     check_peer,
     decode_status_word,
 )
+from starterbus_canopen.bus import BUSES, CanBus, Member
 from starterbus_canopen.codes import RPDO1_BASE, TPDO1_BASE, Tpdo1, abort_meaning, encode_rpdo1
 from starterbus_canopen.od import PdoLayout, build_od
 from starterbus_canopen.settings import PLUGIN_NAME
 from starterbus_canopen.url import CanopenUrl
 
 NMT_START = 0x01
-HEARTBEAT_OPERATIONAL = 0x05
 #: what a master whose virtual channel has no peer in this process should use instead
 VIRTUAL_HINT = (
     "across processes, use a bus every process can open, e.g. Linux virtual CAN (ip link add dev vcan0 type vcan; "
     "ip link set up vcan0): starterbus simulate ... --canopen socketcan:vcan0 and canopen://socketcan/vcan0?node=N"
 )
 
-_locks_guard = threading.Lock()
-_node_locks: dict[tuple[str, str, int], threading.Lock] = {}
+
+class SdoGate:
+    """SDO transfers to one node of one bus, from every transport of this process: one at a time, and after a
+    timeout the next transfer waits one timeout (whichever transport makes it) so that a late reply is dropped."""
+
+    __slots__ = ("lock", "quiet_until")
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.quiet_until = 0.0
 
 
-def node_lock(interface: str, channel: str, node: int) -> threading.Lock:
-    """One lock per node of a bus in this process: SDO transfers to one node never overlap."""
-    with _locks_guard:
-        return _node_locks.setdefault((interface, channel, node), threading.Lock())
+_gates_guard = threading.Lock()
+_gates: dict[tuple[str, str, int], SdoGate] = {}
+
+
+def sdo_gate(interface: str, channel: str, node: int) -> SdoGate:
+    with _gates_guard:
+        return _gates.setdefault((interface, channel, node), SdoGate())
 
 
 def sdo_download_frame(node: int, index: int, subindex: int, raw: int) -> str:
@@ -75,13 +86,13 @@ class CanopenTransport(Transport):
         self.options = CanopenUrl.parse(url, profile)
         self.layout = PdoLayout.of(profile)
         self._od = build_od(profile, self.options.node)
-        self._network: canopen.Network | None = None
+        self._bus: CanBus | None = None
+        self._member: Member | None = None
         self._node: canopen.RemoteNode | None = None
         self._tasks: list[Any] = []
         self._rpdo_task: Any = None
         self._control = ControlWordState()
-        self._lock = node_lock(self.options.interface, self.options.channel, self.options.node)
-        self._quiet_until = 0.0
+        self._gate = sdo_gate(self.options.interface, self.options.channel, self.options.node)
         self._tpdo: tuple[Tpdo1, float] | None = None
         self._tpdo_valid_after = 0.0
         self.bad_tpdos = 0
@@ -93,49 +104,48 @@ class CanopenTransport(Transport):
 
     def _open(self) -> None:
         o = self.options
-        network = canopen.Network()
-        network.NOTIFIER_CYCLE = 0.05  # the notifier thread ends promptly on close
-        kwargs: dict[str, Any] = {"interface": o.interface, "channel": o.channel}
-        if o.bitrate is not None:
-            kwargs["bitrate"] = o.bitrate
         check_peer(o.interface, o.channel, VIRTUAL_HINT)
+        key = (o.interface, o.channel)
         try:
-            network.connect(**kwargs)
-        except (can.CanError, OSError, ValueError, ImportError) as exc:
-            raise TransportError(
-                f"{self.describe()}: cannot open CAN interface {o.interface}/{o.channel}: {exc}"
-            ) from exc
+            bus = BUSES.acquire(key, lambda: CanBus(o.interface, o.channel, o.bitrate))
+        except TransportError as exc:
+            raise TransportError(f"{self.describe()}: {exc}") from exc
         try:
-            node = canopen.RemoteNode(o.node, self._od)
-            node.sdo.RESPONSE_TIMEOUT = o.timeout
-            node.sdo.MAX_RETRIES = 1
-            network.add_node(node)
-            network.subscribe(TPDO1_BASE + o.node, self._on_tpdo)
-            if o.heartbeat > 0:
-                self._tasks.append(network.send_periodic(0x700 + o.master, bytes([HEARTBEAT_OPERATIONAL]), o.heartbeat))
-            node.nmt.send_command(NMT_START)
+            bus.check_bitrate(o.bitrate, self.url.text)
+            member = Member(o.node, o.master, o.heartbeat, ((TPDO1_BASE + o.node, self._on_tpdo),))
+            node = bus.join(member, lambda: canopen.RemoteNode(o.node, self._od), self.url.text)
+            try:
+                node.nmt.send_command(NMT_START)
+            except BaseException:
+                bus.leave(member)
+                raise
         except BaseException:
-            self._stop(network)
+            BUSES.release(key)
             raise
-        self._network, self._node = network, node
+        self._bus, self._member, self._node = bus, member, node
         self._tpdo_valid_after = time.monotonic()
 
-    def _stop(self, network: canopen.Network) -> None:
+    def _close(self) -> None:
+        bus, member, self._bus, self._member, self._node = self._bus, self._member, None, None, None
         for task in self._tasks:
             task.stop()
         self._tasks.clear()
         self._rpdo_task = None
-        network.disconnect()
+        if bus is not None and member is not None:
+            bus.leave(member)
+            BUSES.release((self.options.interface, self.options.channel))
 
-    def _close(self) -> None:
-        network, self._network, self._node = self._network, None, None
-        if network is not None:
-            self._stop(network)
+    @property
+    def bus(self) -> CanBus:
+        """The CAN bus this device shares with every other CANopen device of this process on it."""
+        if self._bus is None:
+            raise NotOpenError(f"{self.describe()}: the transport is not open")
+        return self._bus
 
     def _require(self) -> tuple[canopen.Network, canopen.RemoteNode]:
-        if self._network is None or self._node is None:
+        if self._bus is None or self._node is None:
             raise NotOpenError(f"{self.describe()}: the transport is not open")
-        return self._network, self._node
+        return self._bus.network, self._node
 
     @property
     def capabilities(self) -> frozenset[Capability]:
@@ -151,19 +161,22 @@ class CanopenTransport(Transport):
 
     def _sdo(self, what: str, call: Any, *args: Any) -> Any:
         _, node = self._require()
-        with self._lock:
-            wait = self._quiet_until - time.monotonic()
+        gate = self._gate
+        with gate.lock:
+            wait = gate.quiet_until - time.monotonic()
             if wait > 0:
                 time.sleep(wait)  # let a late reply of a timed-out transfer arrive, then drop it
             if not node.sdo.responses.empty():
                 node.sdo.responses = type(node.sdo.responses)()
+            node.sdo.RESPONSE_TIMEOUT = self.options.timeout  # the node may be shared with another transport
+            node.sdo.MAX_RETRIES = 1
             try:
                 return call(*args)
             except canopen.SdoAbortedError as exc:
                 code = int(exc.code)
                 raise RemoteDeviceError("CANopen SDO", code, abort_meaning(code), detail=what) from None
             except canopen.SdoCommunicationError as exc:
-                self._quiet_until = time.monotonic() + self.options.timeout
+                gate.quiet_until = time.monotonic() + self.options.timeout
                 if "No SDO response" in str(exc):
                     raise TimeoutError(
                         f"{self.describe()}: {what}: no SDO answer in {self.options.timeout:g} s"
