@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import getpass
 import sys
+from collections.abc import Iterable
 from typing import TextIO
 
 from starterbus.cli.output import emit_json, table
@@ -25,7 +26,7 @@ from starterbus.core.guarded import (
     Proposal,
     UncertainValueError,
 )
-from starterbus.core.model import Value
+from starterbus.core.model import PointDef, Value
 from starterbus.core.status import Command, Status
 from starterbus.ops.faults import value_text
 
@@ -108,11 +109,7 @@ def cmd_write(args: argparse.Namespace) -> int:
     if uncertain and not args.accept_uncertain:
         raise UncertainValueError("; ".join(uncertain) + " (acknowledge with --accept-uncertain)")
     if args.dry_run:
-        rows: list[dict[str, object]] = []
-        for point, raw in checked:
-            frames = device.transport.preview_write(point, raw)
-            rows.append({"key": point.key, "value": Value.from_raw(point, raw).text(), "raw": raw, "frames": frames})
-        _show_dry_run(args, rows)
+        show_dry_run(args, write_previews(device, checked))
         return 0
     with device:
         try:
@@ -137,9 +134,19 @@ def _show_outcomes(args: argparse.Namespace, device: Device, outcomes: list[Outc
     table(["key", "old", "new", "read back", "result"], rows, out=to)
 
 
-def _show_dry_run(args: argparse.Namespace, rows: list[dict[str, object]]) -> None:
+def write_previews(device: Device, writes: Iterable[tuple[PointDef, int]]) -> list[dict[str, object]]:
+    """What ``--dry-run`` shows of each write: the key, the value, the raw code and the exact frames."""
+    return [
+        {"key": point.key, "value": Value.from_raw(point, raw).text(), "raw": raw,
+         "frames": device.transport.preview_write(point, raw)}
+        for point, raw in writes
+    ]  # fmt: skip
+
+
+def show_dry_run(args: argparse.Namespace, rows: list[dict[str, object]], **extra: object) -> None:
+    """What would be sent, and nothing sent; ``extra`` goes into the ``--json`` document."""
     if args.json:
-        emit_json({"device": args.url, "dry_run": True, "would_send": rows})
+        emit_json({"device": args.url, "dry_run": True, **extra, "would_send": rows})
         return
     print(f"dry run: nothing sent to {args.url}")
     for row in rows:
@@ -191,7 +198,7 @@ def cmd_command(args: argparse.Namespace) -> int:
     command = Command(args.command)
     holding = args.hold or args.hold_for is not None
     if args.dry_run:
-        _show_dry_run(args, [{"command": command.value, "frames": device.transport.preview_command(command)}])
+        show_dry_run(args, [{"command": command.value, "frames": device.transport.preview_command(command)}])
         return 0
     if command is Command.START and device.transport.run_needs_connection and not holding:
         raise UnsupportedOperationError(

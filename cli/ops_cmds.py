@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from starterbus.cli.device_cmds import _show_outcomes, _user, prompt_hook
+from starterbus.cli.device_cmds import _show_outcomes, _user, prompt_hook, show_dry_run, write_previews
 from starterbus.cli.output import emit_json, table
 from starterbus.core.audit import AuditLog
 from starterbus.core.device import open_device
@@ -112,19 +112,7 @@ def cmd_restore(args: argparse.Namespace) -> int:
         if not args.json:
             _show_plan(plan)
         if args.dry_run:
-            frames = [
-                {"key": p.point.key, "value": p.value.text(), "raw": p.raw,
-                 "frames": device.transport.preview_write(p.point, p.raw)}
-                for p in plan.planned
-            ]  # fmt: skip
-            if args.json:
-                emit_json({"device": args.url, "dry_run": True, **_plan_json(plan), "would_send": frames})
-            else:
-                print(f"dry run: nothing sent to {args.url}")
-                for row in frames:
-                    print(f"  {row['key']} {row['value']}")
-                    for frame in row["frames"]:  # type: ignore[attr-defined]
-                        print(f"    {frame}")
+            show_dry_run(args, write_previews(device, [(p.point, p.raw) for p in plan.planned]), **_plan_json(plan))
             return 0
         try:
             outcomes = restores.execute(plan, device, accept_uncertain=args.accept_uncertain)

@@ -114,6 +114,14 @@ def test_dry_run_shows_frames_and_sends_nothing(line: Line, tmp_path: Path, caps
     assert "03 06 01 47 00 01 F8 01" in out  # parameter_modify = 1 to unit 3, first
     assert out.index("parameter_modify enabled") < out.index("current_limit 350 %")
     assert 6 not in line.functions and line.starters[3].params["current_limit"] == 400
+    assert main(["restore", str(file_a), line.url(3), "--model", "jjr5000", "--dry-run", "--json"]) == 0
+    document = json.loads(capsys.readouterr().out)
+    assert document["dry_run"] is True and document["device"] == line.url(3)
+    assert {"differences", "not_restored"} <= set(document)
+    sent = {row["key"]: row for row in document["would_send"]}
+    assert sent["current_limit"]["raw"] == 350 and sent["current_limit"]["value"] == "350 %"
+    assert sent["parameter_modify"]["frames"] == ["03 06 01 47 00 01 F8 01"]
+    assert 6 not in line.functions and line.starters[3].params["current_limit"] == 400
 
 
 def test_restore_without_yes_and_without_a_terminal_sends_nothing(
