@@ -21,16 +21,32 @@ the bytes; words that do not fit 16 bits (or INDH/INDL that do not fit a byte) r
 
 from __future__ import annotations
 
-import enum
 import struct
 from collections.abc import Mapping, Sequence
 from typing import NamedTuple, TypeVar
 
 from starterbus.core.errors import DecodeError, EncodeError
 from starterbus.core.model import Label
+from starterbus.transports.profibus_pkw.codes import (
+    PROTOCOL,
+    RESPONSE_TEXT,
+    RESPONSES,
+    TASK_TEXT,
+    TASKS,
+    Direction,
+    Part,
+    Ppo,
+    ResponseCode,
+    TaskCode,
+    UnknownCode,
+    response_code,
+    task_code,
+)
 
 __all__ = [
     "PROTOCOL",
+    "RESPONSE_TEXT",
+    "TASK_TEXT",
     "Direction",
     "Part",
     "PkwRequest",
@@ -58,106 +74,6 @@ __all__ = [
     "telegram_type",
 ]
 
-PROTOCOL = "profibus-pkw"
-
-
-class Ppo(enum.IntEnum):
-    """The two parameter-process-data object types the devices offer."""
-
-    PPO1 = 1  # "type I": PKW (IND, PWE) + PZD (STW/ZSW, 0000/ACT)
-    PPO3 = 3  # "type III": PZD only
-
-    @property
-    def words(self) -> int:
-        return 4 if self is Ppo.PPO1 else 2
-
-    @property
-    def has_pkw(self) -> bool:
-        return self is Ppo.PPO1
-
-
-class Direction(str, enum.Enum):
-    OUT = "out"  # master -> slave (the DP master's output area)
-    IN = "in"  # slave -> master (the DP master's input area)
-
-
-class Part(str, enum.Enum):
-    """What a byte string holds: a whole telegram, or only the PKW or PZD half the manual prints."""
-
-    ALL = "all"
-    PKW = "pkw"
-    PZD = "pzd"
-
-
-class TaskCode(enum.IntEnum):
-    """INDH master -> slave (table 1.1 / 2.2)."""
-
-    NO_TASK = 0
-    READ_PARAMETER = 1  # INDL = parameter address
-    WRITE_PARAMETER = 2  # INDL = parameter address, PWE = value
-    READ_MEASUREMENT = 3  # INDL = measurement ("status parameter") address
-
-
-class ResponseCode(enum.IntEnum):
-    """INDH slave -> master (table 1.2 / 2.3)."""
-
-    NO_RESPONSE = 0
-    VALUE = 1  # value in PWE
-    NO_WRITE_PERMISSION = 2
-    CANNOT_EXECUTE = 3  # error number in PWE (model's own table)
-
-
-class UnknownCode(int):
-    """An INDH value the manual does not define: kept as the raw number, flagged as unknown."""
-
-    __slots__ = ()
-
-    @property
-    def name(self) -> str:
-        return f"UNKNOWN_{int(self)}"
-
-    @property
-    def value(self) -> int:
-        return int(self)
-
-    def __repr__(self) -> str:
-        return f"UnknownCode({int(self)})"
-
-    def __str__(self) -> str:
-        return f"unknown code {int(self)}"
-
-
-_TASKS: tuple[TaskCode | UnknownCode, ...] = tuple(
-    TaskCode(i) if i in TaskCode._value2member_map_ else UnknownCode(i) for i in range(256)
-)
-_RESPONSES: tuple[ResponseCode | UnknownCode, ...] = tuple(
-    ResponseCode(i) if i in ResponseCode._value2member_map_ else UnknownCode(i) for i in range(256)
-)
-
-TASK_TEXT = {
-    TaskCode.NO_TASK: "no task",
-    TaskCode.READ_PARAMETER: "read parameter",
-    TaskCode.WRITE_PARAMETER: "write parameter",
-    TaskCode.READ_MEASUREMENT: "read measurement",
-}
-RESPONSE_TEXT = {
-    ResponseCode.NO_RESPONSE: "no response",
-    ResponseCode.VALUE: "value in PWE",
-    ResponseCode.NO_WRITE_PERMISSION: "no write permission",
-    ResponseCode.CANNOT_EXECUTE: "task cannot be executed, error number in PWE",
-}
-
-
-def task_code(indh: int) -> TaskCode | UnknownCode:
-    """INDH -> task code; values outside 0-3 give :class:`UnknownCode`."""
-    return _TASKS[indh & 0xFF]
-
-
-def response_code(indh: int) -> ResponseCode | UnknownCode:
-    """INDH -> response code; values outside 0-3 give :class:`UnknownCode`."""
-    return _RESPONSES[indh & 0xFF]
-
-
 # -- telegram types (fields = words in wire order) ---------------------------------------------------------
 
 
@@ -169,7 +85,7 @@ class PkwRequest(NamedTuple):
 
     @property
     def task(self) -> TaskCode | UnknownCode:
-        return _TASKS[(self.ind >> 8) & 0xFF]
+        return TASKS[(self.ind >> 8) & 0xFF]
 
     @property
     def indl(self) -> int:
@@ -184,7 +100,7 @@ class PkwResponse(NamedTuple):
 
     @property
     def response(self) -> ResponseCode | UnknownCode:
-        return _RESPONSES[(self.ind >> 8) & 0xFF]
+        return RESPONSES[(self.ind >> 8) & 0xFF]
 
     @property
     def indl(self) -> int:
@@ -215,7 +131,7 @@ class Ppo1Out(NamedTuple):
 
     @property
     def task(self) -> TaskCode | UnknownCode:
-        return _TASKS[(self.ind >> 8) & 0xFF]
+        return TASKS[(self.ind >> 8) & 0xFF]
 
     @property
     def indl(self) -> int:
@@ -240,7 +156,7 @@ class Ppo1In(NamedTuple):
 
     @property
     def response(self) -> ResponseCode | UnknownCode:
-        return _RESPONSES[(self.ind >> 8) & 0xFF]
+        return RESPONSES[(self.ind >> 8) & 0xFF]
 
     @property
     def indl(self) -> int:
