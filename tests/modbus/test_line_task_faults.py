@@ -238,3 +238,30 @@ def test_a_broken_link_ends_the_task_and_the_next_transaction_reconnects(broken:
     poll = Poll(line)
     assert values(drive(poll.task), poll) == [(0, 1)]
     assert line.usable_link() is links[1] and len(links) == 2 and links[0].closed and poll.task.fd == links[1].fd
+
+
+class HangUpLink(ScriptedLink):
+    """Answers, then the other end closes: every look at the input after the answer says so."""
+
+    def take_input(self, limit: int = 512) -> bytes:
+        if self.writes and not self.buffer and not self.inbox:
+            raise TransportError("scripted: the other end closed the connection")
+        return super().take_input(limit)
+
+
+def test_a_hang_up_after_the_answer_delivers_it_and_waits_out_the_silence_by_time_alone() -> None:
+    """A closed socket stays readable: watching it for the rest of the silence would spin the poller."""
+    clock = FakeClock()
+    link = HangUpLink(clock, on_time)
+    line = RtuLine(lambda: link, SerialSettings(baudrate=BAUD, silence=SILENCE), clock=clock)
+    poll = Poll(line)
+    task, looks = poll.task, []
+    while not task.done:
+        task.advance(clock.now)
+        looks.append((line.broken, task.fd, task.done))
+        due = task.wake_at if task.fd < 0 or link._next() is None else min(task.wake_at, link._next() or 0.0)
+        clock.now = max(clock.now, due)
+    assert values(task.result(), poll) == [(0, 1)]
+    after_hang_up = [fd for broken, fd, done in looks if broken and not done]
+    assert after_hang_up and all(fd == -1 for fd in after_hang_up)
+    assert line.broken and len(looks) == looks.index((True, -1, False)) + 2  # one more look: at the end

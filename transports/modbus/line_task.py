@@ -267,9 +267,10 @@ class LineTask(PollTask):
         assert self._answer is not None
         frame, response = self._answer
         try:
-            extra = line.link.take_input()
+            extra = line.link.take_input() if self.fd >= 0 else b""
         except TransportError:  # the connection closed after the answer: no byte followed it
             line.mark_broken()
+            self.fd = -1  # a closed socket stays readable: the rest of the silence is waited for by time alone
             extra = b""
         if extra:
             raise line.guard.trailing(frame, extra)
