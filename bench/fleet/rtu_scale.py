@@ -44,8 +44,9 @@ import threading
 import time
 from pathlib import Path
 
+from starterbus.bench.modbus.throughput import Emulator
+
 HERE = Path(__file__).resolve().parent
-EMULATOR = HERE.parent / "modbus" / "line_emulator.py"
 MODELS = ("jjr5000", "ssd1")
 MAX_UNITS = 62
 BAUD = 19200
@@ -77,30 +78,6 @@ def serve(paths: list[str], counts: list[int]) -> None:
 
 
 # -- the poller's side ------------------------------------------------------------------------------------------------
-
-
-class Emulator:
-    def __init__(self) -> None:
-        self.proc = subprocess.Popen(
-            [sys.executable, str(EMULATOR), "--baud", str(BAUD)],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-        )
-        assert self.proc.stdout is not None
-        self.client = self.proc.stdout.readline().split(": ", 1)[1].strip()
-        self.server = self.proc.stdout.readline().split(": ", 1)[1].strip()
-
-    def stats(self) -> dict[str, object]:
-        assert self.proc.stdin is not None and self.proc.stdout is not None
-        self.proc.stdin.write("stats\n")
-        self.proc.stdin.flush()
-        return json.loads(self.proc.stdout.readline())  # type: ignore[no-any-return]
-
-    def close(self) -> None:
-        if self.proc.stdin is not None:
-            self.proc.stdin.close()
-        self.proc.wait(timeout=10)
 
 
 def process_cpu(pid: int) -> float:
@@ -203,7 +180,7 @@ def measure(
 
     counts = layout(n, lines)
     used = [c for c in counts if c]
-    emulators = [Emulator() for _ in used]
+    emulators = [Emulator(BAUD) for _ in used]
     sims = subprocess.Popen(
         [sys.executable, __file__, "serve", "--paths", *[e.server for e in emulators], "--counts", *map(str, used)],
         stdin=subprocess.PIPE,

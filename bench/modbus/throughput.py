@@ -81,7 +81,7 @@ class Emulator:
     def close(self) -> None:
         if self.proc.stdin is not None:
             self.proc.stdin.close()
-        self.proc.wait(timeout=5)
+        self.proc.wait(timeout=10)
 
 
 def start_server(kind: str, path: str, baud: int, changing: bool = False) -> subprocess.Popen[str]:
