@@ -15,6 +15,7 @@ if TYPE_CHECKING:
     from starterbus.core.canbridge import LoopbackBridge, parse_bridge_address
     from starterbus.core.canbus import check_peer, open_bus, parse_bus_spec
     from starterbus.core.canbus import shutdown as shutdown_bus
+    from starterbus.core.canframe import CanFrame, annotate_candump, parse_candump
     from starterbus.core.device import Device, open_device
     from starterbus.core.errors import (
         ChecksumError,
@@ -139,6 +140,9 @@ _LAZY = {
     "check_loopback": "starterbus.core.textinput",
     "open_bus": "starterbus.core.canbus",
     "check_peer": "starterbus.core.canbus",
+    "CanFrame": "starterbus.core.canframe",
+    "annotate_candump": "starterbus.core.canframe",
+    "parse_candump": "starterbus.core.canframe",
     "parse_bus_spec": "starterbus.core.canbus",
     "shutdown_bus": "starterbus.core.canbus:shutdown",
     "LoopbackBridge": "starterbus.core.canbridge",
@@ -176,6 +180,7 @@ __all__ = [
     "Access",
     "Annotation",
     "AuditLog",
+    "CanFrame",
     "Capability",
     "ChecksumError",
     "CodecError",
@@ -230,6 +235,7 @@ __all__ = [
     "UnsupportedOperationError",
     "ValidationError",
     "Value",
+    "annotate_candump",
     "check_loopback",
     "check_peer",
     "decode_status_word",
@@ -243,6 +249,7 @@ __all__ = [
     "open_device",
     "parse_bridge_address",
     "parse_bus_spec",
+    "parse_candump",
     "parse_hex",
     "parse_host_port",
     "resolve_options",

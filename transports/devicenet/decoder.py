@@ -12,6 +12,7 @@ from __future__ import annotations
 import struct
 from collections.abc import Iterable
 
+from starterbus.core.canframe import annotate_candump
 from starterbus.core.errors import StarterbusError
 from starterbus.core.model import Kind
 from starterbus.core.profile import Profile
@@ -42,7 +43,7 @@ from starterbus.transports.devicenet.explicit import (
     decode_message,
 )
 from starterbus.transports.devicenet.fragmentation import FragmentType, Reassembler, decode_fragment, is_fragment
-from starterbus.transports.devicenet.frames import CanFrame, parse_candump
+from starterbus.transports.devicenet.frames import CanFrame
 from starterbus.transports.devicenet.identity import ATTRIBUTE_NAMES, decode_attribute
 from starterbus.transports.devicenet.ids import Group, Group1, Group2, parse_id
 
@@ -65,15 +66,7 @@ class FrameAnnotator:
         self._output_instance: dict[int, int] = {}
 
     def annotate_text(self, texts: Iterable[str]) -> list[Annotation]:
-        out = []
-        for text in texts:
-            try:
-                frame = parse_candump(text)
-            except StarterbusError as exc:
-                out.append(Annotation(text.strip(), [], str(exc)))
-                continue
-            out.append(self.annotate(frame))
-        return out
+        return annotate_candump(texts, self.annotate, "the DeviceNet decoder")
 
     def annotate(self, frame: CanFrame) -> Annotation:
         fields: list[Field] = []

@@ -1,69 +1,23 @@
 """CAN frames as the DeviceNet codec sees them: an 11-bit identifier and 0-8 data bytes, plus candump text.
 
-:class:`CanFrame` is the codec's only frame type; python-can's ``Message`` appears only in the drivers
-(scanner, simulator). Text form is candump's compact syntax ``ID#DATA`` (``41B#8000B2``), which the
-``decode`` command and the transcript tests read and write.
+:class:`CanFrame` (from ``core/canframe.py``, shared with every CAN protocol) is the codec's only frame type;
+python-can's ``Message`` appears only in the drivers (scanner, simulator). Text form is candump's compact syntax
+``ID#DATA`` (``41B#8000B2``), which the ``decode`` command and the transcript tests read and write.
 """
 
 from __future__ import annotations
 
-import re
-from dataclasses import dataclass
+from starterbus.core.canframe import MAX_DATA, MAX_STANDARD_ID, CanFrame
+from starterbus.core.canframe import parse_candump as _parse_candump
 
-from starterbus.core.errors import DecodeError, EncodeError
-
-MAX_STANDARD_ID = 0x7FF
-MAX_DATA = 8
-
-_CANDUMP_RE = re.compile(r"^([0-9A-Fa-f]{1,8})#((?:[0-9A-Fa-f]{2}[.]?)*)$")
-
-
-@dataclass(frozen=True, slots=True)
-class CanFrame:
-    """One classic CAN data frame with a standard (11-bit) identifier."""
-
-    can_id: int
-    data: bytes = b""
-
-    def __post_init__(self) -> None:
-        if isinstance(self.can_id, bool) or not 0 <= self.can_id <= MAX_STANDARD_ID:
-            raise EncodeError(f"CAN identifier {self.can_id!r} is not an 11-bit identifier", field="can_id")
-        if len(self.data) > MAX_DATA:
-            raise EncodeError(f"{len(self.data)} data bytes do not fit a CAN frame (max 8)", self.data, "data")
-
-    def text(self) -> str:
-        """candump form: ``41B#8000B2`` (three hex digits of identifier, data without separators)."""
-        return f"{self.can_id:03X}#{self.data.hex().upper()}"
-
-    def __str__(self) -> str:
-        return self.text()
+__all__ = ["MAX_DATA", "MAX_STANDARD_ID", "CanFrame", "format_frames", "parse_candump"]
 
 
 def parse_candump(text: str) -> CanFrame:
-    """Read one frame in candump syntax: ``41B#8000B2``, ``41B#80.00.B2``, ``41B#80 00 B2``, ``41B#`` (no data).
-
-    A ``candump -L`` line (``(1.5) can0 41B#8000B2``) is accepted too: the frame starts at the field with ``#``.
-    Extended (29-bit) identifiers, remote frames and CAN FD frames are not DeviceNet and are refused.
-    """
-    fields = text.split()
-    marked = [i for i, part in enumerate(fields) if "#" in part]
-    token = "".join(fields[marked[0] :]) if marked else "".join(fields)
-    raw = token.encode(errors="replace")
-    if "##" in token:
-        raise DecodeError(f"{token!r} is a CAN FD frame; DeviceNet uses classic CAN", raw, "frame")
-    if "#R" in token.upper():
-        raise DecodeError(f"{token!r} is a remote frame; DeviceNet uses data frames only", raw, "frame")
-    match = _CANDUMP_RE.fullmatch(token)
-    if match is None:
-        raise DecodeError(f"{text!r} is not a candump frame ID#DATA (e.g. 41B#8000B2)", raw, "frame")
-    id_text, data_text = match.groups()
-    can_id = int(id_text, 16)
-    if len(id_text) > 3 or can_id > MAX_STANDARD_ID:
-        raise DecodeError(f"{id_text} is an extended (29-bit) identifier; DeviceNet uses 11-bit ones", raw, "can_id")
-    data = bytes.fromhex(data_text.replace(".", ""))
-    if len(data) > MAX_DATA:
-        raise DecodeError(f"{len(data)} data bytes do not fit a CAN frame (max 8)", data, "data")
-    return CanFrame(can_id, data)
+    """One frame in candump syntax: ``41B#8000B2``, ``41B#80.00.B2``, ``41B#80 00 B2``, ``41B#`` (no data), or a
+    ``candump -L`` line (``(1.5) can0 41B#8000B2``). Extended (29-bit) identifiers, remote frames and CAN FD frames
+    are not DeviceNet and are refused."""
+    return _parse_candump(text, "the DeviceNet decoder")
 
 
 def format_frames(frames: list[CanFrame]) -> list[str]:

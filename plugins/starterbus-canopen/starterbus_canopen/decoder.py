@@ -8,20 +8,22 @@ LSS. Every frame gives one :class:`Annotation`; a frame that cannot be decoded g
 
 from __future__ import annotations
 
-import re
 import struct
 from collections.abc import Iterable
 from dataclasses import dataclass
 
 from starterbus.core import (
     Annotation,
+    CanFrame,
     DecodeError,
     PointDef,
     Profile,
     StarterbusError,
+    annotate_candump,
     decode_status_word,
     describe_control_word,
 )
+from starterbus.core import parse_candump as _parse_candump
 from starterbus_canopen.codes import (
     ERROR_REGISTER_BITS,
     NMT_COMMANDS,
@@ -35,29 +37,17 @@ from starterbus_canopen.od import PdoLayout
 from starterbus_canopen.settings import PLUGIN_NAME
 
 Field = tuple[str, str, str]
-_CANDUMP = re.compile(r"([0-9A-Fa-f]{1,3})#((?:[0-9A-Fa-f]{2}\.?)*)")
 _PDOS = {0x180: "TPDO1", 0x200: "RPDO1", 0x280: "TPDO2", 0x300: "RPDO2", 0x380: "TPDO3", 0x400: "RPDO3",
          0x480: "TPDO4", 0x500: "RPDO4"}  # fmt: skip
 
 
-@dataclass(frozen=True, slots=True)
-class CanFrame:
-    can_id: int
-    data: bytes
-
-    def text(self) -> str:
-        return f"{self.can_id:03X}#{self.data.hex().upper()}"
+READER = "the CANopen decoder"
 
 
 def parse_candump(text: str) -> CanFrame:
-    """``ID#DATA``: a hex 11-bit identifier, then 0-8 data bytes in hex (dots allowed between bytes)."""
-    m = _CANDUMP.fullmatch(text.strip())
-    if m is None:
-        raise DecodeError(f"{text.strip()!r} is not a CAN frame in candump syntax ID#DATA (hex, 11-bit id)")
-    can_id, data = int(m.group(1), 16), bytes.fromhex(m.group(2).replace(".", ""))
-    if can_id > 0x7FF or len(data) > 8:
-        raise DecodeError(f"{text.strip()!r}: identifier above 0x7FF or more than 8 data bytes", data)
-    return CanFrame(can_id, data)
+    """One frame in candump syntax (``605#4001200000000000``, ``605#40.01.20...``, a ``candump -L`` line), as
+    every starterbus decoder reads it (:func:`starterbus.core.parse_candump`)."""
+    return _parse_candump(text, READER)
 
 
 def _hex(data: bytes) -> str:
@@ -91,15 +81,7 @@ class FrameAnnotator:
         self._transfers: dict[int, _Segmented] = {}
 
     def annotate_text(self, texts: Iterable[str]) -> list[Annotation]:
-        out = []
-        for text in texts:
-            try:
-                frame = parse_candump(text)
-            except StarterbusError as exc:
-                out.append(Annotation(text.strip(), [], str(exc)))
-                continue
-            out.append(self.annotate(frame))
-        return out
+        return annotate_candump(texts, self.annotate, READER)
 
     def annotate(self, frame: CanFrame) -> Annotation:
         fields: list[Field] = []

@@ -5,9 +5,9 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 from starterbus_canopen.codes import Tpdo1, decode_rpdo1, encode_rpdo1
-from starterbus_canopen.decoder import CanFrame, FrameAnnotator, parse_candump
+from starterbus_canopen.decoder import FrameAnnotator, parse_candump
 
-from starterbus.core import DecodeError, get_profile
+from starterbus.core import CanFrame, DecodeError, get_profile
 
 words = st.integers(0, 0xFFFF)
 

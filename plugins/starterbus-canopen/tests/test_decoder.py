@@ -103,3 +103,20 @@ def test_candump_syntax_errors_are_typed(text: str) -> None:
     with pytest.raises(DecodeError):
         parse_candump(text)
     assert annotate_frames([text], None)[0].error
+
+
+@pytest.mark.parametrize(
+    "text", ["185#0020E803", " 185#00.20.E8.03 ", "185#00 20 E8 03", "(1700000000.5) can0 185#0020E803"]
+)
+def test_every_candump_form_the_devicenet_decoder_reads_is_read(text: str) -> None:
+    """One parser for every CAN decoder: a ``candump -L`` log line decodes here as it does for DeviceNet."""
+    assert parse_candump(text).text() == "185#0020E803"
+    assert one(text).error is None
+
+
+@pytest.mark.parametrize(
+    ("text", "why"), [("705#R", "remote frame"), ("705##100", "CAN FD"), ("1ABCDEF0#00", "29-bit")]
+)
+def test_frames_the_decoder_does_not_read_are_named(text: str, why: str) -> None:
+    (annotation,) = annotate_frames([text], None)
+    assert annotation.error is not None and why in annotation.error and "the CANopen decoder" in annotation.error
