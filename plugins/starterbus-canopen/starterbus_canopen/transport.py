@@ -116,8 +116,10 @@ class CanopenTransport(Transport):
             node = bus.join(member, lambda: canopen.RemoteNode(o.node, self._od), self.url.text)
             try:
                 node.nmt.send_command(NMT_START)
-            except BaseException:
+            except BaseException as exc:
                 bus.leave(member)
+                if isinstance(exc, can.CanError):
+                    raise TransportError(f"{self.describe()}: NMT start: {exc}") from exc
                 raise
         except BaseException:
             BUSES.release(key)

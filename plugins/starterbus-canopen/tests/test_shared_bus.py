@@ -5,6 +5,8 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 
+import can
+import canopen
 import pytest
 from starterbus_canopen.bus import BUSES, CanBus
 from starterbus_canopen.simulator import CanopenSimulator
@@ -121,3 +123,19 @@ def test_an_interface_that_cannot_be_opened_is_a_transport_error_and_leaves_noth
     with pytest.raises(TransportError, match=r"canopen://no_such_interface/can9\?node=5 \(node 5\): cannot open CAN"):
         device.open()
     assert ("no_such_interface", "can9") not in BUSES.leases()
+
+
+def test_a_failing_nmt_start_is_a_transport_error_and_leaves_nothing(
+    channel: str, two_nodes: CanopenSimulator, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    send = canopen.Network.send_message
+
+    def bus_off_for_nmt(network: canopen.Network, can_id: int, data: bytes, remote: bool = False) -> None:
+        if can_id == 0x000:
+            raise can.CanError("scripted: bus off")
+        send(network, can_id, data, remote)
+
+    monkeypatch.setattr(canopen.Network, "send_message", bus_off_for_nmt)
+    with pytest.raises(TransportError, match=r"heartbeat=50 \(node 5\): NMT start: scripted: bus off"):
+        open_device(f"canopen://virtual/{channel}?node=5&heartbeat=50").open()
+    assert ("virtual", channel) not in BUSES.leases()
