@@ -144,7 +144,10 @@ class CanBus:
                 task.stop()
             self._heartbeats.clear()
             self._nodes.clear()
-        self.network.disconnect()
+        try:
+            self.network.disconnect()  # re-raises what stopped the notifier thread, if anything did
+        except Exception as exc:
+            raise TransportError(f"CAN bus {self.name}: closing: {exc}") from exc
 
 
 #: every CAN bus a CANopen device of this process is on, by (interface, channel)

@@ -110,19 +110,21 @@ class CanopenTransport(Transport):
             bus = BUSES.acquire(key, lambda: CanBus(o.interface, o.channel, o.bitrate))
         except TransportError as exc:
             raise TransportError(f"{self.describe()}: {exc}") from exc
+        step = "join the bus (master heartbeat)"
         try:
             bus.check_bitrate(o.bitrate, self.url.text)
             member = Member(o.node, o.master, o.heartbeat, ((TPDO1_BASE + o.node, self._on_tpdo),))
             node = bus.join(member, lambda: canopen.RemoteNode(o.node, self._od), self.url.text)
             try:
+                step = "NMT start"
                 node.nmt.send_command(NMT_START)
-            except BaseException as exc:
+            except BaseException:
                 bus.leave(member)
-                if isinstance(exc, can.CanError):
-                    raise TransportError(f"{self.describe()}: NMT start: {exc}") from exc
                 raise
-        except BaseException:
+        except BaseException as exc:
             BUSES.release(key)
+            if isinstance(exc, can.CanError):
+                raise TransportError(f"{self.describe()}: {step}: {exc}") from exc
             raise
         self._bus, self._member, self._node = bus, member, node
         self._tpdo_valid_after = time.monotonic()
