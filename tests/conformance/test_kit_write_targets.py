@@ -12,14 +12,14 @@ from starterbus.core.device import Device
 from starterbus.core.model import PointDef, Reading
 from starterbus.core.profile import Profile, load_profile_text
 from starterbus.core.registry import get_profile
-from starterbus.core.transport import ALL_CAPABILITIES, Capability, Transport
 from starterbus.core.url import DeviceUrl
 from starterbus.testing import ConformanceNotice, TransportConformance
+from starterbus.tests.stub_transport import StubTransport
 
 JJR5000 = Path(__file__).parents[2] / "core" / "profiles" / "jjr5000.toml"
 
 
-class Previewing(Transport):
+class Previewing(StubTransport):
     """Addresses every point (its previews work) when ``addressed``; otherwise none."""
 
     name = "previewing"
@@ -27,16 +27,6 @@ class Previewing(Transport):
     def __init__(self, profile: Profile, addressed: bool = True) -> None:
         super().__init__(DeviceUrl.parse("previewing://here"), profile)
         self.addressed = addressed
-
-    def _open(self) -> None:
-        pass
-
-    def _close(self) -> None:
-        pass
-
-    @property
-    def capabilities(self) -> frozenset[Capability]:
-        return ALL_CAPABILITIES
 
     def _read_points(self, points: Sequence[PointDef]) -> list[Reading]:
         return [Reading(p, p.raw_min) for p in points]

@@ -21,11 +21,12 @@ from starterbus.core.errors import (
 )
 from starterbus.core.model import PointDef, Reading
 from starterbus.core.profile import Profile
-from starterbus.core.transport import Capability, Transport
+from starterbus.core.transport import Capability
 from starterbus.core.url import DeviceUrl
+from starterbus.tests.stub_transport import StubTransport
 
 
-class RecordingTransport(Transport):
+class RecordingTransport(StubTransport):
     name = "recording"
 
     def __init__(self, profile: Profile, caps: frozenset[Capability]) -> None:
@@ -33,12 +34,6 @@ class RecordingTransport(Transport):
         self.caps = caps
         self.sent: list[tuple[str, int]] = []
         self.memory: dict[str, int] = {}
-
-    def _open(self) -> None:
-        pass
-
-    def _close(self) -> None:
-        pass
 
     @property
     def capabilities(self) -> frozenset[Capability]:

@@ -9,10 +9,10 @@ from starterbus.core.model import PointDef, Reading
 from starterbus.core.polling import PollResult, PollTask
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
-from starterbus.core.transport import ALL_CAPABILITIES, Capability, Transport
 from starterbus.core.url import DeviceUrl
 from starterbus.fleet.config import parse_fleet
 from starterbus.fleet.poller import FleetPoller, Sample
+from starterbus.tests.stub_transport import StubTransport
 
 
 class InstantTask(PollTask):
@@ -40,23 +40,13 @@ class InstantTask(PollTask):
             self.cancelled = self.done = True
 
 
-class TaskTransport(Transport):
+class TaskTransport(StubTransport):
     name = "tasks"
 
     def __init__(self, profile: Profile, crash: bool) -> None:
         super().__init__(DeviceUrl.parse("tasks://line"), profile)
         self.crash = crash
         self.tasks: list[InstantTask] = []
-
-    def _open(self) -> None:
-        pass
-
-    def _close(self) -> None:
-        pass
-
-    @property
-    def capabilities(self) -> frozenset[Capability]:
-        return ALL_CAPABILITIES
 
     def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
         task = InstantTask(points, self.crash)

@@ -14,14 +14,15 @@ from starterbus.core.model import PointDef, Reading
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import ManualClock
-from starterbus.core.transport import ALL_CAPABILITIES, Capability, PollResult, Transport, TransportCounters
+from starterbus.core.transport import PollResult, TransportCounters
 from starterbus.core.url import DeviceUrl
 from starterbus.fleet.config import parse_fleet
 from starterbus.fleet.poller import BusWorker, DeviceRuntime, FleetPoller
 from starterbus.fleet.probing import ProbeSettings
+from starterbus.tests.stub_transport import StubTransport
 
 
-class ScriptedTransport(Transport):
+class ScriptedTransport(StubTransport):
     """Answers (or not) after ``took`` seconds of the manual clock; records each poll's timeout and retries."""
 
     name = "scripted"
@@ -35,16 +36,6 @@ class ScriptedTransport(Transport):
         self.retries = 2
         self.calls: list[tuple[float, int]] = []  # (timeout, retries) of each poll
         self._counters = TransportCounters()
-
-    def _open(self) -> None:
-        pass
-
-    def _close(self) -> None:
-        pass
-
-    @property
-    def capabilities(self) -> frozenset[Capability]:
-        return ALL_CAPABILITIES
 
     def _poll(self, points: Sequence[PointDef], status: bool) -> PollResult:
         self.calls.append((self.timeout, self.retries))
