@@ -7,10 +7,10 @@ python-can's ``Message`` appears only in the drivers (scanner, simulator). Text 
 
 from __future__ import annotations
 
-from starterbus.core.canframe import MAX_DATA, MAX_STANDARD_ID, CanFrame
+from starterbus.core.canframe import CanFrame
 from starterbus.core.canframe import parse_candump as _parse_candump
 
-__all__ = ["MAX_DATA", "MAX_STANDARD_ID", "CanFrame", "format_frames", "parse_candump"]
+__all__ = ["CanFrame", "parse_candump"]
 
 
 def parse_candump(text: str) -> CanFrame:
@@ -18,7 +18,3 @@ def parse_candump(text: str) -> CanFrame:
     ``candump -L`` line (``(1.5) can0 41B#8000B2``). Extended (29-bit) identifiers, remote frames and CAN FD frames
     are not DeviceNet and are refused."""
     return _parse_candump(text, "the DeviceNet decoder")
-
-
-def format_frames(frames: list[CanFrame]) -> list[str]:
-    return [frame.text() for frame in frames]
