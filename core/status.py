@@ -29,12 +29,21 @@ class Command(str, enum.Enum):
 
 
 class MotorState(str, enum.Enum):
+    """The one name of each motor state, shown as it is by every output (status, watch, poll table and CSV,
+    JSON, history, Sparkplug ``Status/State``, the OPC UA ``StarterStateEnum``).
+
+    ``ready`` and ``stopped`` are both an idle motor, but not the same state: ``ready`` is idle with status word
+    bit 13 set ("ready to start": main circuit powered, start allowed); ``stopped`` is idle and not known to be
+    ready: bit 13 clear (no mains, a start inhibit), or a path that does not report it (DeviceNet assemblies,
+    where ``Status.ready`` is None). A start from ``stopped`` may be refused by the starter.
+    """
+
     FAULT = "fault"
     STARTING = "starting"
     RUNNING = "running"
     STOPPING = "stopping"
     READY = "ready"
-    STOPPED = "stopped"  # stopped and not (known to be) ready
+    STOPPED = "stopped"
     UNKNOWN = "unknown"
 
 

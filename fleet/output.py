@@ -1,8 +1,9 @@
 """How a fleet is shown: the live table rows, JSON lines and the CSV log.
 
-One vocabulary for states whatever the transport: an idle motor is ``stopped`` (with ``ready`` in its own
-column: ``yes``, ``no``, or ``-`` where the path does not tell, as DeviceNet's assemblies). Device faults and
-communication errors have columns of their own; a long error is shortened at a word boundary, never mid-word.
+States have the names of :class:`~starterbus.core.status.MotorState`, as in every other output: an idle motor
+is ``ready`` (status word bit 13 set) or ``stopped`` (not known to be ready; the ``ready`` column says ``no``, or
+``-`` where the path does not tell, as DeviceNet's assemblies). Device faults and communication errors have
+columns of their own; a long error is shortened at a word boundary, never mid-word.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from typing import TextIO
 from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
-from starterbus.core.status import MotorState, Status
+from starterbus.core.status import Status
 from starterbus.fleet.config import FleetConfig
 from starterbus.fleet.poller import DeviceRuntime, Sample
 from starterbus.ops.faults import value_text
@@ -29,8 +30,8 @@ ERROR_WIDTH = 48
 
 
 def display_state(status: Status) -> str:
-    state = status.state
-    return "stopped" if state in (MotorState.READY, MotorState.STOPPED) else state.value
+    """The state's one name (:class:`~starterbus.core.status.MotorState`), the same as JSON, history and serve."""
+    return status.state.value
 
 
 def _flag(value: bool | None) -> str:

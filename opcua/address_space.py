@@ -32,6 +32,8 @@ STATES: tuple[MotorState, ...] = (
     MotorState.STOPPING,
     MotorState.FAULT,
 )
+#: the EnumStrings of StarterStateEnum: each state's one name (MotorState), capitalised as OPC UA enum fields are
+STATE_ENUM_STRINGS: tuple[str, ...] = tuple(s.value.capitalize() for s in STATES)
 
 
 class DeviceHealth(enum.IntEnum):
@@ -200,7 +202,7 @@ async def build_fleet(
 ) -> FleetNodes:
     """Add the types and one object per device; ``on_method(device, command)`` serves Start/Stop/Reset."""
     b = _Builder(server, idx, locale)
-    state_type = await b.enum_type("StarterStateEnum", [s.value.capitalize() for s in STATES])
+    state_type = await b.enum_type("StarterStateEnum", list(STATE_ENUM_STRINGS))
     health_type = await b.enum_type("DeviceHealthEnumeration", [h.name for h in DeviceHealth])
     starter_type = await server.nodes.base_object_type.add_object_type(b.nid("SoftStarterType"), "SoftStarterType")
     objects: Node = server.nodes.objects

@@ -1,4 +1,4 @@
-"""What an operator reads: one state vocabulary, errors apart from faults and never cut mid-word, colour only
+"""What an operator reads: the states' one names, errors apart from faults and never cut mid-word, colour only
 on a terminal (and never with NO_COLOR), CSV in wide format with ISO 8601 times, pure JSON on stdout."""
 
 from __future__ import annotations
@@ -30,8 +30,9 @@ def status(**flags: object) -> Status:
     return Status(**(base | flags))  # type: ignore[arg-type]
 
 
-def test_idle_reads_stopped_on_every_transport() -> None:
-    assert display_state(status(ready=True)) == "stopped"  # Modbus, Profibus: the ready bit is known
+def test_idle_reads_ready_only_when_the_device_says_so() -> None:
+    assert display_state(status(ready=True)) == "ready"  # Modbus, Profibus: bit 13 "ready to start"
+    assert display_state(status(ready=False)) == "stopped"
     assert display_state(status(ready=None)) == "stopped"  # DeviceNet assemblies do not tell
     assert display_state(status(running=True)) == "running"
 
