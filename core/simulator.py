@@ -18,6 +18,9 @@ Control word semantics: a register write (Modbus FC06, a PKW-free one-off write)
 on a stopped motor starts it, start bit falling 1 -> 0 soft-stops it. A cyclic write (PZD, DeviceNet poll)
 acts on edges only, so a held start bit never restarts a motor after a fault reset. Bit 2 (fault reset) acts
 when it appears. Models with ``bus_control_required`` (JJR8000) ignore commands while bit 3 is 0.
+
+Every control output that reaches the starter is recorded in :attr:`SimulatedStarter.control_writes` (what
+counts: :mod:`starterbus.core.control_log`); the conformance kit uses it to prove that reads never actuate.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
+from starterbus.core.control_log import ControlLog, ControlWrite, counts
 from starterbus.core.errors import Refusal, SimulatorRefusal
 from starterbus.core.model import Kind, PointDef
 from starterbus.core.profile import Profile
@@ -118,6 +122,28 @@ class SimulatedStarter:
             (proto, p.kind, addr): p for p in profile.points.values() for proto, addr in p.addresses.items()
         }
         self.events: list[tuple[float, str]] = []  # (time, what happened) for demos and tests
+        self._control_log = ControlLog()
+
+    # -- control outputs received -------------------------------------------------------------------------
+
+    @property
+    def control_writes(self) -> list[ControlWrite]:
+        """The control outputs that reached the starter, oldest first (the last few hundred; what counts:
+        :mod:`starterbus.core.control_log`). Starting or stopping through :meth:`start` / :meth:`soft_stop`
+        (the keypad, the terminals) is not a control output and is not recorded."""
+        with self.lock:
+            return list(self._control_log.records)
+
+    @property
+    def control_writes_total(self) -> int:
+        """How many control outputs reached the starter in all (a mark for :meth:`control_writes_since`)."""
+        with self.lock:
+            return self._control_log.total
+
+    def control_writes_since(self, mark: int) -> list[ControlWrite]:
+        """The control outputs recorded after :attr:`control_writes_total` was ``mark``."""
+        with self.lock:
+            return self._control_log.since(mark)
 
     # -- addressing ---------------------------------------------------------------------------------------
 
@@ -260,20 +286,26 @@ class SimulatedStarter:
             self._set_phase(Phase.FAULT, self.clock(), f"fault {code}: {self.profile.faults.text(code)}")
 
     def command_lost(self, why: str = "command connection lost") -> None:
-        """Safe state when a cyclic master disappears: the run command it held is dropped (soft stop).
+        """Safe state when a cyclic master disappears: the run command it held is dropped (soft stop, recorded
+        in :attr:`control_writes`).
 
         A motor started another way (keypad, terminals, ``start()``) is not the lost master's to stop.
         """
         with self.lock:
             if self.control_word & CW_START:
                 self.control_word &= ~CW_START
+                self._control_log.add(ControlWrite(self.clock(), self.control_word, True, why, lost=True))
                 self.soft_stop(why)
 
-    def write_control_word(self, word: int, *, cyclic: bool = False) -> None:
+    def write_control_word(self, word: int, *, cyclic: bool = False, source: str = "") -> None:
+        """A master's control word: one-off (``cyclic=False``, acts on levels) or one cycle of a cyclic output
+        (acts on edges). ``source`` names the front end and service in :attr:`control_writes`."""
         if not 0 <= word <= 0xFFFF:
             raise SimulatorRefusal(Refusal.OUT_OF_RANGE, f"control word {word!r} is not 16 bits")
         with self.lock:
             prev = self.control_word
+            if counts(word, prev, cyclic=cyclic):
+                self._control_log.add(ControlWrite(self.clock(), word, cyclic, source))
             self.control_word = word
             if self.profile.control.bus_control_required and not word & CW_BUS_CONTROL:
                 return

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import threading
+
 import pytest
 
+from starterbus.core.control_log import LOG_SIZE
 from starterbus.core.errors import Refusal, SimulatorRefusal
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
@@ -151,3 +154,86 @@ def test_command_lost_soft_stops(jjr8000: Profile, clock: ManualClock) -> None:
     assert phase(sim) is Phase.RUNNING
     sim.command_lost()
     assert phase(sim) in (Phase.STOPPING, Phase.STOPPED)
+
+
+# -- the record of control outputs (core/control_log.py) ---------------------------------------------------------
+
+
+def test_keypad_start_and_stop_are_not_control_outputs(jjr8000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr8000, clock)
+    sim.start()
+    clock.advance(60)
+    sim.soft_stop()
+    sim.command_lost()  # no run command held: nothing to drop
+    assert sim.control_writes == [] and sim.control_writes_total == 0
+
+
+def test_one_off_writes_always_count(jjr5000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr5000, clock)
+    clock.advance(3)
+    now = clock.now
+    sim.write_control_word(0x0000, source="Modbus FC06 unit 2")  # a level: a soft stop for a JJR5000
+    sim.write_control_word(0x0000)
+    [first, second] = sim.control_writes
+    assert (first.time, first.word, first.cyclic, first.source, first.lost) == (
+        now,
+        0,
+        False,
+        "Modbus FC06 unit 2",
+        False,
+    )
+    assert "0x0000" in first.describe() and "one-off from Modbus FC06 unit 2" in first.describe()
+    assert second.source == "" and sim.control_writes_total == 2
+
+
+def test_cyclic_no_operation_does_not_count(jjr8000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr8000, clock)
+    sim.start()
+    for _ in range(5):  # a DP master (gateway) sends STW 0x0000 on every cycle while it only reads
+        sim.write_control_word(0x0000, cyclic=True, source="Profibus PPO1 STW")
+    assert sim.control_writes == [] and phase(sim) is Phase.STARTING
+
+
+@pytest.mark.parametrize("word", [0x0001, 0x0004, 0x0008, 0x0009])
+def test_cyclic_command_bits_count_once_while_held(jjr8000: Profile, clock: ManualClock, word: int) -> None:
+    sim = starter_for(jjr8000, clock)
+    for _ in range(3):
+        sim.write_control_word(word, cyclic=True, source="DeviceNet poll")
+    [record] = sim.control_writes
+    assert record.word == word and record.cyclic and record.source == "DeviceNet poll"
+
+
+def test_cyclic_stop_after_run_counts(jjr5000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr5000, clock)
+    sim.write_control_word(0x0001, cyclic=True)
+    sim.write_control_word(0x0000, cyclic=True)  # the run bit falls: a soft stop, not "no operation"
+    assert [w.word for w in sim.control_writes] == [0x0001, 0x0000]
+    assert phase(sim) in (Phase.STOPPING, Phase.STOPPED)
+
+
+def test_a_dropped_run_command_is_recorded(jjr8000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr8000, clock)
+    sim.write_control_word(0x0009, cyclic=True)
+    mark = sim.control_writes_total
+    sim.command_lost("CANopen master heartbeat lost")
+    [record] = sim.control_writes_since(mark)
+    assert record.lost and record.word == 0x0008 and "heartbeat lost" in record.describe()
+
+
+def test_the_record_is_bounded_and_counts_everything(jjr5000: Profile, clock: ManualClock) -> None:
+    sim = starter_for(jjr5000, clock)
+
+    def master() -> None:
+        for _ in range(200):
+            sim.write_control_word(0x0008)
+
+    threads = [threading.Thread(target=master) for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert sim.control_writes_total == 800 and len(sim.control_writes) == LOG_SIZE
+    mark = sim.control_writes_total
+    assert sim.control_writes_since(mark) == []
+    sim.write_control_word(0x0009)
+    assert [w.word for w in sim.control_writes_since(mark)] == [0x0009]

@@ -140,7 +140,9 @@ class SlaveLogic:
         try:
             point = point_at(starter, request.address)
             if point.key == profile.roles.get("control_word"):
-                starter.write_control_word(request.value, cyclic=False)
+                starter.write_control_word(
+                    request.value, cyclic=False, source=f"Modbus FC{request.function:02d} unit {request.unit}"
+                )
             elif point.kind is Kind.MEASUREMENT:
                 raise SimulatorRefusal(Refusal.READ_ONLY, f"{point.key} is a measurement")
             else:

@@ -155,7 +155,10 @@ class SimulatedDpSlave:
             if self.ppo is Ppo.PPO1:
                 self._pkw(PkwRequest(words[0], words[1]))
             if given[stw_index] is not None:
-                self.starter.write_control_word(words[stw_index], cyclic=True)
+                where = f" (slave {self.name})" if self.name else ""
+                self.starter.write_control_word(
+                    words[stw_index], cyclic=True, source=f"Profibus {self.ppo.name} STW{where}"
+                )
             return self.inputs()
 
     def inputs(self) -> tuple[int, ...]:

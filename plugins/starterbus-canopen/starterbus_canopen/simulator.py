@@ -166,7 +166,7 @@ class CanopenSimulator(RunningSimulator):
             served.local.emcy.send(0x8210, served.error_register | ER_GENERIC)
             return
         with self.lock:
-            served.starter.write_control_word(word, cyclic=True)
+            served.starter.write_control_word(word, cyclic=True, source=f"CANopen RPDO1 node {served.node_id}")
 
     def _on_master_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
         now = time.monotonic()
