@@ -12,6 +12,7 @@ from starterbus.cli.output import emit_json, table
 from starterbus.cli.plugin_args import ARGPARSE, OptionMapper, declared, plugin_order, warn
 from starterbus.core.errors import ConfigurationError, PluginError, StarterbusError
 from starterbus.core.registry import get_profile, get_transport, transports
+from starterbus.core.textinput import read_text_file
 from starterbus.core.transport import Annotation, TransportPlugin
 
 #: what ``decode NAME`` itself defines; a plugin's options must leave these alone
@@ -99,11 +100,7 @@ def _looks_like_can(line: str) -> bool:
 def _inputs(args: argparse.Namespace) -> list[str]:
     data: list[str] = [d for d in args.data if d != "-"]
     for path in args.file:
-        try:
-            with open(path, encoding="utf-8") as f:
-                data += frame_lines(f)
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigurationError(f"{path}: cannot read frames: {exc}") from None
+        data += frame_lines(read_text_file(path, "frame log").splitlines())
     if (not args.data and not args.file) or "-" in args.data:
         data += frame_lines(sys.stdin)
     if not data:

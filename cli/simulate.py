@@ -7,7 +7,6 @@ import signal
 import sys
 import threading
 import time
-from pathlib import Path
 
 from starterbus.cli.output import emit_json_line
 from starterbus.cli.plugin_args import ARGPARSE, OptionMapper, declared, plugin_order, warn
@@ -16,6 +15,7 @@ from starterbus.core.errors import ConfigurationError, PluginError, StarterbusEr
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile, transports
 from starterbus.core.simulator import SimulatedStarter
+from starterbus.core.textinput import read_text_file
 from starterbus.core.transport import RunningSimulator
 
 
@@ -121,11 +121,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     starters = {addr: SimulatedStarter(p, load=args.load) for addr, p in units}
     events = []
     if args.script:
-        try:
-            text = Path(args.script).read_text(encoding="utf-8")
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigurationError(f"{args.script}: {exc}") from None
-        events = parse_script(text, args.script, set(starters))
+        events = parse_script(read_text_file(args.script, "script"), args.script, set(starters))
     for spec in args.fault:
         unit, _, code = spec.partition(":")
         if not unit.isdigit() or not code.isdigit() or int(unit) not in starters:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from starterbus.core.errors import ConfigurationError
+from starterbus.core.textinput import read_text_file
 
 if TYPE_CHECKING:
     from starterbus.fleet.config import DeviceConfig
@@ -43,8 +44,8 @@ def default_fleet(explicit: str | None) -> str | None:
     if not path.is_file():
         return None
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        data = tomllib.loads(read_text_file(path, "configuration file"))
+    except tomllib.TOMLDecodeError as exc:
         raise ConfigurationError(f"{path}: {exc}") from None
     fleet = data.get("fleet")
     if fleet is not None and not isinstance(fleet, str):

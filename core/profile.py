@@ -30,6 +30,7 @@ from starterbus.core.profile_points import (
 )
 from starterbus.core.profile_transports import address_fields, parse_transports, plugin_named
 from starterbus.core.status import FaultTable
+from starterbus.core.textinput import read_text_file
 
 if TYPE_CHECKING:
     pass
@@ -194,11 +195,7 @@ def normalise_address(text: str, style: str) -> tuple[Kind | None, str] | None:
 
 
 def load_profile_file(path: str | Path) -> Profile:
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ProfileError(str(path), "(file)", f"cannot read: {exc}") from exc
+    text = read_text_file(path, "profile", error=lambda source, detail: ProfileError(source, "(file)", detail))
     return load_profile_text(text, str(path))
 
 

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Generic, TypeVar
 
 from starterbus.core.errors import PluginError, StarterbusError
 from starterbus.core.profile import Profile, load_profile_file, load_profile_text
+from starterbus.core.textinput import decode_text
 from starterbus.core.transport import TransportPlugin
 
 if TYPE_CHECKING:
@@ -155,7 +156,8 @@ def _to_profile(name: str, obj: object) -> Profile:
     elif isinstance(obj, Path):
         profile = load_profile_file(obj)
     elif _is_resource(obj):
-        profile = load_profile_text(obj.read_text(encoding="utf-8"), str(obj))  # type: ignore[attr-defined]
+        data: bytes = obj.read_bytes()  # type: ignore[attr-defined]
+        profile = load_profile_text(decode_text(data, str(obj), "profile"), str(obj))
     elif isinstance(obj, str):
         profile = load_profile_file(obj)
     else:

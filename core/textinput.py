@@ -1,14 +1,61 @@
-"""Parsers of what users type that every transport needs: ``HOST:PORT`` addresses and hex bytes.
+"""What users type or write: ``HOST:PORT`` addresses, hex bytes, and the text files they edit.
 
-Both raise only the project's typed errors, naming the text (and the option, when given).
+Each raises only the project's typed errors, naming the text (and the option, when given) or the file, line and
+byte.
 """
 
 from __future__ import annotations
 
+import codecs
 import ipaddress
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from pathlib import Path
 
-from starterbus.core.errors import ConfigurationError, DecodeError
+from starterbus.core.errors import ConfigurationError, DecodeError, StarterbusError
+
+#: the error a text file's problem raises: (file, what is wrong) -> the error
+TextError = Callable[[str, str], StarterbusError]
+
+
+def _configuration_error(source: str, detail: str) -> StarterbusError:
+    return ConfigurationError(f"{source}: {detail}")
+
+
+def read_text_file(path: str | Path, what: str = "file", *, error: TextError = _configuration_error) -> str:
+    """The text of a file a user edits (fleet, backup, users, config, profile, script): UTF-8, a UTF-8 byte-order
+    mark (as Windows editors write) dropped.
+
+    Anything else raises ``error(file, detail)`` (a :class:`ConfigurationError` unless told) in one line: the
+    file could not be read, or it is UTF-16, or the first byte that is not UTF-8 with its line, column and offset
+    (a GBK or other ANSI code-page file is refused there, not guessed at).
+    """
+    source = str(path)
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise error(source, f"cannot read the {what}: {exc.strerror or exc}") from None
+    return decode_text(data, source, what, error=error)
+
+
+def decode_text(data: bytes, source: str, what: str = "file", *, error: TextError = _configuration_error) -> str:
+    """``data`` as :func:`read_text_file` decodes a file's bytes; ``source`` names the file in the error."""
+    bom = 0
+    if data.startswith(codecs.BOM_UTF8):
+        bom = len(codecs.BOM_UTF8)
+    elif data.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)):
+        raise error(source, f"the {what} is UTF-16 (it starts with a UTF-16 byte-order mark): save it as UTF-8")
+    try:
+        return data[bom:].decode("utf-8")
+    except UnicodeDecodeError as exc:
+        offset = bom + exc.start
+    line_start = data.rfind(b"\n", 0, offset) + 1
+    line = data.count(b"\n", 0, offset) + 1
+    column = len(data[max(line_start, bom) : offset].decode("utf-8")) + 1  # all before the bad byte is UTF-8
+    raise error(
+        source,
+        f"line {line}, column {column} (byte offset {offset}): byte 0x{data[offset]:02X} is not UTF-8: save the "
+        f"{what} as UTF-8 (with or without a byte-order mark; GBK and other code pages are not read)",
+    ) from None
 
 
 def parse_host_port(
@@ -65,4 +112,4 @@ def parse_hex(tokens: Sequence[str]) -> bytes:
         raise DecodeError(f"not hex bytes: {' '.join(tokens)!r}") from None
 
 
-__all__ = ["check_loopback", "parse_hex", "parse_host_port"]
+__all__ = ["TextError", "check_loopback", "decode_text", "parse_hex", "parse_host_port", "read_text_file"]

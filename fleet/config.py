@@ -38,6 +38,7 @@ from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.status import Command
+from starterbus.core.textinput import read_text_file
 from starterbus.core.url import DeviceUrl
 
 if sys.version_info >= (3, 11):
@@ -146,12 +147,7 @@ class _Lines:
 
 
 def load_fleet(path: str | Path) -> FleetConfig:
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigurationError(f"{path}: cannot read fleet file: {exc}") from exc
-    return parse_fleet(text, str(path))
+    return parse_fleet(read_text_file(path, "fleet file"), str(path))
 
 
 def parse_fleet(text: str, source: str = "<fleet>") -> FleetConfig:

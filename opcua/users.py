@@ -32,6 +32,7 @@ from asyncua import ua
 from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User, UserRole
 
 from starterbus.core.errors import ConfigurationError
+from starterbus.core.textinput import read_text_file
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -85,9 +86,7 @@ def load_users(path: str | Path) -> dict[str, UserEntry]:
     """Read a users file; errors name the file and the user."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigurationError(f"{path}: cannot read the users file: {exc}") from exc
+        data = tomllib.loads(read_text_file(path, "users file"))
     except tomllib.TOMLDecodeError as exc:
         raise ConfigurationError(f"{path}: {exc}") from exc
     return parse_users(data, str(path))

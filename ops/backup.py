@@ -25,6 +25,7 @@ from starterbus.core.errors import ConfigurationError, UnsupportedOperationError
 from starterbus.core.model import Kind, PointDef, Value
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
+from starterbus.core.textinput import read_text_file
 from starterbus.core.transport import Capability
 from starterbus.ops.faults import is_fault_code, value_text
 
@@ -174,9 +175,7 @@ def load(path: str | Path) -> tuple[Backup, Profile]:
     """Read and check a backup file against its model's profile; raises the typed errors naming file and key."""
     source = str(path)
     try:
-        data = tomllib.loads(Path(path).read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ConfigurationError(f"{source}: cannot read: {exc}") from exc
+        data = tomllib.loads(read_text_file(path, "backup"))
     except tomllib.TOMLDecodeError as exc:
         raise ConfigurationError(f"{source}: not TOML: {exc}") from exc
     if data.get("format") != FORMAT:

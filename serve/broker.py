@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 from urllib.parse import urlsplit
 
 from starterbus.core.errors import ConfigurationError
+from starterbus.core.textinput import read_text_file
 
 USERNAME_ENV = "STARTERBUS_MQTT_USERNAME"
 PASSWORD_ENV = "STARTERBUS_MQTT_PASSWORD"
@@ -57,10 +57,7 @@ def parse_broker_url(url: str) -> tuple[str, int, bool]:
 def load_credentials(path: str | None) -> tuple[str | None, str | None]:
     """From a file (first line the user name, second the password), else from the environment."""
     if path is not None:
-        try:
-            lines = Path(path).read_text(encoding="utf-8").splitlines()
-        except OSError as exc:
-            raise ConfigurationError(f"credentials file {path}: {exc.strerror}") from None
+        lines = read_text_file(path, "credentials file").splitlines()
         if not lines or not lines[0].strip():
             raise ConfigurationError(f"credentials file {path}: first line must be the user name")
         return lines[0].strip(), (lines[1] if len(lines) > 1 else None)
