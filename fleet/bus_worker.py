@@ -29,12 +29,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from starterbus.core.device import Device, open_device
-from starterbus.core.errors import (
-    StarterbusError,
-    TimeoutError,
-    TransportError,
-    UnsupportedOperationError,
-)
+from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
 from starterbus.core.model import PointDef, Value
 from starterbus.core.polling import PollResult
 from starterbus.core.status import Status
@@ -337,21 +332,19 @@ class BusWorker:
         wire = self._count(device, attempt.before, start, ended) if device is not None else None
         status: Status | None = None
         values: dict[str, Value] = {}
-        online = True
         if result is not None and device is not None:
             try:
                 status = result.status
-                if status is not None:
-                    device.guard.note_status(status)  # a queued write's state rule need not read it again
                 values = {r.point.key: r.value(device.transport.name) for r in result.readings}
             except StarterbusError as exc:
                 error = exc
-        if isinstance(error, (TimeoutError, TransportError)):
-            online = False
-            if not isinstance(error, TimeoutError):
-                self._close(runtime)  # port or socket gone: reopen on the next attempt
-        elif error is not None and not isinstance(error, UnsupportedOperationError):
-            status, values = None, {}  # the device answered, but with an error or garbage
+        # online means answered: any error (no answer, an exception response, garbage, a URL or setting the
+        # device cannot be opened with) leaves the device offline, with no values and the error said
+        online = error is None
+        if online and status is not None and device is not None:
+            device.guard.note_status(status)  # a queued write's state rule need not read it again
+        if isinstance(error, TransportError) and not isinstance(error, TimeoutError):
+            self._close(runtime)  # port or socket gone: reopen on the next attempt
         now = poller.clock()
         if probe:
             runtime.probes += 1
@@ -365,8 +358,7 @@ class BusWorker:
             # the next slot of the device's grid; a poll more than a period late starts a new grid
             due = runtime.next_due + config.period
             runtime.next_due = due if due > start else start + config.period
-            if status is not None or values:
-                runtime.last_ok = now
+            runtime.last_ok = now
             if wire is not None and wire.requests and not probe:
                 runtime.slowest_request = max(runtime.slowest_request, (now - start) / wire.requests)
         else:
