@@ -1,5 +1,8 @@
-"""The start plot: phase currents over time, the current limit as a line, the motor state as bands, the start
+"""The start plot: phase currents over time, the current limit as a line, the motor state as bands, the event
 and the peak annotated. Drawn with matplotlib's Agg canvas (no display, no pyplot state), as a PNG.
+
+The legend sits below the axes, where it can cover no data. The peak is searched from the event on (t >= 0):
+what came before a start or a stop is not its peak; only a trip's plot looks before the event, and says so.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ STATE_COLOURS = {
     "stopped": "#bdbdbd",
     "unknown": "#ffffff",
 }
+LEGEND_COLUMNS = 6
 
 
 def _figure() -> Any:
@@ -29,7 +33,7 @@ def _figure() -> Any:
         from matplotlib.figure import Figure
     except ImportError as exc:
         raise UnsupportedOperationError("plotting needs matplotlib: pip install 'starterbus[plot]'") from exc
-    return Figure(figsize=(10, 5), dpi=100)
+    return Figure(figsize=(10, 5), dpi=100, layout="constrained")  # constrained: room for the legend outside
 
 
 def plot_recording(rec: Recording, path: str | Path, title: str | None = None) -> None:
@@ -43,8 +47,32 @@ def plot_recording(rec: Recording, path: str | Path, title: str | None = None) -
 
 
 def draw(
-    points: Sequence[Point], path: str | Path, *, limit_a: float | None, title: str, marker: str = "start"
+    points: Sequence[Point],
+    path: str | Path,
+    *,
+    limit_a: float | None,
+    title: str,
+    marker: str = "start",
+    since: str | None = None,
+    peak_before: bool = False,
 ) -> None:
+    """:func:`figure` saved to ``path`` as a PNG."""
+    figure(points, limit_a=limit_a, title=title, marker=marker, since=since, peak_before=peak_before).savefig(
+        str(path), format="png"
+    )
+
+
+def figure(
+    points: Sequence[Point],
+    *,
+    limit_a: float | None,
+    title: str,
+    marker: str = "start",
+    since: str | None = None,
+    peak_before: bool = False,
+) -> Any:
+    """The plot as a matplotlib Figure: ``marker`` labels t = 0 (the event), the x axis reads "time since
+    ``since``" (default: "the" and the marker); the peak is searched from t = 0 on unless ``peak_before``."""
     from matplotlib.patches import Patch
 
     fig = _figure()
@@ -62,11 +90,12 @@ def draw(
     ax.axvline(0.0, color="black", linewidth=1)
     ax.annotate(marker, xy=(0.0, 1.0), xycoords=("data", "axes fraction"), xytext=(4, -14),
                 textcoords="offset points")  # fmt: skip
-    peak = _peak(points)
+    peak = _peak(points, None if peak_before else 0.0)
     if peak is not None:
         t, amps, phase = peak
+        when = f"{-t:.2f} s before the {marker}" if t < 0 else f"at {t:.2f} s"
         ax.annotate(
-            f"peak {amps:.1f} A (phase {phase.upper()}) at {t:.2f} s",
+            f"peak {amps:.1f} A (phase {phase.upper()}) {when}",
             xy=(t, amps),
             xytext=(24, -28),
             textcoords="offset points",
@@ -74,15 +103,15 @@ def draw(
         )
     handles, _ = ax.get_legend_handles_labels()
     handles += [Patch(color=STATE_COLOURS.get(s, "#eeeeee"), alpha=0.35, label=s) for s in seen]
-    ax.legend(handles=handles, loc="lower right", fontsize="small")
-    ax.set_xlabel(f"time since {marker} (s)")
+    fig.legend(handles=handles, loc="outside lower center", ncols=min(len(handles), LEGEND_COLUMNS),
+               fontsize="small", frameon=False)  # fmt: skip
+    ax.set_xlabel(f"time since {since or 'the ' + marker} (s)")
     ax.set_ylabel("phase current (A)")
     ax.set_title(title)
-    top = max([peak[1] if peak else 0.0, limit_a or 0.0, 1.0])
-    ax.set_ylim(0, top * 1.15)
+    highest = max((a for p in points for a in p.currents.values()), default=0.0)
+    ax.set_ylim(0, max(highest, limit_a or 0.0, 1.0) * 1.15)
     ax.grid(True, alpha=0.3)
-    fig.tight_layout()
-    fig.savefig(str(path), format="png")
+    return fig
 
 
 def _bands(points: Sequence[Point]) -> list[tuple[str, float, float]]:
@@ -96,9 +125,12 @@ def _bands(points: Sequence[Point]) -> list[tuple[str, float, float]]:
     return bands
 
 
-def _peak(points: Sequence[Point]) -> tuple[float, float, str] | None:
+def _peak(points: Sequence[Point], since: float | None = 0.0) -> tuple[float, float, str] | None:
+    """(time, amps, phase) of the highest current at or after ``since`` (None: anywhere); the first on a tie."""
     best = None
     for p in points:
+        if since is not None and p.t < since:
+            continue
         for phase, amps in p.currents.items():
             if best is None or amps > best[1]:
                 best = (p.t, amps, phase)
@@ -111,11 +143,22 @@ def _peak(points: Sequence[Point]) -> tuple[float, float, str] | None:
 def plot_event(
     db: str | Path, device: str, event_id: int, path: str | Path, *, after: float = 60.0, before_trip: float = 30.0
 ) -> int:
-    """Draw history event ``event_id`` of ``device``; returns the number of samples drawn.
+    """Draw history event ``event_id`` of ``device`` to ``path`` (PNG); returns the number of samples drawn."""
+    fig, count = event_figure(db, device, event_id, after=after, before_trip=before_trip)
+    fig.savefig(str(path), format="png")
+    return count
+
+
+def event_figure(
+    db: str | Path, device: str, event_id: int, *, after: float = 60.0, before_trip: float = 30.0
+) -> tuple[Any, int]:
+    """The figure of history event ``event_id`` of ``device`` and the number of samples in it.
 
     A ``start`` event (``record``) spans to its recorded end; a ``state`` event into ``starting`` (``poll
-    --record``) spans to the next change of state after running was reached, at most ``after`` seconds; a
-    ``fault`` event shows the ``before_trip`` seconds before the trip and a few after.
+    --record``) spans to the next change of state after running was reached, another state change to the next
+    change of state (and a second of the state it reached), each at most ``after`` seconds; a ``fault`` event
+    shows the ``before_trip`` seconds before the trip and a few after. Each is labelled by what it is: a start,
+    a trip, or the change of state (``running -> stopping``).
     """
     with HistoryStore(db, create=False) as store:
         event = store.event(event_id)
@@ -125,11 +168,12 @@ def plot_event(
         detail: Mapping[str, Any] = event["detail"]
         end = float(detail.get("end") or begin + after)
         if event["kind"] == "state":
-            later = [
-                e for e in store.events(device=device, since=begin, kind="state")
-                if e["id"] != event_id and e["detail"].get("from") == "running"
-            ]  # fmt: skip
-            end = min([begin + after, *(float(e["time"]) for e in later)])
+            later = [e for e in store.events(device=device, since=begin, kind="state") if e["id"] != event_id]
+            if detail.get("to") == "starting":
+                ends = [float(e["time"]) for e in later if e["detail"].get("from") == "running"]
+            else:
+                ends = [float(e["time"]) + 1.0 for e in later if float(e["time"]) > begin]
+            end = min([begin + after, *ends])
         lead = 0.5
         if event["kind"] == "fault":
             lead, end = before_trip, begin + 5.0
@@ -149,9 +193,20 @@ def plot_event(
     limit_a = detail.get("limit_a")
     if limit_a is None:
         limit_a = _limit_from_values(rows)
-    marker = "trip" if event["kind"] == "fault" else "start"
-    draw(points, path, limit_a=limit_a, title=f"{device}: event {event_id} ({event['text']})", marker=marker)
-    return len(points)
+    marker, since = event_marker(event["kind"], detail)
+    fig = figure(points, limit_a=limit_a, title=f"{device}: event {event_id} ({event['text']})", marker=marker,
+                 since=since, peak_before=event["kind"] == "fault")  # fmt: skip
+    return fig, len(points)
+
+
+def event_marker(kind: str, detail: Mapping[str, Any]) -> tuple[str, str]:
+    """(label at t = 0, what the time axis counts from) for a history event: a start, a trip or the change."""
+    if kind == "fault":
+        return "trip", "the trip"
+    if kind == "state" and detail.get("to") != "starting":
+        change = f"{detail.get('from') or '?'} -> {detail.get('to') or '?'}"
+        return change, f"the change {change}"
+    return "start", "the start"
 
 
 def _limit_from_values(rows: Sequence[Mapping[str, Any]]) -> float | None:
