@@ -10,17 +10,26 @@ import socket
 import sys
 import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from starterbus.cli.lifetime import until_signalled
 from starterbus.cli.output import emit_json_line
 from starterbus.core.errors import ConfigurationError
+
+if TYPE_CHECKING:
+    from starterbus.serve.history import Bounds
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted: str) -> None:
     p = sub.add_parser("serve", help="publish the fleet as a Sparkplug B edge node (MQTT), optional Prometheus")
     p.add_argument("fleet", metavar="FLEET.toml", nargs="?", help="fleet file (or --demo)")
     p.add_argument("--demo", action="store_true", help="serve the simulated demo fleet (no hardware)")
-    p.add_argument("--mqtt", metavar="URL", help="broker: mqtt://HOST[:PORT] or mqtts://HOST[:PORT]")
+    p.add_argument(
+        "--mqtt",
+        metavar="URL",
+        action="append",
+        help="broker: mqtt://HOST[:PORT] or mqtts://HOST[:PORT]; repeat for a list, tried in turn",
+    )
     p.add_argument("--group", default="starterbus", help="Sparkplug group id (default starterbus)")
     p.add_argument("--node", default=None, help="Sparkplug edge node id (default: the host name)")
     p.add_argument("--client-id", default=None, help="MQTT client id (default starterbus-GROUP-NODE)")
@@ -42,8 +51,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
         default=[],
         help="report a value once it moved this many resolution steps (default 1); KEY=STEPS for one point; repeatable",
     )
-    p.add_argument("--buffer-messages", type=int, default=10_000, help="DDATA kept while the broker is away")
-    p.add_argument("--buffer-age", type=float, default=3600.0, help="oldest buffered DDATA kept, s")
+    p.add_argument("--buffer-file", type=Path, help="store-and-forward buffer (default: beside the state file)")
+    p.add_argument("--buffer-messages", type=int, default=1_000_000, help="DDATA kept while the broker is away")
+    p.add_argument("--buffer-size", type=float, default=100.0, help="MB of DDATA kept while the broker is away")
+    p.add_argument("--buffer-age", type=float, default=86_400.0, help="oldest buffered DDATA kept, s")
     p.add_argument("--command-max-age", type=float, default=10.0, help="refuse DCMDs older than this, s")
     p.add_argument("--primary-host", metavar="ID", help="publish only while this primary host's STATE is online")
     p.add_argument("--metrics", metavar="HOST:PORT", help="Prometheus endpoint, e.g. 127.0.0.1:9477")
@@ -106,8 +117,9 @@ async def _serve(args: argparse.Namespace) -> int:
     from starterbus.serve.prometheus import FleetCollector, start_metrics_server
     from starterbus.serve.session import EdgeSession, SessionOptions
     from starterbus.serve.state import default_state_file, load_bdseq
+    from starterbus.serve.store import SqliteStore, default_buffer_file
 
-    demo = broker_proc = None
+    demo = broker_proc = store = None
     interrupted: list[int] = []  # SIGINT once Ctrl-C stopped it: exit 130 after the clean shutdown
     node = args.node or socket.gethostname().split(".")[0]
     try:
@@ -122,29 +134,43 @@ async def _serve(args: argparse.Namespace) -> int:
             from starterbus.serve.embedded import start_mosquitto
 
             broker_proc = await asyncio.to_thread(start_mosquitto)
-            url = broker_proc.url
+            urls = [broker_proc.url]
         else:
-            url = args.mqtt
-        host, port, tls = parse_broker_url(url)
+            urls = args.mqtt
         username, password = load_credentials(args.credentials)
-        broker = BrokerOptions(
-            host, port, tls, args.ca_file, args.cert_file, args.key_file, username, password,
-            client_id=args.client_id or f"starterbus-{args.group}-{node}",
-        )  # fmt: skip
+        broker = [
+            BrokerOptions(
+                *parse_broker_url(url),
+                args.ca_file,
+                args.cert_file,
+                args.key_file,
+                username,
+                password,
+                client_id=args.client_id or f"starterbus-{args.group}-{node}",
+            )
+            for url in urls
+        ]
+        bounds = buffer_bounds(args)
         options = SessionOptions(
             group=args.group,
             node=node,
             refresh=args.refresh,
-            buffer_messages=args.buffer_messages,
-            buffer_age=args.buffer_age,
+            buffer_messages=bounds.messages,
+            buffer_size=bounds.size,
+            buffer_age=bounds.age,
             command_max_age=args.command_max_age,
-            commands_allowed=tls or args.allow_plaintext_commands,
+            commands_allowed=all(b.tls for b in broker) or args.allow_plaintext_commands,
             primary_host=args.primary_host,
+            servers=len(broker),
         )
         state_file = args.state_file or default_state_file(args.group, node)
         bdseq = await asyncio.to_thread(load_bdseq, state_file)
         steps, per_key = parse_deadbands(args.deadband)
-        session = EdgeSession.for_fleet(config, options, deadband_steps=steps, deadband_per_key=per_key, bdseq=bdseq)
+        buffer_file = args.buffer_file or default_buffer_file(state_file)
+        store = await asyncio.to_thread(SqliteStore.open, buffer_file, bounds)
+        session = EdgeSession.for_fleet(
+            config, options, deadband_steps=steps, deadband_per_key=per_key, bdseq=bdseq, store=store
+        )
         collector = FleetCollector(session)
         async with AsyncFleet(config) as fleet:
             collector.poller = fleet.poller
@@ -155,21 +181,23 @@ async def _serve(args: argparse.Namespace) -> int:
             stop = asyncio.Event()
             interrupted = until_signalled(stop, args.duration)
             metrics = None
-            if not args.json:
-                _print_banner(session, node, broker, broker_proc is not None, options.commands_allowed)
             if args.metrics:
                 mhost, mport, _server = start_metrics_server(args.metrics, collector)
                 metrics = f"http://{mhost}:{mport}/metrics"
-                if not args.json:
-                    print(f"  Prometheus metrics: {metrics}", flush=True)
             if demo is not None:
                 _run_demo_scenario(fleet.poller, demo, stop, asyncio.get_running_loop())
-            async with _opcua_server(args, fleet) as opcua:
+            async with _opcua_server(args, fleet) as opcua:  # the banner once every listener is up
+                if not args.json:
+                    _print_banner(session, node, broker, broker_proc is not None, options.commands_allowed)
+                    if metrics:
+                        print(f"  Prometheus metrics: {metrics}", flush=True)
                 if args.json:
                     emit_json_line(
                         {
                             "event": "ready",
-                            "broker": broker.describe(),
+                            "broker": broker[0].describe(),
+                            "brokers": [b.describe() for b in broker],
+                            "buffer_file": str(buffer_file),
                             "embedded_broker": broker_proc is not None,
                             "topic": f"{session.topic_prefix}/+/{node}",
                             "group": args.group,
@@ -181,9 +209,11 @@ async def _serve(args: argparse.Namespace) -> int:
                         }
                     )
                 elif args.opcua:
-                    print(f"  OPC UA: {args.opcua}", flush=True)
+                    print(f"  OPC UA: {getattr(opcua, 'endpoint_url', args.opcua)}", flush=True)
                 await driver.run(stop)
     finally:
+        if store is not None:
+            store.close()
         if broker_proc is not None:
             broker_proc.close()
         if demo is not None:
@@ -191,14 +221,16 @@ async def _serve(args: argparse.Namespace) -> int:
     return 130 if interrupted else 0
 
 
-def _print_banner(session: object, node: str, broker: object, embedded: bool, commands_allowed: bool) -> None:
+def _print_banner(session: object, node: str, brokers: object, embedded: bool, commands_allowed: bool) -> None:
     """What ``serve`` prints for a person once it runs (``--json``: one JSON line instead)."""
     from starterbus.serve.broker import BrokerOptions
     from starterbus.serve.session import EdgeSession
 
-    assert isinstance(session, EdgeSession) and isinstance(broker, BrokerOptions)
+    assert isinstance(session, EdgeSession) and isinstance(brokers, list)
+    broker = brokers[0]
+    assert isinstance(broker, BrokerOptions)
     commands = "as the fleet file allows" if commands_allowed else "refused (plaintext)"
-    where = f"{session.topic_prefix}/+/{node} on {broker.describe()}"
+    where = f"{session.topic_prefix}/+/{node} on {', '.join(b.describe() for b in brokers)}"
     print(f"starterbus serve: {len(session.devices)} devices as {where}; commands {commands}", flush=True)
     if embedded:
         print(
@@ -207,6 +239,16 @@ def _print_banner(session: object, node: str, broker: object, embedded: bool, co
             "   (payloads are Sparkplug B protobuf)",
             flush=True,
         )
+
+
+def buffer_bounds(args: argparse.Namespace) -> Bounds:
+    """The store-and-forward buffer's bounds from ``--buffer-messages``, ``--buffer-size`` (MB), ``--buffer-age``."""
+    from starterbus.serve.history import Bounds
+
+    for option, value in (("messages", args.buffer_messages), ("size", args.buffer_size), ("age", args.buffer_age)):
+        if not value > 0:
+            raise ConfigurationError(f"--buffer-{option} {value:g}: must be greater than 0")
+    return Bounds(args.buffer_messages, int(args.buffer_size * 1_000_000), args.buffer_age)
 
 
 def parse_deadbands(items: list[str]) -> tuple[float, dict[str, float]]:

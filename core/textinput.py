@@ -7,6 +7,7 @@ byte.
 from __future__ import annotations
 
 import codecs
+import errno
 import ipaddress
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -86,6 +87,16 @@ def parse_host_port(
     return host, port
 
 
+def listen_error(what: str, host: str, port: int, exc: OSError) -> ConfigurationError:
+    """The one line for a server that cannot listen on ``host:port`` (``what`` names the server or option)."""
+    where = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+    if exc.errno == errno.EADDRINUSE:
+        return ConfigurationError(
+            f"{what} {where} is already in use (another program listens there): choose another port"
+        )
+    return ConfigurationError(f"{what} {where}: cannot listen there: {exc.strerror or exc}")
+
+
 def check_loopback(host: str, what: str = "this service") -> None:
     """Refuse a host that is not a loopback address (127.0.0.0/8, ::1 or ``localhost``)."""
     if host == "localhost":
@@ -112,4 +123,12 @@ def parse_hex(tokens: Sequence[str]) -> bytes:
         raise DecodeError(f"not hex bytes: {' '.join(tokens)!r}") from None
 
 
-__all__ = ["TextError", "check_loopback", "decode_text", "parse_hex", "parse_host_port", "read_text_file"]
+__all__ = [
+    "TextError",
+    "check_loopback",
+    "decode_text",
+    "listen_error",
+    "parse_hex",
+    "parse_host_port",
+    "read_text_file",
+]

@@ -36,6 +36,7 @@ from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.status import Command
 from starterbus.opcua.address_space import DeviceNodes, FleetNodes, PointNode, build_fleet
 from starterbus.opcua.certs import client_validator, ensure_certificate
+from starterbus.opcua.endpoint import listening, parse_endpoint
 from starterbus.opcua.refusals import code_name, status_code
 from starterbus.opcua.users import Role, RoleRuleset, UserEntry, UserManager
 from starterbus.opcua.values import initial_updates, point_updates, sample_updates, timestamp_now
@@ -74,6 +75,7 @@ class OpcUaSettings:
 
     def check(self) -> None:
         """Refuse settings under which nobody could connect, before anything starts."""
+        parse_endpoint(self.endpoint)
         if not self.users and not self.anonymous:
             raise ConfigurationError(
                 "no OPC UA users and anonymous access off: nobody could connect (add a users file)"
@@ -187,7 +189,8 @@ class OpcUaServer:
         now = time.time()
         for device in self.nodes.devices.values():
             await self._apply(initial_updates(device, now))
-        await server.start()
+        with listening(*parse_endpoint(settings.endpoint)):
+            await server.start()
         self._pump = asyncio.create_task(self._serve_samples(), name="opcua-samples")
         log.info("OPC UA server on %s (namespace %s)", self.endpoint_url, NAMESPACE)
 

@@ -17,6 +17,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.registry import Collector
 
 from starterbus.core.status import MotorState
+from starterbus.core.textinput import listen_error, parse_host_port
 from starterbus.fleet.poller import FleetPoller, Sample
 
 if TYPE_CHECKING:
@@ -108,11 +109,18 @@ class FleetCollector(Collector):
         yield GaugeMetricFamily(
             "starterbus_serve_bdseq", "bdSeq of the current MQTT session", value=float(session.bdseq)
         )
+        store = session.store
         yield GaugeMetricFamily(
-            "starterbus_serve_buffered", "DDATA messages waiting for the broker", value=float(len(session.buffer))
+            "starterbus_serve_buffered", "DDATA messages waiting for the broker", value=float(len(store))
         )
         yield CounterMetricFamily(
-            "starterbus_serve_dropped", "buffered messages dropped (count or age bound)", value=float(session.dropped)
+            "starterbus_serve_history_stored", "DDATA messages buffered for the broker", value=float(store.buffered)
+        )
+        yield CounterMetricFamily(
+            "starterbus_serve_history_delivered", "buffered DDATA written to a broker", value=float(store.delivered)
+        )
+        yield CounterMetricFamily(
+            "starterbus_serve_dropped", "buffered DDATA dropped (a bound, or not storable)", value=float(store.dropped)
         )
         yield CounterMetricFamily(
             "starterbus_serve_commands_refused", "DCMDs refused or failed", value=float(session.refused)
@@ -124,8 +132,11 @@ class FleetCollector(Collector):
 
 def start_metrics_server(address: str, collector: FleetCollector) -> tuple[str, int, object]:
     """Serve ``/metrics`` on ``HOST:PORT`` (port 0: any free port); returns the host, the port and the server."""
-    host, _, port = address.rpartition(":")
+    host, port = parse_host_port(address, option="--metrics")
     registry = CollectorRegistry(auto_describe=False)
     registry.register(collector)
-    server, _thread = start_http_server(int(port), host or "127.0.0.1", registry)
-    return host or "127.0.0.1", int(server.server_address[1]), server
+    try:
+        server, _thread = start_http_server(port, host, registry)
+    except OSError as exc:
+        raise listen_error("--metrics", host, port, exc) from None
+    return host, int(server.server_address[1]), server
