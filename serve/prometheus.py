@@ -130,11 +130,13 @@ class FleetCollector(Collector):
         )
 
 
-def start_metrics_server(address: str, collector: FleetCollector) -> tuple[str, int, object]:
-    """Serve ``/metrics`` on ``HOST:PORT`` (port 0: any free port); returns the host, the port and the server."""
+def start_metrics_server(address: str, collector: FleetCollector, *more: Collector) -> tuple[str, int, object]:
+    """Serve ``/metrics`` on ``HOST:PORT`` (port 0: any free port); returns the host, the port and the server.
+    ``more``: other collectors served beside (the service's own health)."""
     host, port = parse_host_port(address, option="--metrics")
     registry = CollectorRegistry(auto_describe=False)
-    registry.register(collector)
+    for each in (collector, *more):
+        registry.register(each)
     try:
         server, _thread = start_http_server(port, host, registry)
     except OSError as exc:
