@@ -9,13 +9,13 @@ import argparse
 import asyncio
 import dataclasses
 import getpass
-import os
 import sys
 from pathlib import Path
 
 from starterbus.cli.lifetime import until_signalled
 from starterbus.cli.output import emit_json, emit_json_line
 from starterbus.core.errors import ConfigurationError
+from starterbus.core.outfiles import write_atomically
 from starterbus.core.registry import get_profile
 from starterbus.core.status import Command
 from starterbus.fleet.config import FleetConfig, RemotePolicy, load_fleet
@@ -163,10 +163,7 @@ def cmd_opcua_user(args: argparse.Namespace) -> int:
     else:
         password = _read_password(args.name)
         users[args.name] = UserEntry(args.name, Role(args.role), hash_password(password))
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    os.fchmod(fd, 0o600)  # also an existing file: it holds password hashes
-    with os.fdopen(fd, "w", encoding="utf-8") as f:
-        f.write(dump_users(users))
+    write_atomically(path, dump_users(users), replace=True, mode=0o600)  # password hashes: private from the start
     if args.json:
         role = None if args.delete else args.role
         emit_json({"file": str(path), "user": args.name, "action": "removed" if args.delete else "set", "role": role})

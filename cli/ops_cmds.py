@@ -12,6 +12,7 @@ from starterbus.core.audit import AuditLog
 from starterbus.core.device import open_device
 from starterbus.core.errors import StarterbusError
 from starterbus.core.guarded import GuardedOperationError
+from starterbus.core.outfiles import check_target
 from starterbus.ops import backup as backups
 from starterbus.ops import restore as restores
 from starterbus.ops.diff import compare, load_pair
@@ -24,6 +25,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p = sub.add_parser("backup", help="save every readable parameter of a device to an editable TOML file")
     _device_args(p)
     p.add_argument("-o", "--output", required=True, metavar="FILE", help="the backup file to write (TOML)")
+    p.add_argument("--force", action="store_true", help="replace FILE if it exists (default: refuse)")
     p.set_defaults(handler=cmd_backup)
 
     p = sub.add_parser(
@@ -51,9 +53,10 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
 
 
 def cmd_backup(args: argparse.Namespace) -> int:
+    check_target(args.output, force=args.force, what="backup file")  # before the device is opened
     with open_device(args.url, args.model) as device:
         taken = backups.take_backup(device)
-    backups.save(taken, device.profile, args.output)
+    backups.save(taken, device.profile, args.output, replace=args.force)
     if args.json:
         emit_json({"device": args.url, "model": taken.model, "file": args.output, "parameters": len(taken.parameters)})
     else:

@@ -23,6 +23,7 @@ from typing import Any
 from starterbus.core.device import Device
 from starterbus.core.errors import ConfigurationError, UnsupportedOperationError, ValidationError
 from starterbus.core.model import Kind, PointDef, Value
+from starterbus.core.outfiles import write_atomically
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.textinput import read_text_file
@@ -164,11 +165,9 @@ def dumps(backup: Backup, profile: Profile) -> str:
     return "\n".join(lines) + "\n"
 
 
-def save(backup: Backup, profile: Profile, path: str | Path) -> None:
-    target = Path(path)
-    tmp = target.with_name(target.name + ".tmp")
-    tmp.write_text(dumps(backup, profile), encoding="utf-8")
-    tmp.replace(target)  # a half-written backup never replaces a good one
+def save(backup: Backup, profile: Profile, path: str | Path, *, replace: bool = False) -> None:
+    """Write the backup file atomically; an existing file is refused unless ``replace``."""
+    write_atomically(path, dumps(backup, profile), replace=replace)
 
 
 def load(path: str | Path) -> tuple[Backup, Profile]:
