@@ -26,10 +26,16 @@ class CommandRequest:
 
 @dataclass(frozen=True, slots=True)
 class Reconnect:
-    """The primary host went offline: NDEATH was published; disconnect and connect again (new bdSeq)."""
+    """The primary host went offline (NDEATH was published if the node was born): disconnect and connect again,
+    to the next server of the list if there are several (new bdSeq)."""
 
 
-Action = Publish | CommandRequest | Reconnect
+@dataclass(frozen=True, slots=True)
+class HistoryReady:
+    """Buffered DDATA of a born device can go out: call ``EdgeSession.history`` until it returns nothing."""
+
+
+Action = Publish | CommandRequest | Reconnect | HistoryReady
 
 
 @dataclass(frozen=True, slots=True)
@@ -37,8 +43,11 @@ class SessionOptions:
     group: str
     node: str
     refresh: float = 0.0  # republish every value of a device this often, s (0: never)
-    buffer_messages: int = 10_000
-    buffer_age: float = 3600.0
+    # bounds of the default (in-memory) buffer; an injected store has its own
+    buffer_messages: int = 1_000_000
+    buffer_size: int = 100_000_000  # bytes of stored records
+    buffer_age: float = 86_400.0
     command_max_age: float = 10.0
     commands_allowed: bool = True  # False on a plaintext connection unless explicitly allowed
     primary_host: str | None = None
+    servers: int = 1  # brokers in the list: with several, a primary host offline on this one means the next

@@ -15,7 +15,7 @@ import functools
 import logging
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +27,7 @@ from starterbus.core.errors import ConfigurationError, ValidationError
 from starterbus.core.guarded import ConfirmationRefused, GuardedOperationError, Outcome
 from starterbus.fleet.poller import Sample
 from starterbus.serve.broker import BrokerOptions
-from starterbus.serve.session import Action, CommandRequest, EdgeSession, Publish, Reconnect
+from starterbus.serve.session import Action, CommandRequest, EdgeSession, HistoryReady, Publish, Reconnect
 from starterbus.serve.state import save_bdseq
 
 log = logging.getLogger("starterbus.serve")
@@ -50,19 +50,26 @@ class EdgeNodeDriver:
         self,
         fleet: AsyncFleet,
         session: EdgeSession,
-        broker: BrokerOptions,
+        broker: BrokerOptions | Sequence[BrokerOptions],
         *,
         state_file: Path | None = None,
         on_sample: Callable[[Sample], None] | None = None,
         retry_delay: float = 2.0,
+        history_batch: int = 200,
     ) -> None:
+        """``broker``: one, or a list tried in turn (the first that answers; the next on a loss or when the
+        primary host goes offline there; ``retry_delay`` between rounds of the whole list)."""
         self.fleet = fleet
         self.session = session
-        self.broker = broker
+        self.brokers = [broker] if isinstance(broker, BrokerOptions) else list(broker)
+        if not self.brokers:
+            raise ConfigurationError("serve: no broker given")
+        self.broker = self.brokers[0]  # the one connected to, or tried last
         self.state_file = state_file
         self.on_sample = on_sample
         self.retry_delay = retry_delay
-        self.actor = f"mqtt:{broker.username or broker.client_id}@{broker.host}:{broker.port}"
+        self.history_batch = history_batch
+        self._history_ready = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._client: mqtt.Client | None = None
         self._lost = asyncio.Event()
@@ -70,6 +77,17 @@ class EdgeNodeDriver:
         self._watched: dict[int, tuple[int, asyncio.Task[None]]] = {}  # id(socket) -> (fileno, keepalive task)
         self._loop_thread = 0
         self.connections = 0  # sessions established (births sent at least once)
+
+    @property
+    def actor(self) -> str:
+        """Who DCMDs come from in the audit log: the MQTT user (or client id) and the broker connected to."""
+        b = self.broker
+        return f"mqtt:{b.username or b.client_id}@{b.host}:{b.port}"
+
+    @property
+    def connected(self) -> bool:
+        """Connected to a broker, subscriptions acknowledged (the births may still wait for the primary host)."""
+        return self._client is not None and self.session.connected
 
     # -- paho thread -> event loop -------------------------------------------------------------------------
 
@@ -83,8 +101,7 @@ class EdgeNodeDriver:
         else:
             loop.call_soon_threadsafe(fn, *args)
 
-    def _make_client(self, will: Publish) -> mqtt.Client:
-        b = self.broker
+    def _make_client(self, b: BrokerOptions, will: Publish) -> mqtt.Client:
         client = mqtt.Client(
             CallbackAPIVersion.VERSION2,
             client_id=b.client_id,
@@ -199,6 +216,8 @@ class EdgeNodeDriver:
                 task.add_done_callback(self._tasks.discard)
             elif isinstance(action, Reconnect) and client is not None:
                 client.disconnect()
+            elif isinstance(action, HistoryReady):
+                self._history_ready.set()
 
     async def _execute(self, req: CommandRequest) -> None:
         try:
@@ -234,13 +253,32 @@ class EdgeNodeDriver:
             await asyncio.sleep(1.0)
             self._apply(self.session.on_tick(time.time()))
 
-    async def _connections(self) -> None:
-        b = self.broker
+    async def _history(self) -> None:
+        """Buffered DDATA out in batches once their devices are born; each batch forgotten once written."""
         while True:
+            await self._history_ready.wait()
+            self._history_ready.clear()
+            while (client := self._client) is not None:
+                publishes, ids = self.session.history(time.time(), self.history_batch)
+                if not ids:
+                    break
+                infos = [client.publish(p.topic, p.payload, qos=p.qos, retain=False) for p in publishes]
+                last = infos[-1]
+                while last.rc == mqtt.MQTT_ERR_SUCCESS and not last.is_published() and client is self._client:
+                    await asyncio.sleep(0.005)  # written by the loop's writer
+                if last.rc != mqtt.MQTT_ERR_SUCCESS or not last.is_published():
+                    break  # connection lost: the records stay stored, for the next session
+                self.session.history_sent(ids)
+
+    async def _connections(self) -> None:
+        index = 0
+        while True:
+            b = self.broker = self.brokers[index]
+            nxt = (index + 1) % len(self.brokers)
             will = self.session.next_will()
             if self.state_file is not None:
                 await asyncio.to_thread(save_bdseq, self.state_file, self.session.bdseq)
-            client = self._make_client(will)
+            client = self._make_client(b, will)
             self._lost.clear()
             # current before CONNECT: its CONNACK and SUBACK may be read before this coroutine resumes
             self._client = client
@@ -249,16 +287,26 @@ class EdgeNodeDriver:
                 await asyncio.to_thread(client.connect, b.host, b.port, b.keepalive)
             except (OSError, ValueError) as exc:
                 self._client = None
-                log.warning("broker %s unreachable: %s; retrying in %g s", b.describe(), exc, self.retry_delay)
-                await asyncio.sleep(self.retry_delay)
+                index = nxt
+                if index == 0:  # every broker of the list tried: pause
+                    log.warning("broker %s unreachable: %s; retrying in %g s", b.describe(), exc, self.retry_delay)
+                    await asyncio.sleep(self.retry_delay)
+                else:
+                    log.warning("broker %s unreachable: %s; trying %s", b.describe(), exc, self.brokers[nxt].describe())
                 continue
+            log.info("connected to %s (bdSeq %d)", b.describe(), self.session.bdseq)
             await self._lost.wait()  # cancelled on stop: _stop_cleanly says goodbye with this client
             self.session.on_disconnected()
             self._client = None
             await self._close(client)
             established = self.connections > sessions
-            log.warning("connection to %s %s; reconnecting", b.describe(), "lost" if established else "refused")
-            await asyncio.sleep(min(self.retry_delay, 0.5) if established else self.retry_delay)
+            index = nxt
+            log.warning(
+                "connection to %s %s; connecting to %s",
+                b.describe(), "lost" if established else "refused", self.brokers[index].describe(),
+            )  # fmt: skip
+            if index == 0:  # a single broker, or every one of the list tried
+                await asyncio.sleep(min(self.retry_delay, 0.5) if established else self.retry_delay)
 
     @staticmethod
     async def _close(client: mqtt.Client, timeout: float = 2.0) -> None:
@@ -287,7 +335,7 @@ class EdgeNodeDriver:
         """Until ``stop`` is set; a failing part (e.g. TLS files that cannot be read) ends it with its error."""
         self._loop = asyncio.get_running_loop()
         self._loop_thread = threading.get_ident()
-        jobs = [asyncio.create_task(c) for c in (self._samples(), self._ticks(), self._connections())]
+        jobs = [asyncio.create_task(c) for c in (self._samples(), self._ticks(), self._connections(), self._history())]
         stopped = asyncio.create_task(stop.wait())
         try:
             await asyncio.wait([stopped, *jobs], return_when=asyncio.FIRST_COMPLETED)

@@ -6,8 +6,10 @@ Decisions (SPARKPLUG.md):
   advances across restarts (pitfalls: Restarts), and sets the Will before every connect (pitfalls: Auto-reconnect).
 - seq is one counter for NBIRTH/DBIRTH/DDATA/NDATA/DDEATH, 0 in every NBIRTH, wrapping 255 -> 0.
 - While no session is up (no broker, or the primary host offline) polling goes on: changed values are kept in a
-  bounded buffer (count and age); the oldest are dropped and counted (``Node Info/Buffered Messages Dropped``).
-  After the next NBIRTH and DBIRTHs the buffer goes out in order as DDATA with is_historical=true.
+  bounded store (``history.HistoryStore``, injected: in memory, or ``store.SqliteStore`` on disk); the oldest
+  beyond the bounds are dropped and counted (``Node Info/Buffered Messages Dropped``). Once a device is born
+  again (``HistoryReady``), :meth:`EdgeSession.history` hands its records out in order, in batches, as DDATA
+  with is_historical=true; the driver reports them written with :meth:`EdgeSession.history_sent`.
 - A command is refused (and the refusal reported in ``Device Control/Last Command``) on a plaintext connection
   unless allowed, when older than ``command_max_age`` by its metric (else payload) timestamp, for a device not
   born, or for a metric that is not writable. Commands without any timestamp are accepted (the spec makes
@@ -17,7 +19,6 @@ Decisions (SPARKPLUG.md):
 from __future__ import annotations
 
 import json
-from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -25,7 +26,8 @@ from starterbus.core.errors import ConfigurationError
 from starterbus.core.status import Command
 from starterbus.fleet.config import FleetConfig
 from starterbus.fleet.poller import Sample
-from starterbus.serve.actions import Action, CommandRequest, Publish, Reconnect, SessionOptions
+from starterbus.serve.actions import Action, CommandRequest, HistoryReady, Publish, Reconnect, SessionOptions
+from starterbus.serve.history import Bounds, HistoryStore, MemoryStore
 from starterbus.serve.metrics import (
     BDSEQ,
     LAST_COMMAND,
@@ -55,7 +57,7 @@ from starterbus.serve.payloads import (
 
 NAMESPACE = "spBv1.0"
 
-__all__ = ["Action", "CommandRequest", "EdgeSession", "Publish", "Reconnect", "SessionOptions"]
+__all__ = ["Action", "CommandRequest", "EdgeSession", "HistoryReady", "Publish", "Reconnect", "SessionOptions"]
 
 
 @dataclass
@@ -75,7 +77,14 @@ def _ms(t: float) -> int:
 
 
 class EdgeSession:
-    def __init__(self, options: SessionOptions, node: MetricSet, devices: dict[str, MetricSet], bdseq: int = -1):
+    def __init__(
+        self,
+        options: SessionOptions,
+        node: MetricSet,
+        devices: dict[str, MetricSet],
+        bdseq: int = -1,
+        store: HistoryStore | None = None,
+    ):
         self.options = options
         self.node = node
         self.devices = {name: _Device(name, metrics) for name, metrics in devices.items()}
@@ -87,8 +96,10 @@ class EdgeSession:
         self.born = False  # NBIRTH published in this connection
         self.host_online_ts: int | None = None
         self.last_state_ts: int | None = None
-        self.buffer: deque[tuple[str, list[Entry]]] = deque()
-        self.dropped = 0
+        bounds = Bounds(options.buffer_messages, options.buffer_size, options.buffer_age)
+        self.store: HistoryStore = store if store is not None else MemoryStore(bounds)
+        unknown = [r.id for r in self.store.take(set(self.store.pending()) - set(self.devices), 2**31)]
+        self.store.discard(unknown)  # buffered by an earlier run for devices the fleet no longer has
         self.refused = 0
         self.online = 0  # devices online now
         self.published = 0
@@ -105,6 +116,7 @@ class EdgeSession:
         deadband_steps: float = 1.0,
         deadband_per_key: Mapping[str, float] | None = None,
         bdseq: int = -1,
+        store: HistoryStore | None = None,
     ) -> EdgeSession:
         """The node and one Sparkplug device per fleet device, described from their profiles.
 
@@ -123,7 +135,7 @@ class EdgeSession:
         unknown = sorted(set(per_key) - published)
         if unknown:
             raise ConfigurationError(f"--deadband: no device of {config.source} publishes {', '.join(unknown)}")
-        return cls(options, node, devices, bdseq=bdseq)
+        return cls(options, node, devices, bdseq=bdseq, store=store)
 
     # -- topics -------------------------------------------------------------------------------------------
 
@@ -154,7 +166,7 @@ class EdgeSession:
         self.host_online_ts = None
         if self.options.primary_host:
             return []
-        return self._births(now, flush=True)
+        return self._births(now)
 
     def on_disconnected(self) -> None:
         self.connected = self.born = False
@@ -178,7 +190,12 @@ class EdgeSession:
             NODE_REFUSED: self.refused,
         }
 
-    def _births(self, now: float, *, flush: bool) -> list[Action]:
+    @property
+    def dropped(self) -> int:
+        """Buffered DDATA dropped: beyond a bound, not storable, or no longer publishable."""
+        return self.store.dropped
+
+    def _births(self, now: float) -> list[Action]:
         self.seq = 0
         self.born = True
         values = self._node_values()
@@ -191,8 +208,8 @@ class EdgeSession:
             dev.born = False
             if dev.online:
                 out.append(self._dbirth(dev, now))
-        if flush:
-            out += self._flush(now)
+        if any(self.devices[name].born for name in self.store.pending() if name in self.devices):
+            out.append(HistoryReady())
         return out
 
     def _dbirth(self, dev: _Device, now: float) -> Publish:
@@ -206,16 +223,36 @@ class EdgeSession:
         payload = encode(entries, timestamp=_ms(now), seq=self._next_seq(), birth=True)
         return Publish(self.topic("DBIRTH", dev.name), payload)
 
-    def _flush(self, now: float) -> list[Action]:
-        out: list[Action] = []
-        while self.buffer:
-            name, entries = self.buffer.popleft()
-            if self.devices[name].born:
-                payload = encode(entries, timestamp=_ms(now), seq=self._next_seq(), birth=False, historical=True)
-                out.append(Publish(self.topic("DDATA", name), payload))
-            else:
-                self.dropped += 1  # its device is not online now: no DATA without a BIRTH
-        return out
+    def history(self, now: float, limit: int = 200) -> tuple[list[Publish], list[int]]:
+        """The next buffered DDATA of born devices, oldest first, as historical DDATA with the next seqs, and the
+        ids of their records: publish them at once, then :meth:`history_sent` once written (a record stays
+        stored until then, so a connection lost meanwhile sends it again in the next session)."""
+        born = [name for name in self.store.pending() if name in self.devices and self.devices[name].born]
+        if not self.born or not born:
+            return [], []
+        out: list[Publish] = []
+        sent: list[int] = []
+        unusable: list[int] = []
+        for record in self.store.take(born, limit):
+            dev = self.devices[record.device]
+            defs = dev.metrics.by_name
+            entries: list[Entry] = [(defs[name], value, ts) for name, value, ts in record.values if name in defs]
+            try:
+                payload = encode(entries, timestamp=_ms(now), seq=self.seq, birth=False, historical=True)
+            except (TypeError, ValueError):  # a value of another type than the metric has now (fleet file changed)
+                entries = []
+            if not entries:
+                unusable.append(record.id)
+                continue
+            self._next_seq()
+            out.append(Publish(self.topic("DDATA", dev.name), payload))
+            sent.append(record.id)
+        self.store.discard(unusable)
+        return out, sent
+
+    def history_sent(self, ids: list[int]) -> None:
+        """The DDATA of these records were written to the broker: forget them (counted delivered)."""
+        self.store.remove(ids)
 
     # -- samples and time -----------------------------------------------------------------------------------
 
@@ -238,6 +275,8 @@ class EdgeSession:
             dev.current[name] = (value, ts)
         if self.born and not dev.born:
             out.append(self._dbirth(dev, now))
+            if self.store.pending().get(dev.name):
+                out.append(HistoryReady())
         else:
             full = self.options.refresh > 0 and now - dev.last_full >= self.options.refresh
             out += self._device_data(dev, now, full=full)
@@ -264,20 +303,8 @@ class EdgeSession:
                 )
             ]
         if not self.born:
-            self._buffer(dev.name, entries, now)
+            self.store.append(dev.name, [(d.name, value, ts) for d, value, ts in entries], _ms(now))
         return []
-
-    def _buffer(self, name: str, entries: list[Entry], now: float) -> None:
-        self.buffer.append((name, entries))
-        self._prune(now)
-
-    def _prune(self, now: float) -> None:
-        oldest = _ms(now - self.options.buffer_age)
-        while self.buffer and (
-            len(self.buffer) > self.options.buffer_messages or min(e[2] for e in self.buffer[0][1]) < oldest
-        ):
-            self.buffer.popleft()
-            self.dropped += 1
 
     def _node_data(self, now: float) -> list[Action]:
         if not self.born:
@@ -295,7 +322,7 @@ class EdgeSession:
 
     def on_tick(self, now: float) -> list[Action]:
         """Called about once a second: drop buffered data past its age."""
-        self._prune(now)
+        self.store.expire(_ms(now))
         return self._node_data(now)
 
     # -- commands -----------------------------------------------------------------------------------------
@@ -313,7 +340,7 @@ class EdgeSession:
         if parts[2] == "NCMD" and len(parts) == 4:
             for m in payload.metrics:
                 if (m.name == REBIRTH) and m.field == "boolean_value" and m.raw is True and self.born:
-                    return self._births(now, flush=False)  # stops DATA at once: everything after is new
+                    return self._births(now)  # stops DATA at once: everything after is new
             return []
         if parts[2] == "DCMD" and len(parts) == 5:
             return self._on_dcmd(parts[4], payload.timestamp, payload.metrics, now)
@@ -390,9 +417,12 @@ class EdgeSession:
         if online:
             self.host_online_ts = ts
             if self.connected and not self.born:
-                return self._births(now, flush=True)
+                return self._births(now)
             return []
         if self.born:
             self.on_disconnected()
             return [self.ndeath(), Reconnect()]
+        if self.connected and self.options.servers > 1:
+            self.on_disconnected()
+            return [Reconnect()]  # offline on this server: walk to the next (primary-application-...-walk)
         return []

@@ -17,7 +17,7 @@ from starterbus.core.status import decode_status_word
 from starterbus.fleet.config import DeviceConfig
 from starterbus.fleet.poller import Sample
 from starterbus.serve.metrics import Aliases, device_metrics, node_metrics
-from starterbus.serve.session import CommandRequest, EdgeSession, Publish, Reconnect, SessionOptions
+from starterbus.serve.session import CommandRequest, EdgeSession, HistoryReady, Publish, Reconnect, SessionOptions
 
 PROFILE = get_profile("jjr5000")
 T0 = 1_800_000_000.0
@@ -76,7 +76,9 @@ def test_births_seq_and_report_by_exception_with_deadband() -> None:
     assert (nbirth.seq, dbirth.seq) == (0, 1)
     current = next(m for m in dbirth.metrics if m.name == "Measurements/phase_a_current")
     assert current.double_value == pytest.approx(10.0) and current.timestamp == int(T0 * 1000)
-    assert decode(publishes(out)[2]).metrics[0].is_historical  # the sample taken while disconnected
+    assert isinstance(out[-1], HistoryReady)
+    (history,), _ids = s.history(T0 + 1)
+    assert decode(history).metrics[0].is_historical and decode(history).seq == 2  # sampled while disconnected
     assert s.on_sample(sample(T0 + 2), T0 + 2) == []  # nothing changed
     (ddata,) = publishes(s.on_sample(sample(T0 + 3, amps_raw=101), T0 + 3))
     data = decode(ddata)
@@ -97,7 +99,7 @@ def test_seq_wraps_after_255() -> None:
     s.on_sample(sample(T0), T0)
     connect(s, T0)
     seqs = [decode(p).seq for i in range(300) for p in publishes(s.on_sample(sample(T0 + i, 200 + i), T0 + i))]
-    assert seqs[:3] == [3, 4, 5] and 255 in seqs and seqs[seqs.index(255) + 1] == 0
+    assert seqs[:3] == [2, 3, 4] and 255 in seqs and seqs[seqs.index(255) + 1] == 0
 
 
 def test_ddeath_then_dbirth_and_no_data_in_between() -> None:
@@ -113,20 +115,41 @@ def test_buffer_bounded_then_flushed_as_historical_in_order() -> None:
     s = session(buffer_messages=3)
     s.on_sample(sample(T0), T0)
     connect(s, T0)
+    s.history_sent(s.history(T0)[1])
     s.on_disconnected()
     for i in range(1, 6):
         assert s.on_sample(sample(T0 + i, amps_raw=100 + i), T0 + i) == []
-    assert (len(s.buffer), s.dropped) == (3, 2)
+    assert (len(s.store), s.dropped) == (3, 2)
     out = connect(s, T0 + 10)
-    assert kinds(out) == ["NBIRTH", "DBIRTH", "DDATA", "DDATA", "DDATA"]
+    assert kinds(out) == ["NBIRTH", "DBIRTH"] and isinstance(out[-1], HistoryReady)
     nbirth = decode(publishes(out)[0])
     assert {m.name: m.long_value for m in nbirth.metrics if m.name == "Node Info/Buffered Messages Dropped"} == {
         "Node Info/Buffered Messages Dropped": 2
     }
-    history = [decode(p) for p in publishes(out)[2:]]
+    sent, ids = s.history(T0 + 10, limit=2)
+    assert len(s.store) == 3  # nothing is forgotten before it was written
+    s.history_sent(ids)
+    rest, rest_ids = s.history(T0 + 10, limit=2)
+    s.history_sent(rest_ids)
+    history = [decode(p) for p in sent + rest]
+    assert [p.topic for p in sent + rest] == ["spBv1.0/g/DDATA/n/pump"] * 3
     assert [p.seq for p in history] == [2, 3, 4]
     assert [m.timestamp for p in history for m in p.metrics] == [int((T0 + i) * 1000) for i in (3, 4, 5)]
     assert all(m.is_historical for p in history for m in p.metrics)
+    assert s.history(T0 + 10) == ([], []) and (len(s.store), s.store.delivered) == (0, 4)
+
+
+def test_history_waits_for_the_birth_of_its_device() -> None:
+    s = session()
+    s.on_sample(sample(T0), T0)  # buffered: never born
+    s.on_sample(sample(T0 + 1, online=False), T0 + 1)
+    out = connect(s, T0 + 2)
+    assert kinds(out) == ["NBIRTH"] and not any(isinstance(a, HistoryReady) for a in out)
+    assert s.history(T0 + 2) == ([], []) and len(s.store) == 1  # kept, not dropped: no DATA before its DBIRTH
+    out = s.on_sample(sample(T0 + 3, amps_raw=120), T0 + 3)
+    assert kinds(out)[0] == "DBIRTH" and any(isinstance(a, HistoryReady) for a in out)
+    (ddata,), ids = s.history(T0 + 3)
+    assert decode(ddata).metrics[0].is_historical and len(ids) == 1
 
 
 def test_buffer_drops_by_age() -> None:
@@ -134,7 +157,7 @@ def test_buffer_drops_by_age() -> None:
     s.on_sample(sample(T0), T0)
     s.on_sample(sample(T0 + 1, amps_raw=150), T0 + 1)
     s.on_tick(T0 + 30)
-    assert (len(s.buffer), s.dropped) == (0, 2)
+    assert (len(s.store), s.dropped) == (0, 2)
 
 
 def dcmd(metrics: Sequence[tuple[str, int, str, object]], ts: int | None) -> bytes:
