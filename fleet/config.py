@@ -255,6 +255,10 @@ def build_fleet(data: Mapping[str, Any], source: str = "<fleet>", lines: _Lines 
             dev_url = _device_url(url, param, address, options)
             if "url" in dev:
                 raise fail(f"{dwhere}.url", "give address/options; the URL comes from the bus")
+            try:  # the transport's own URL parsing: every setting the model cannot speak, named
+                _check_url(url.transport, dev_url, profile)
+            except StarterbusError as exc:
+                raise fail(dwhere, str(exc)) from None
             points: dict[str, tuple[str, ...]] = {}
             for kind in ("measurements", "parameters"):
                 keys = dev.get(kind, [])
@@ -299,6 +303,14 @@ def _url_parameters(transport: str) -> tuple[str | None, str | None]:
 
     plugin = get_transport(transport)
     return plugin.address_parameter, plugin.period_parameter
+
+
+def _check_url(transport: str, url: str, profile: Profile) -> None:
+    """What opening the device would refuse in its URL, found without opening anything: the plugin builds the
+    transport (``TransportPlugin.open`` checks the URL against the model and opens nothing) and it is dropped."""
+    from starterbus.core.registry import get_transport
+
+    get_transport(transport).open(DeviceUrl.parse(url), profile)
 
 
 def _device_url(bus: DeviceUrl, param: str | None, address: int | None, options: Mapping[str, Any]) -> str:

@@ -95,7 +95,7 @@ def test_url_settings(jjr5000: Profile) -> None:
 def test_a_model_without_the_ppo_type_or_without_profibus(jjr5000: Profile, ssd1: Profile) -> None:
     text = Path(jjr5000.source).read_text(encoding="utf-8").replace("ppo = [1, 3]", "ppo = [1]")
     only1 = load_profile_text(text, "only1.toml")
-    with pytest.raises(UnsupportedOperationError, match="does not offer PPO3"):
+    with pytest.raises(ConfigurationError, match=r"ppo: 3: .* does not offer PPO3 .*\(it offers: ppo=1 \(PPO1\)\)"):
         PLUGIN.open(DeviceUrl.parse("profibus-pkw+sim://?ppo=3"), only1)
     with pytest.raises(UnsupportedOperationError, match="no profibus-pkw interface"):
         open_device("profibus-pkw+sim://?ppo=1", ssd1)

@@ -106,7 +106,8 @@ class ModbusRtuConfig:
         lo, hi = settings.unit_ids
         if unit != BROADCAST and not lo <= unit <= hi:
             raise ConfigurationError(
-                f"{url.text}: unit: {profile.display_name} slave addresses are {max(lo, 1)}..{hi} (0 = broadcast)"
+                f"{url.text}: unit: {unit} is not a {profile.display_name} slave address: "
+                f"{profile.display_name} slave addresses are {max(lo, 1)}..{hi} (0 = broadcast)"
             )
 
         baud_choices = settings.baudrates
@@ -119,7 +120,7 @@ class ModbusRtuConfig:
             )
         parity = url.get_str("parity", "N").upper()
         if parity not in ("N", "E", "O"):
-            raise ConfigurationError(f"{url.text}: parity: {parity!r} is not N, E or O")
+            raise ConfigurationError(f"{url.text}: parity: {parity!r} is not N, E or O (none, even, odd)")
         stopbits = url.get_int("stopbits", 1, 1, 2)
         bytesize = url.get_int("bytesize", 8, 8, 8)
         silence = url.get_float("silence", silent_interval(baudrate), 0.0, 1.0)

@@ -21,7 +21,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from starterbus.core.errors import ConfigurationError, DecodeError, UnsupportedOperationError
+from starterbus.core.errors import ConfigurationError, DecodeError
 from starterbus.core.model import Kind, PointDef, Reading
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
@@ -101,9 +101,9 @@ class LinkSettings:
         settings = profibus_settings(profile)
         offered = settings.ppo
         if ppo.value not in offered:
-            raise UnsupportedOperationError(
-                f"{profile.display_name} does not offer {ppo.name} over Profibus (it offers: "
-                f"{', '.join(f'PPO{n}' for n in offered) or 'none'})"
+            raise ConfigurationError(
+                f"{url.text}: ppo: {number}: {profile.display_name} does not offer {ppo.name} over Profibus "
+                f"(it offers: {', '.join(f'ppo={n} ({Ppo(n).name})' for n in offered) or 'none'})"
             )
         station = url.get_int("station", 0, 0, 127) if "station" in url.query else None
         stations = settings.stations
