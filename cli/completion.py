@@ -1,4 +1,9 @@
-"""``starterbus completion bash|zsh|fish``: a completion script for the shell, generated from the parser."""
+"""``starterbus completion bash|zsh|fish``: a completion script for the shell.
+
+The script completes the command names itself; every later word it asks of ``starterbus __complete``
+(:mod:`starterbus.cli.completion_words`): options, fixed choices, installed models, the fleet's device names
+and the parameter keys of the model in question, or file names. That helper opens no device.
+"""
 
 from __future__ import annotations
 
@@ -11,22 +16,25 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: 
     p = sub.add_parser(
         "completion",
         help="print a shell completion script (bash, zsh, fish)",
-        description="Print a completion script for commands and options; the examples install it.",
+        description="Print a completion script: commands, options, models, fleet device names and parameter keys "
+        "(asked of `starterbus __complete` as you type); the examples install it.",
     )
     p.add_argument("shell", choices=["bash", "zsh", "fish"])
     _json_flag(p)
     p.set_defaults(handler=cmd_completion)
 
 
-def commands() -> dict[str, list[str]]:
-    """Command -> its long options, read from the real parser."""
+def command_names() -> list[str]:
     from starterbus.cli.main import build_parser
 
-    out: dict[str, list[str]] = {}
-    for name in _subparsers(build_parser([])):
-        sub = _subparsers(build_parser([name]))[name]  # a command's options are built only when it is asked for
-        out[name] = sorted(o for a in sub._actions for o in a.option_strings if o.startswith("--"))
-    return out
+    return sorted(_subparsers(build_parser([])))
+
+
+def command_parser(name: str) -> argparse.ArgumentParser | None:
+    """The parser of command ``name`` with its options (built only for the command asked for), or None."""
+    from starterbus.cli.main import build_parser
+
+    return _subparsers(build_parser([name])).get(name)
 
 
 def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
@@ -49,32 +57,44 @@ def cmd_completion(args: argparse.Namespace) -> int:
 
 def script(shell: str) -> str:
     """The completion script for ``shell`` (bash, zsh or fish)."""
-    table = commands()
-    names = " ".join(sorted(table))
+    names = " ".join(command_names())
     if shell == "bash":
-        cases = "\n".join(f'        {c}) opts="{" ".join(o)}" ;;' for c, o in sorted(table.items()))
         return f"""_starterbus() {{
-    local cur=${{COMP_WORDS[COMP_CWORD]}} cmd=${{COMP_WORDS[1]}} opts=""
+    local cur=${{COMP_WORDS[COMP_CWORD]}} word files=0
     if [ "$COMP_CWORD" -eq 1 ]; then COMPREPLY=($(compgen -W "{names} --help --version" -- "$cur")); return; fi
-    case "$cmd" in
-{cases}
-    esac
-    if [[ "$cur" == -* ]]; then COMPREPLY=($(compgen -W "$opts" -- "$cur"))
-    else COMPREPLY=($(compgen -f -- "$cur")); fi
+    local IFS=$'\\n'
+    COMPREPLY=()
+    for word in $(starterbus __complete --bash "${{COMP_LINE:0:COMP_POINT}}" "$cur" 2>/dev/null); do
+        if [ "$word" = ":files" ]; then files=1; else COMPREPLY+=("$word"); fi
+    done
+    if [ "$files" -eq 1 ] || [ ${{#COMPREPLY[@]}} -eq 0 ]; then COMPREPLY+=($(compgen -f -- "$cur")); fi
+    if [ ${{#COMPREPLY[@]}} -eq 1 ] && [[ "${{COMPREPLY[0]}}" == *= ]]; then compopt -o nospace 2>/dev/null; fi
 }}
 complete -F _starterbus starterbus"""
     if shell == "zsh":
-        cases = "\n".join(f'    {c}) _arguments {" ".join(repr(o) for o in opts)} "*:file:_files" ;;'
-                          for c, opts in sorted(table.items()))  # fmt: skip
         return f"""#compdef starterbus
 if (( CURRENT == 2 )); then
-  compadd {names}
-else
-  case $words[2] in
-{cases}
-  esac
-fi"""
-    lines = [f"complete -c starterbus -n '__fish_use_subcommand' -a '{names}'"]
-    for c, opts in sorted(table.items()):
-        lines += [f"complete -c starterbus -n '__fish_seen_subcommand_from {c}' -l {o[2:]}" for o in opts]
-    return "\n".join(lines)
+  compadd -- {names} --help --version
+  return
+fi
+local -a found
+local word files=0
+for word in "${{(@f)$(starterbus __complete -- "${{(@)words[2,CURRENT]}}" 2>/dev/null)}}"; do
+  if [[ $word == :files ]]; then files=1; elif [[ -n $word ]]; then found+=("$word"); fi
+done
+compadd -S '' -- ${{(M)found:#*=}}
+compadd -- ${{found:#*=}}
+if (( files || ${{#found}} == 0 )); then _files; fi"""
+    return f"""function __starterbus_complete
+    set -l words (commandline -opc) (commandline -ct)
+    set -l found (starterbus __complete -- $words[2..-1] 2>/dev/null)
+    for word in $found
+        test "$word" != ":files"; and echo $word
+    end
+    if contains -- :files $found; or test (count $found) -eq 0
+        __fish_complete_path (commandline -ct)
+    end
+end
+complete -c starterbus -f
+complete -c starterbus -n '__fish_use_subcommand' -a '{names}'
+complete -c starterbus -n 'not __fish_use_subcommand' -a '(__starterbus_complete)'"""

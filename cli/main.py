@@ -266,6 +266,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     from starterbus.core.errors import StarterbusError
 
     args_list = list(sys.argv[1:] if argv is None else argv)
+    if args_list[:1] == ["__complete"]:  # the completion scripts' hidden helper: no command, never an error
+        from starterbus.cli.completion_words import complete_main
+
+        return complete_main(args_list[1:])
     try:
         args = parse_arguments(args_list)
         _quiet_libraries()  # after parsing: `--help` exits before, without importing logging

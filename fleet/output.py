@@ -9,8 +9,8 @@ columns of their own; a long error is shortened at a word boundary, never mid-wo
 from __future__ import annotations
 
 import csv
-import datetime
 import json
+import sys
 import textwrap
 import threading
 from pathlib import Path
@@ -20,6 +20,7 @@ from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.status import Status
+from starterbus.core.timestamps import iso_time
 from starterbus.fleet.config import FleetConfig
 from starterbus.fleet.poller import DeviceRuntime, Sample
 from starterbus.ops.faults import value_text
@@ -122,16 +123,13 @@ class JsonLines:
                 self.closed = True
 
 
-def iso_time(epoch: float) -> str:
-    """ISO 8601 with milliseconds and the local UTC offset: ``2026-11-23T21:04:05.123+01:00``."""
-    return datetime.datetime.fromtimestamp(epoch).astimezone().isoformat(timespec="milliseconds")
-
-
 class CsvLog:
     """Wide format (default): one row per sample, one column per configured point (``key [unit]``).
 
-    ``long=True``: one row per value plus one status row per sample (key ``status``). Times are ISO 8601.
-    Appending to a file whose header is another layout is refused, so columns never shift under a reader.
+    ``long=True``: one row per value plus one status row per sample (key ``status``). Times are ISO 8601 in UTC
+    (:func:`~starterbus.core.timestamps.iso_time`). Appending to a file whose header is another layout is refused,
+    so columns never shift under a reader. Path ``-``: standard output (header first; a closed pipe sets
+    ``closed``).
     """
 
     BASE = ("time", "device", "bus", "model", "online", "state", "ready", "fault_code", "fault_text", "error")
@@ -139,6 +137,8 @@ class CsvLog:
 
     def __init__(self, path: str | Path, config: FleetConfig | None = None, *, long: bool = False) -> None:
         self.path = Path(path)
+        self.to_stdout = str(path) == "-"
+        self.closed = False
         self.long = long or config is None
         self.keys: list[str] = []
         if not self.long and config is not None:
@@ -147,7 +147,7 @@ class CsvLog:
                     if key not in self.keys:
                         self.keys.append(key)
         self.header = list(self.LONG) if self.long else [*self.BASE, *self.keys]
-        new = not self.path.exists() or self.path.stat().st_size == 0
+        new = self.to_stdout or not self.path.exists() or self.path.stat().st_size == 0
         if not new:
             with self.path.open(encoding="utf-8", newline="") as f:
                 existing = next(csv.reader(f), [])
@@ -156,7 +156,7 @@ class CsvLog:
                     f"{self.path}: its header is another layout ({', '.join(existing[:6])}, ...); "
                     "append to a log of the same fleet and format, or give a new file"
                 )
-        self.file = self.path.open("a", newline="", encoding="utf-8")
+        self.file = sys.stdout if self.to_stdout else self.path.open("a", newline="", encoding="utf-8")
         self.writer = csv.writer(self.file)
         self.lock = threading.Lock()
         if new:
@@ -176,14 +176,22 @@ class CsvLog:
             status.fault_text if status and status.fault else "",
         ]
         with self.lock:
-            if self.long:
-                self.writer.writerow([*base, "status", "", "", "", sample.error or ""])
-                for key, value in sample.values.items():
-                    self.writer.writerow([*base, key, value.value, value.unit, value.resolution, ""])
-            else:
-                values = [sample.values[k].value if k in sample.values else "" for k in self.keys]
-                self.writer.writerow([*base, sample.error or "", *values])
-            self.file.flush()
+            if self.closed:
+                return
+            try:
+                if self.long:
+                    self.writer.writerow([*base, "status", "", "", "", sample.error or ""])
+                    for key, value in sample.values.items():
+                        self.writer.writerow([*base, key, value.value, value.unit, value.resolution, ""])
+                else:
+                    values = [sample.values[k].value if k in sample.values else "" for k in self.keys]
+                    self.writer.writerow([*base, sample.error or "", *values])
+                self.file.flush()
+            except BrokenPipeError:
+                if not self.to_stdout:
+                    raise
+                self.closed = True  # the reader of stdout went away (`| head`): stop writing, quietly
 
     def close(self) -> None:
-        self.file.close()
+        if not self.to_stdout:
+            self.file.close()
