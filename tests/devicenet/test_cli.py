@@ -36,9 +36,13 @@ def test_status_read_identify(channel: str, simulated: SimulatedStarter, capsys:
     url = f"devicenet://virtual/{channel}?mac=5&{FAST}&timeout=0.5"
     assert main(["status", url, "--model", "jjr8000", "--json"]) == 0
     status = json.loads(capsys.readouterr().out)["status"]
-    assert status["state"] == "stopped" and status["ready"] is None and status["bus_control"] is True
+    # a read monitors over explicit messaging: nobody controls the starter over the network
+    assert status["state"] == "stopped" and status["ready"] is None and status["bus_control"] is False
     assert status["currents"]["a"]["resolution"] == 1.0
-    assert main(["read", url, "m3", "status_word", "--model", "jjr8000"]) == 0
+    assert main(["read", url, "m3", "--model", "jjr8000"]) == 1
+    assert "control=open" in capsys.readouterr().err  # a status parameter needs the I/O connection
+    assert simulated.control_word == 0  # nothing was sent to the starter's control
+    assert main(["read", url + "&control=open", "m3", "status_word", "--model", "jjr8000"]) == 0
     out = capsys.readouterr().out
     assert "phase B current" in out and "0x6000" in out
     assert main(["identify", url, "--model", "jjr8000"]) == 0

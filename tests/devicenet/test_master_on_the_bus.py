@@ -21,7 +21,7 @@ from starterbus.transports.devicenet.simulator import DeviceNetSlaveSimulator
 from starterbus.transports.devicenet.transport import DeviceNetTransport
 
 Until = Callable[..., bool]
-FAST = "dup_mac_wait=0.05&timeout=0.5&epr=50&poll=10"
+FAST = "dup_mac_wait=0.05&timeout=0.5&epr=50&poll=10&control=open"  # polled I/O from the open
 
 
 @pytest.fixture
@@ -118,7 +118,7 @@ def test_burst_of_foreign_traffic(channel: str, simulated: object, until: Until)
 
 
 def test_period_sets_interval_and_expected_packet_rate(channel: str, simulated: object) -> None:
-    url = f"devicenet://virtual/{channel}?mac=5&dup_mac_wait=0.05&timeout=0.5&period=1"
+    url = f"devicenet://virtual/{channel}?mac=5&dup_mac_wait=0.05&timeout=0.5&period=1&control=open"
     with open_device(url, "jjr8000") as device:
         link = transport(device).link
         assert link is not None and link.interval == 1.0 and link.epr_ms == 2000

@@ -24,9 +24,9 @@ from starterbus.transports.devicenet.explicit import ExplicitRequest
 from starterbus.transports.devicenet.scanner import LinkConfig, LinkState, Scanner, ScannerConfig, ScannerState
 from starterbus.transports.devicenet.simulator import DeviceNetSimulator, DeviceNetSlaveSimulator
 from starterbus.transports.devicenet.slave_node import NodeState
-from starterbus.transports.devicenet.transport import SCANNERS, DeviceNetTransport
+from starterbus.transports.devicenet.transport import SCANNERS, ControlConflictError, DeviceNetTransport
 
-FAST = "dup_mac_wait=0.05&timeout=0.5&epr=50&poll=10"
+FAST = "dup_mac_wait=0.05&timeout=0.5&epr=50&poll=10&control=open"  # polled I/O from the open
 Until = Callable[..., bool]
 
 
@@ -86,8 +86,11 @@ def test_startup_of_two_slaves_and_one_master(
         request, response, command, poll_response = (f"{base + n:03X}#" for n in (4, 3, 5, 0))
         poll_response = f"{0x3C0 + mac:03X}#"
         sequence = [
-            f"{base + 6:03X}#004B03010300",  # Allocate explicit + polled on the group 2 only port
+            f"{base + 6:03X}#004B03010100",  # Allocate explicit on the group 2 only port: monitoring
             f"{response}00CB00",
+            f"{request}000E050109",  # the explicit connection's expected packet rate
+            f"{request}000E046503",  # input assembly 101 over explicit messaging: no output data
+            f"{base + 6:03X}#004B03010200",  # control=open: Allocate polled, the motor being stopped
             f"{request}000E050207",  # produced size
             f"{response}008E0600",
             f"{request}000E050208",  # consumed size
@@ -120,6 +123,7 @@ def test_identity_with_fragmented_product_name(channel: str, sniffer: object, tw
         "product_name": "JJR8000",
         "input_assembly": 101,
         "output_assembly": 102,
+        "io_connection": "held",
         "expected_packet_rate_ms": 50,
     }
     assert until(lambda: "434#80C100" in sniffer.texts())  # type: ignore[attr-defined]
@@ -210,11 +214,13 @@ def test_watchdog_and_master_restart_with_the_old_allocation(
         # the master comes back with the same MAC: "already allocated" -> release -> allocate
         with open_device(url(channel, 5), "jjr8000") as device:
             assert device.status().state is MotorState.STOPPING
-            assert until(lambda: sniffer.texts().count("42E#004B03010300") == 3)  # type: ignore[attr-defined]
+            assert until(lambda: sniffer.texts().count("42E#004B03010200") == 2)  # type: ignore[attr-defined]
             texts = sniffer.texts()  # type: ignore[attr-defined]
             assert "42B#00940B02" in texts  # already in requested mode: our own old allocation
-            assert texts.count("42E#004C030103") == 1  # one release, then the second master's second Allocate
-            assert texts.count("42E#004B03010300") == 3
+            # explicit: one release, then the second Allocate; the same for polled (control=open)
+            assert texts.count("42E#004C030101") == 1 and texts.count("42E#004B03010100") == 2
+            assert texts.count("42C#004C030102") == 1 and texts.count("42E#004B03010200") == 2
+            assert texts.count("42E#004B03010300") == 1  # the first master's
             assert transport(device).link is not None and not transport(device).link.run  # type: ignore[union-attr]
 
 
@@ -245,15 +251,19 @@ def test_slave_goes_away_and_comes_back(channel: str, jjr8000: Profile, until: U
         assert link is not None
         assert until(lambda: link.state is LinkState.LOST, 2.0)
         assert not link.run  # the start command was dropped
-        with pytest.raises(TimeoutError, match="no fresh input"):
+        with pytest.raises(TimeoutError, match="no explicit connection"):
             device.status()
         with pytest.raises(TimeoutError):
             device.start()
         sim = DeviceNetSlaveSimulator(starter, ("virtual", channel), 5, dup_mac_wait=0.05).start()
         try:
-            assert until(lambda: link.established, 3.0)  # re-allocated
-            # the master dropped the run command when it lost the slave: the motor soft-stops
-            assert until_status(device, lambda s: not s.starting and not s.running)
+            assert until(lambda: link.established, 3.0)  # re-allocated (monitoring)
+            # the master dropped its run command with the slave, but this starter kept starting (its module came
+            # back, the motor never stopped): control=open does not take control with run = 0 while it runs
+            assert device.status().state is MotorState.STARTING and not link.polling
+            with pytest.raises(ControlConflictError, match="starting under another control"):
+                device.read("m3")
+            device.stop()  # an operator's stop takes control on purpose
             assert starter.phase in (Phase.STOPPING, Phase.STOPPED)
             starter.clock.advance(100.0)  # type: ignore[attr-defined]  # the soft stop ends
             device.start()

@@ -163,7 +163,7 @@ ERRORS = [
     (["42E#004B03010300", "42C#0010050 20C09"], "42B#009409FF"),  # watchdog action 9
     (["42E#004B03010300", "42C#0005010101"], "42B#009420FF"),  # identity reset type 1
     (["42E#004B03010300", "42C#000E020101"], "42B#009414FF"),  # message router has no attributes
-    (["42E#004B03010300", "42C#0010040203 01"], "42B#00940EFF"),  # outputs only through the polled connection
+    (["42E#004B03010300", "42C#00100466030100"], "42B#00940EFF"),  # outputs only through the polled connection
     (["42E#004B03010300", "42C#0010030101 07"], "42B#00940EFF"),  # MAC id is set on the keypad
 ]
 
@@ -194,7 +194,7 @@ def test_success_answers(jjr8000: Profile) -> None:
     assert exchange(node, "42C#000E050101") == "42B#008E03"  # explicit established
     assert exchange(node, "42C#000E050109") == "42B#008EC409"  # explicit EPR 2500 ms
     assert exchange(node, "42C#000E05020E") == "42B#008E200424653003"  # produced path: assembly 101 attribute 3
-    assert exchange(node, "42C#000E040203") == "42B#008E00"  # output assembly 2 data (1 byte)
+    assert exchange(node, "42C#000E046603") == "42B#008E0000"  # output assembly 102 data (2 bytes)
     assert exchange(node, "42C#0010050209 0500".replace(" ", "")) == "42B#00900A00"  # 5 ms rounds up to the 10 ms tick
 
 

@@ -1,30 +1,13 @@
-"""The master's explicit messaging and connection sequence (sans-IO; the base of the master machine).
-
-Explicit transactions are queued per slave and sent one at a time, fragmented or reassembled as needed. The
-connection sequence (Allocate/Release through the group 2 only unconnected port, the rest on the explicit
-connection)::
-
-    Allocate explicit + polled (choice 0x03)
-      -> "already allocated" (0x0B, our own old allocation, e.g. after a restart): Release 0x03, Allocate again
-      -> "allocated to another master" (0x0C/0x01): refused, retried every retry interval
-    Get the explicit connection's EPR (class 5 instance 1 attribute 9) -> keep-alive period
-    Get produced/consumed size of the polled connection (class 5 instance 2 attributes 7, 8) -> assembly set
-    Set expected packet rate (class 5 instance 2 attribute 9) -> polled connection established
-"""
+"""The master's explicit messaging (sans-IO; the base of the master machine): explicit transactions are
+queued per slave and sent one at a time, fragmented or reassembled as needed. The connection sequence built
+on them is in :mod:`~starterbus.transports.devicenet.master_sequence`."""
 
 from __future__ import annotations
 
-import struct
-from collections.abc import Callable
-
-from starterbus.core.errors import ConfigurationError, StarterbusError, TimeoutError, TransportError
-from starterbus.transports.devicenet.assemblies import AssemblySet
-from starterbus.transports.devicenet.cip import DeviceNetDecodeError, GeneralStatus, ObjectClass, Service
+from starterbus.core.errors import TimeoutError, TransportError
+from starterbus.transports.devicenet.cip import DeviceNetDecodeError, ObjectClass, Service
 from starterbus.transports.devicenet.connection import (
-    DEFAULT_EXPLICIT_EPR_MS,
     EXPLICIT_AND_POLLED,
-    ConnectionAttribute,
-    ConnectionInstance,
 )
 from starterbus.transports.devicenet.explicit import (
     ErrorResponse,
@@ -36,7 +19,7 @@ from starterbus.transports.devicenet.explicit import (
 from starterbus.transports.devicenet.fragmentation import Fragmenter, decode_fragment, frames_for, is_fragment
 from starterbus.transports.devicenet.frames import CanFrame
 from starterbus.transports.devicenet.ids import explicit_request_id, unconnected_request_id
-from starterbus.transports.devicenet.master_link import LinkState, MasterLink, ScannerConfig, Transaction
+from starterbus.transports.devicenet.master_link import MasterLink, ScannerConfig, Transaction
 
 
 class ExplicitMessaging:
@@ -59,8 +42,8 @@ class ExplicitMessaging:
     ) -> ExplicitRequest:
         return ExplicitRequest(self.config.master_mac, service, class_id, instance, attribute, data)
 
-    def _release_request(self) -> ExplicitRequest:
-        return self._request(Service.RELEASE, ObjectClass.DEVICENET, 1, None, bytes((EXPLICIT_AND_POLLED,)))
+    def _release_request(self, choice: int = EXPLICIT_AND_POLLED) -> ExplicitRequest:
+        return self._request(Service.RELEASE, ObjectClass.DEVICENET, 1, None, bytes((choice,)))
 
     def enqueue(self, link: MasterLink, transaction: Transaction, now: float) -> None:
         """Queue a transaction (its request gets the master's MAC and the next transaction id)."""
@@ -163,6 +146,7 @@ class ExplicitMessaging:
             response: Response = decode_response(data)
             if response.xid != transaction.request.xid:
                 return  # a late answer to an earlier, timed-out request
+            link.last_explicit_answer_at = now
             if isinstance(response, ErrorResponse):
                 error = response.error(transaction.request.service, transaction.request.describe())
                 self._finish(link, transaction, now, error=error)
@@ -170,128 +154,3 @@ class ExplicitMessaging:
             self._finish(link, transaction, now, response=check_response(transaction.request, response))
         except DeviceNetDecodeError as exc:
             self._finish(link, transaction, now, error=exc)
-
-    # -- the connection sequence ----------------------------------------------------------------------------
-
-    def _allocate(self, link: MasterLink, now: float, after_release: bool = False) -> None:
-        link.state = LinkState.ALLOCATING
-        link.retry_at = now + self.config.timeout  # overwritten by the outcome
-        choice = bytes((EXPLICIT_AND_POLLED, self.config.master_mac))
-        request = self._request(Service.ALLOCATE, ObjectClass.DEVICENET, 1, None, choice)
-
-        def done(t: Transaction, at: float) -> None:
-            if t.error is None:
-                link.note(at, "allocated explicit + polled")
-                self._configure(link, at)
-                return
-            error = t.error
-            if (
-                not after_release
-                and isinstance(error, StarterbusError)
-                and getattr(error, "code", None) == GeneralStatus.ALREADY_IN_REQUESTED_MODE
-            ):
-                link.note(at, "the slave still holds our old allocation: release and allocate again")
-                self._release_then_allocate(link, at)
-                return
-            self._failed(link, error, at)
-
-        self.enqueue(link, Transaction(request, True, done), now)
-
-    def _release_then_allocate(self, link: MasterLink, now: float) -> None:
-        link.state = LinkState.RELEASING
-
-        def done(t: Transaction, at: float) -> None:
-            if t.error is not None:
-                self._failed(link, t.error, at)
-                return
-            self._allocate(link, at, after_release=True)
-
-        self.enqueue(link, Transaction(self._release_request(), True, done), now)
-
-    def _configure(self, link: MasterLink, now: float) -> None:
-        link.state = LinkState.CONFIGURING
-        sizes: dict[int, int] = {}
-
-        def got_explicit_epr(t: Transaction, at: float) -> None:
-            data = t.response.data if t.response is not None else b""
-            link.explicit_epr_ms = struct.unpack("<H", data)[0] if len(data) == 2 else DEFAULT_EXPLICIT_EPR_MS
-
-        epr = ConnectionAttribute.EXPECTED_PACKET_RATE
-        get_epr = self._request(Service.GET_ATTRIBUTE_SINGLE, ObjectClass.CONNECTION, ConnectionInstance.EXPLICIT, epr)
-        self.enqueue(link, Transaction(get_epr, False, got_explicit_epr), now)
-
-        def got_size(attribute: int) -> Callable[[Transaction, float], None]:
-            def done(t: Transaction, at: float) -> None:
-                if t.error is not None or t.response is None:
-                    self._failed(link, t.error or TransportError("no response"), at)
-                    return
-                if len(t.response.data) != 2:
-                    self._failed(link, TransportError(f"connection size of {len(t.response.data)} bytes"), at)
-                    return
-                sizes[attribute] = struct.unpack("<H", t.response.data)[0]
-                if len(sizes) == 2:
-                    produced = sizes[ConnectionAttribute.PRODUCED_CONNECTION_SIZE]
-                    consumed = sizes[ConnectionAttribute.CONSUMED_CONNECTION_SIZE]
-                    self._choose_assemblies(link, produced, consumed, at)
-
-            return done
-
-        for attribute in (ConnectionAttribute.PRODUCED_CONNECTION_SIZE, ConnectionAttribute.CONSUMED_CONNECTION_SIZE):
-            request = self._request(
-                Service.GET_ATTRIBUTE_SINGLE, ObjectClass.CONNECTION, ConnectionInstance.POLLED, attribute
-            )
-            self.enqueue(link, Transaction(request, False, got_size(attribute)), now)
-
-    def _choose_assemblies(self, link: MasterLink, produced: int, consumed: int, now: float) -> None:
-        found = AssemblySet.for_sizes(produced, consumed)
-        wanted = link.config.assemblies
-        if found is None or wanted not in ("auto", found.value):
-            what = f"{found.value} assemblies" if found else f"no {link.config.product} assembly pair"
-            error = ConfigurationError(
-                f"{link.describe()} produces {produced} and consumes {consumed} bytes ({what}) but the URL asks "
-                f"for assemblies={wanted} ({link.config.product} assembly sets: {link.config.sets}; the device's "
-                "PRO type parameter selects one)"
-            )
-            self._failed(link, error, now, release=True)
-            return
-        link.assemblies = found
-        link.built_seq = -1
-        request = self._request(
-            Service.SET_ATTRIBUTE_SINGLE,
-            ObjectClass.CONNECTION,
-            ConnectionInstance.POLLED,
-            ConnectionAttribute.EXPECTED_PACKET_RATE,
-            struct.pack("<H", link.config.epr_ms),
-        )
-
-        def done(t: Transaction, at: float) -> None:
-            if t.error is not None or t.response is None:
-                self._failed(link, t.error or TransportError("no response"), at)
-                return
-            actual = struct.unpack("<H", t.response.data)[0] if len(t.response.data) == 2 else link.config.epr_ms
-            link.epr_ms = actual
-            link.state = LinkState.ESTABLISHED
-            link.established_at = at
-            link.last_response_at = at
-            link.last_explicit_at = at
-            link.failures = 0
-            link.last_error = None
-            self._established(link, at)
-            link.note(at, f"established: {found.value} assemblies, expected packet rate {actual} ms")
-
-        self.enqueue(link, Transaction(request, False, done), now)
-
-    def _failed(self, link: MasterLink, error: BaseException, now: float, release: bool = False) -> None:
-        self._fail_transactions(link, error, started_too=False)  # the rest of the sequence cannot go on
-        link.failures += 1
-        link.last_error = error
-        if isinstance(error, TimeoutError):
-            link.state = LinkState.LOST
-            link.retry_at = now + min(self.config.timeout, 0.25)
-        else:
-            link.state = LinkState.REFUSED
-            link.retry_at = now + max(self.config.timeout, 1.0)
-        self._wake(link.retry_at)
-        link.note(now, f"{link.state.value}: {error}")
-        if release:
-            self.enqueue(link, Transaction(self._release_request(), True), now)

@@ -39,11 +39,20 @@ class ScannerState(str, enum.Enum):
     CLOSED = "closed"
 
 
+class IoPhase(str, enum.Enum):
+    """The polled I/O connection of a link: its output assembly carries the run bit, so holding it is control."""
+
+    NONE = "not allocated (monitoring over explicit messaging)"
+    TAKING = "allocating the polled I/O connection"
+    HELD = "held (this master controls the starter)"
+    RELEASING = "releasing the polled I/O connection"
+
+
 class LinkState(str, enum.Enum):
     WAITING = "waiting for the scanner"
     ALLOCATING = "allocating"
     RELEASING = "releasing an old allocation"
-    CONFIGURING = "configuring the polled connection"
+    CONFIGURING = "configuring the connection"
     ESTABLISHED = "established"
     LOST = "lost (no answer)"
     REFUSED = "refused"
@@ -75,6 +84,10 @@ class LinkConfig:
     epr_ms: int = 100
     settle: int = 2  # poll responses with a new status parameter address before its value is trusted
     interval: float | None = None  # seconds between polls of this slave (None: the scanner's poll_period)
+    #: allocate the polled I/O connection with the connection set (True) or only when :meth:`take_control`
+    #: asks (False: monitoring over explicit messaging sends no output data, so it never moves a motor)
+    io: bool = True
+    input_instances: tuple[int, int] = (1, 101)  # the model's numbers of the basic and extended input assemblies
     product: str = "the device"  # the profile's name, for messages
     sets: str = "basic or extended"  # the model's assembly sets and their instance numbers, for messages
 
@@ -118,6 +131,8 @@ class MasterLink:
         self.assemblies: AssemblySet | None = None
         self.epr_ms = 0
         self.last_error: BaseException | None = None
+        self.io = IoPhase.NONE
+        self.io_error: BaseException | None = None  # why the latest take_control failed
         self.duplicate: DuplicateResponderError | None = None  # set while another node answers its polls
         self.failures = 0  # connection attempts that failed since the last success
         self.retry_at = 0.0
@@ -158,6 +173,8 @@ class MasterLink:
         self.transactions: collections.deque[Transaction] = collections.deque()
         self.xid = 0
         self.last_explicit_at = 0.0
+        self.last_explicit_answer_at = 0.0
+        self.explicit_inputs: tuple[bytes, float] | None = None  # the input assembly read at establishment
         self.explicit_epr_ms = DEFAULT_EXPLICIT_EPR_MS
 
     @property
@@ -171,7 +188,13 @@ class MasterLink:
 
     @property
     def established(self) -> bool:
+        """The explicit connection is established (reads over explicit messaging work)."""
         return self.state is LinkState.ESTABLISHED
+
+    @property
+    def polling(self) -> bool:
+        """The polled I/O connection is established too: this master polls the slave and controls it."""
+        return self.state is LinkState.ESTABLISHED and self.io is IoPhase.HELD
 
     def output(self) -> OutputAssembly:
         bits = (0x01 if self.run else 0) | (0x04 if self.reset else 0)

@@ -26,13 +26,14 @@ from collections import deque
 
 from starterbus.core.errors import ConfigurationError, TimeoutError, TransportError
 from starterbus.transports.devicenet.cip import DeviceNetDecodeError, ObjectClass, Service
-from starterbus.transports.devicenet.connection import inactivity_timeout
+from starterbus.transports.devicenet.connection import AllocationChoice, inactivity_timeout
 from starterbus.transports.devicenet.dupmac import DuplicateMacCheck, decode_duplicate_mac
 from starterbus.transports.devicenet.frames import CanFrame
 from starterbus.transports.devicenet.ids import duplicate_mac_id, explicit_response_id
 from starterbus.transports.devicenet.ids import poll_response_id as _poll_response_id
 from starterbus.transports.devicenet.master_link import (
     CommunicationFaultError,
+    IoPhase,
     LinkConfig,
     LinkState,
     MasterLink,
@@ -46,6 +47,7 @@ RESET_BACKOFF = (1.0, 60.0)  # first and longest wait before leaving the communi
 STABLE_ONLINE = 600.0  # seconds on line after which the backoff starts over
 CONFIRM_SLACK = 0.0005  # answers confirmed together when their guards end within this (fewer wake-ups)
 IDLE_TICK = 1.0  # longest time between two passes over the links (every timer is also woken exactly)
+MONITOR_LOST_AFTER = 10.0  # s without explicit answer after which a monitored slave (explicit EPR 0) is lost
 MASTER_VENDOR_ID = 0  # the scanner is no registered product; vendor 0 in its duplicate MAC ID messages
 
 
@@ -132,6 +134,7 @@ class MasterNode(PollScheduler):
             self._wake(now)
         elif self.state is ScannerState.FAULT and self.fault is not None:
             link.state = LinkState.FAULTED
+            link.io = IoPhase.NONE
             link.last_error = self.fault
         return link
 
@@ -139,7 +142,8 @@ class MasterNode(PollScheduler):
         """Queue the Release of an established slave's connection set (before :meth:`detach`)."""
         if not link.established or self.state is not ScannerState.ONLINE:
             return None
-        transaction = Transaction(self._release_request(), False)
+        choice = int(AllocationChoice.EXPLICIT) | (int(AllocationChoice.POLLED) if link.io is not IoPhase.NONE else 0)
+        transaction = Transaction(self._release_request(choice), False)
         self.enqueue(link, transaction, now)
         return transaction
 
@@ -222,7 +226,7 @@ class MasterNode(PollScheduler):
             if can_id & 0x400:
                 if self.state is ScannerState.ONLINE:
                     self._on_explicit_response(link, data, now)
-            elif link.state is LinkState.ESTABLISHED and self.state is ScannerState.ONLINE:
+            elif link.polling and self.state is ScannerState.ONLINE:
                 self._on_poll_response(link, data, now)
         elif can_id in self.wanted:
             self._on_duplicate_mac(CanFrame(can_id, data), now)
@@ -284,6 +288,7 @@ class MasterNode(PollScheduler):
                 link.run = False
                 link.output_seq += 1
             link.state = LinkState.FAULTED
+            link.io = IoPhase.NONE
             link.last_error = self.fault
             self._fail_transactions(link, self.fault, started_too=True)
             link.note(now, f"master faulted: {why}")
@@ -352,7 +357,17 @@ class MasterNode(PollScheduler):
         head = link.transactions[0] if link.transactions else None
         if head is not None:
             self._wake(head.deadline)
-        if link.state is LinkState.ESTABLISHED:
+        if link.state is LinkState.ESTABLISHED and not link.polling:
+            lost_after = inactivity_timeout(link.explicit_epr_ms) or MONITOR_LOST_AFTER
+            if now - link.last_explicit_answer_at > lost_after:
+                self._lose(link, now, f"no explicit response for {now - link.last_explicit_answer_at:.3f} s")
+                return
+            if head is None and now - link.last_explicit_at >= link.keepalive:
+                keepalive = self._request(Service.GET_ATTRIBUTE_SINGLE, ObjectClass.IDENTITY, 1, 5)
+                self.enqueue(link, Transaction(keepalive, False), now)
+            self._wake(link.last_explicit_at + link.keepalive)
+            self._wake(link.last_explicit_answer_at + lost_after)
+        elif link.state is LinkState.ESTABLISHED:
             lost_after = inactivity_timeout(link.epr_ms) or max(1.0, 10 * link.interval)
             if now - link.last_response_at > lost_after:
                 self._lose(link, now, f"no poll response for {now - link.last_response_at:.3f} s")
@@ -372,11 +387,8 @@ class MasterNode(PollScheduler):
 
     def _lose(self, link: MasterLink, now: float, why: str) -> None:
         link.state = LinkState.LOST
-        if link.awaiting:
-            link.awaiting = False
-            self._in_flight -= 1
-        link.pending = None
-        link.urgent = 0
+        link.io = IoPhase.NONE
+        self._stop_polling(link)
         if link.run:
             link.run = False
             link.output_seq += 1

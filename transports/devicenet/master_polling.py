@@ -21,8 +21,8 @@ from collections import deque
 
 from starterbus.transports.devicenet.frames import CanFrame
 from starterbus.transports.devicenet.ids import poll_command_id
-from starterbus.transports.devicenet.master_connection import ExplicitMessaging
 from starterbus.transports.devicenet.master_link import DuplicateResponderError, InputSample, MasterLink
+from starterbus.transports.devicenet.master_sequence import ConnectionSequence
 
 WINDOW = 8  # poll commands in flight at once
 POLL_RESPONSE_TIMEOUT = 0.05  # seconds a poll command waits for its answer
@@ -30,7 +30,7 @@ LATE_LIMIT = 0.5  # seconds after a missed poll's deadline its answer may still 
 CLEAR_POLLS = 20  # polls in a row with one answer each that clear a duplicate responder
 
 
-class PollScheduler(ExplicitMessaging):
+class PollScheduler(ConnectionSequence):
     """Polls, answers, confirmations and duplicate responders."""
 
     deadline: float
@@ -82,9 +82,17 @@ class PollScheduler(ExplicitMessaging):
         self._make_ready(link)
         self._wake(now)
 
+    def _stop_polling(self, link: MasterLink) -> None:
+        """Forget the link's poll in flight and its urgency (its polled connection goes away)."""
+        if link.awaiting:
+            link.awaiting = False
+            self._in_flight -= 1
+        link.pending = None
+        link.urgent = 0
+
     @staticmethod
     def _idle(link: MasterLink) -> bool:
-        return link.established and not link.awaiting and not link.queued and link.pending is None
+        return link.polling and not link.awaiting and not link.queued and link.pending is None
 
     def _make_ready(self, link: MasterLink) -> None:
         if self._idle(link):
@@ -111,7 +119,7 @@ class PollScheduler(ExplicitMessaging):
         while ready and self._in_flight < WINDOW:
             link = ready.popleft()
             link.queued = False
-            if not link.established or link.awaiting or link.pending is not None:
+            if not link.polling or link.awaiting or link.pending is not None:
                 continue
             if now < link.quarantine_until:
                 self._schedule(link, now)
@@ -174,7 +182,7 @@ class PollScheduler(ExplicitMessaging):
     def _confirm(self, link: MasterLink, now: float) -> None:
         sample = link.pending
         link.pending = None
-        if sample is not None and link.established:
+        if sample is not None and link.polling:
             self._publish(link, sample)
         self._schedule(link, now)
 

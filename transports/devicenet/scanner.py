@@ -27,6 +27,7 @@ from starterbus.transports.devicenet.master_link import (
     CommunicationFaultError,
     DuplicateResponderError,
     InputSample,
+    IoPhase,
     LinkConfig,
     LinkState,
     MasterLink,
@@ -41,6 +42,7 @@ __all__ = [
     "CommunicationFaultError",
     "DuplicateResponderError",
     "InputSample",
+    "IoPhase",
     "LinkConfig",
     "LinkState",
     "Scanner",
@@ -179,6 +181,33 @@ class Scanner:
             raise transaction.error
         assert transaction.response is not None
         return transaction.response
+
+    def take_control(self, link: MasterLink, timeout: float) -> None:
+        """Establish the polled I/O connection of a monitored slave (the outputs set before go out with its
+        first poll); raises why it could not."""
+        with self.lock:
+            self.machine.take_control(link, self.clock())
+            self._call(self.machine.take())
+
+        def settled() -> bool:
+            return link.io in (IoPhase.HELD, IoPhase.NONE) or self.machine.link_error(link) is not None
+
+        self.wait_for(settled, timeout)
+        with self.lock:
+            if link.polling:
+                return
+            error = self.machine.link_error(link) or link.io_error or link.last_error
+        if error is not None:
+            raise error
+        raise TimeoutError(f"{link.describe()}: the polled I/O connection was not established within {timeout:g} s")
+
+    def release_control(self, link: MasterLink) -> None:
+        """Give the polled I/O connection back (monitoring over explicit messaging goes on)."""
+        with self.lock:
+            transaction = self.machine.release_control(link, self.clock())
+            self._call(self.machine.take())
+        if transaction is not None:
+            self.wait_for(lambda: transaction.done, self.config.timeout * 2)
 
     def wait_for(self, predicate: Callable[[], bool], timeout: float) -> bool:
         """Wait (on the scanner's condition) until ``predicate`` holds; True if it did."""

@@ -44,6 +44,7 @@ from starterbus.transports.devicenet.dupmac import DEFAULT_WAIT
 from starterbus.transports.devicenet.frames import CanFrame
 from starterbus.transports.devicenet.identity import Identity
 from starterbus.transports.devicenet.ids import MAX_MAC, poll_command_id, poll_response_id
+from starterbus.transports.devicenet.settings import devicenet_settings
 from starterbus.transports.devicenet.slave_node import NodeState, SlaveNode
 
 log = logging.getLogger(__name__)
@@ -91,6 +92,9 @@ class StarterApplication:
             return self.fixed
         pro_type = self.starter.params.get(PRO_TYPE_KEY, 0)
         return AssemblySet.EXTENDED if pro_type == 1 else AssemblySet.BASIC
+
+    def instance_numbers(self) -> tuple[int, int]:
+        return devicenet_settings(self.starter.profile).instances(self.assembly_set())
 
     def produce(self, instance: int) -> bytes:
         """The input assembly, refreshed from the starter at most every ``io_refresh`` seconds (like the

@@ -7,7 +7,6 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from starterbus.transports.devicenet import cip
-from starterbus.transports.devicenet.assemblies import INPUT_SIZES, OUTPUT_SIZES
 from starterbus.transports.devicenet.cip import CipStatus, GeneralStatus, ObjectClass, Service
 from starterbus.transports.devicenet.connection import (
     BAUD_CODES,
@@ -151,10 +150,13 @@ class SlaveObjects(SlaveState):
         instance = request.instance
         if instance == 0:
             return self._get(request, {1: lambda: uint(2), 2: lambda: uint(102)})
-        if instance in INPUT_SIZES:
-            return self._get(request, {3: lambda: self.app.produce(instance)})
-        if instance in OUTPUT_SIZES:
-            return self._get(request, {3: lambda: self.app.output_data(instance)})
+        # the instances of the configured set (the PRO type), numbered as the model numbers them
+        current = self.app.assembly_set()
+        inputs, outputs = self.app.instance_numbers()
+        if instance == inputs:
+            return self._get(request, {3: lambda: self.app.produce(current.input_instance)})
+        if instance == outputs:
+            return self._get(request, {3: lambda: self.app.output_data(current.output_instance)})
         raise self._no_instance(request)
 
     # -- allocation ---------------------------------------------------------------------------------------------

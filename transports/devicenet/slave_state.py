@@ -46,6 +46,9 @@ class SlaveApplication(Protocol):
     def assembly_set(self) -> AssemblySet:
         """The assembly pair the polled connection produces/consumes (the JJR8000's PRO type)."""
 
+    def instance_numbers(self) -> tuple[int, int]:
+        """The (input, output) instance numbers of :meth:`assembly_set` as the model numbers them."""
+
     def produce(self, instance: int) -> bytes:
         """The current data of input assembly ``instance``."""
 

@@ -16,7 +16,16 @@ URL: ``devicenet://INTERFACE/CHANNEL?mac=5`` with any python-can interface (``vi
 ``dup_mac_wait`` 1.0      seconds of each wait of the scanner's duplicate MAC ID check (the spec says 1 s)
 ``timeout``     1.0       seconds to wait for an explicit response, a command or fresh inputs
 ``settle``      2         poll responses after a new status parameter address before its value is used
+``control``     command   when to allocate the polled I/O connection, whose output assembly carries the run
+                          bit: ``command`` (only to send a command; reads use explicit messaging and send no
+                          output data) or ``open`` (at open, refused while the motor runs: then every status
+                          parameter can be read, and this master controls the starter)
 =============== ========= ================================================================================
+
+Reading never moves a motor: until a command is sent (or with ``control=open``), the master allocates the
+explicit connection only and reads the input assembly with Get_Attribute_Single (class 4, attribute 3). The
+polled I/O connection is allocated by the first command (its first poll carries that command) and released
+again once a command left the run bit clear (``control=command``).
 
 Scanner-wide parameters (``master_mac``, ``bitrate``, ``dup_mac_wait``) must agree between the
 devices of one bus in one process. Parameters cannot be read or written (the manual: not supported).
@@ -26,9 +35,10 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from collections.abc import Sequence
 
-from starterbus.core.errors import ConfigurationError, DecodeError, TimeoutError
+from starterbus.core.errors import ConfigurationError, DecodeError, StarterbusError, TimeoutError
 from starterbus.core.model import PointDef, Reading
 from starterbus.core.profile import Profile
 from starterbus.core.sharing import SharedPool
@@ -38,6 +48,8 @@ from starterbus.core.url import DeviceUrl
 from starterbus.transports.devicenet.assemblies import (
     CURRENT_RESOLUTION_A,
     AssemblySet,
+    InputAssembly,
+    InputBit,
     OutputAssembly,
     decode_input,
     output_for_word,
@@ -47,6 +59,7 @@ from starterbus.transports.devicenet.explicit import ExplicitRequest
 from starterbus.transports.devicenet.identity import ATTRIBUTE_NAMES, decode_identity
 from starterbus.transports.devicenet.ids import MAX_MAC, poll_command_id
 from starterbus.transports.devicenet.master_polling import POLL_RESPONSE_TIMEOUT
+from starterbus.transports.devicenet.master_sequence import input_request
 from starterbus.transports.devicenet.scanner import (
     InputSample,
     LinkConfig,
@@ -69,6 +82,7 @@ URL_PARAMETERS = (
     "dup_mac_wait",
     "timeout",
     "settle",
+    "control",
 )
 
 MIN_INTERVAL = 0.005  # s: the fastest scan a ``period`` asks for (bus load)
@@ -137,10 +151,16 @@ def parse_url(url: DeviceUrl, profile: Profile) -> tuple[ScannerConfig, LinkConf
         epr_ms=epr,
         settle=url.get_int("settle", 2, lo=1, hi=50),
         interval=poll / 1000.0,
+        io=False,
+        input_instances=(settings.instances(AssemblySet.BASIC)[0], settings.instances(AssemblySet.EXTENDED)[0]),
         product=profile.display_name,
         sets=", ".join(f"{s.value} {'/'.join(map(str, settings.instances(s)))}" for s in AssemblySet),
     )
     return scanner, link
+
+
+class ControlConflictError(StarterbusError):
+    """Taking control (the polled I/O connection) would override a run command this master did not give."""
 
 
 class DeviceNetTransport(Transport):
@@ -156,6 +176,7 @@ class DeviceNetTransport(Transport):
         self.link: SlaveLink | None = None
         self._select_lock = threading.Lock()
         self._key = (self.scanner_config.interface, self.scanner_config.channel)
+        self.control = url.get_str("control", "command", choices=("command", "open"))
 
     # -- lifecycle ---------------------------------------------------------------------------------------------
 
@@ -177,6 +198,8 @@ class DeviceNetTransport(Transport):
         self.scanner, self.link = scanner, link
         try:
             self._wait_established(4 * config.timeout + 0.5)
+            if self.control == "open":
+                self._take_control(scanner, link, "opening with control=open")
         except BaseException:
             self._close()
             raise
@@ -254,8 +277,40 @@ class DeviceNetTransport(Transport):
             )
         return sample
 
+    def _explicit_inputs(self, scanner: Scanner, link: SlaveLink) -> InputAssembly:
+        """The input assembly read over explicit messaging (Get_Attribute_Single, attribute 3): no outputs sent."""
+        if not link.established:
+            scanner.wait_for(lambda: link.established or scanner.machine.link_error(link) is not None, self.timeout)
+        error = scanner.link_error(link)
+        if error is not None:
+            raise error
+        assemblies = link.assemblies or AssemblySet.EXTENDED
+        if not link.established:
+            raise TimeoutError(
+                f"{self.describe()}: no explicit connection ({link.state.value}"
+                + (f": {link.last_error}" if link.last_error else "")
+                + ")"
+            )
+        response = scanner.request(link, input_request(scanner.machine, link, assemblies), timeout=self.timeout * 2)
+        return decode_input(response.data, assemblies.input_instance)
+
+    def _retake(self, scanner: Scanner, link: SlaveLink, *, strict: bool) -> None:
+        """``control=open``: hold the polled I/O connection again after a loss or a fault took it. While the
+        motor runs on a command this master no longer holds, a status read monitors (``strict`` False) and a
+        status parameter read raises the :class:`ControlConflictError`."""
+        if self.control == "open" and not link.polling:
+            try:
+                self._take_control(scanner, link, "taking control again (control=open)")
+            except ControlConflictError:
+                if strict:
+                    raise
+
     def _read_status(self) -> Status:
         scanner, link = self._require()
+        self._retake(scanner, link, strict=False)
+        if not link.polling:
+            inputs = self._explicit_inputs(scanner, link)
+            return inputs.to_status(self.profile, timestamp=time.time(), source=NAME)
         sample = self._fresh_sample(link, scanner)
         assemblies = link.assemblies or AssemblySet.EXTENDED
         inputs = decode_input(sample.data, assemblies.input_instance)
@@ -273,6 +328,20 @@ class DeviceNetTransport(Transport):
             )
         return ControlWordState(bus_control=True, run=run).apply(command)
 
+    def _take_control(self, scanner: Scanner, link: SlaveLink, why: str, *, refuse_running: bool = True) -> None:
+        """Allocate the polled I/O connection. With ``refuse_running``, refused while the motor runs on a command
+        this master did not give (the first poll would carry run = 0: a stop nobody asked for)."""
+        if refuse_running:
+            inputs = self._explicit_inputs(scanner, link)
+            bits = inputs.bits & (InputBit.RUNNING | InputBit.STARTING)  # a soft stop under way agrees with run = 0
+            if bits and not link.run:
+                state = " and ".join(str(b.name).lower() for b in InputBit if b & bits)
+                raise ControlConflictError(
+                    f"{self.describe()}: the motor is {state} under another control (keypad, terminals or another "
+                    f"master); {why} would take control with run = 0 and stop it: nothing sent"
+                )
+        scanner.take_control(link, 4 * self.timeout)
+
     def _send_command(self, command: Command) -> None:
         scanner, link = self._require()
         words = self._words(command, link.run)
@@ -281,16 +350,28 @@ class DeviceNetTransport(Transport):
             raise error
         if not link.established:
             raise TimeoutError(f"{self.describe()}: connection {link.state.value}; command {command.value!r} not sent")
-        for word in words:
+        for index, word in enumerate(words):
+            taking = not link.polling
+            if taking and command is Command.FAULT_RESET:  # its run = 0 would stop a motor run from elsewhere
+                self._take_control(scanner, link, "a fault reset")
+            # set before the polled connection exists, the outputs go out with its very first poll
             seq = scanner.set_outputs(link, run=bool(word & CW_START), reset=bool(word & CW_RESET))
+            if taking and not link.polling:
+                try:
+                    scanner.take_control(link, 4 * self.timeout)
+                except BaseException:
+                    scanner.set_outputs(link, run=False, reset=False)  # not sent: nothing of ours runs
+                    raise
             if not scanner.wait_acked(link, seq, self.timeout):
                 error = scanner.link_error(link)
                 if error is not None:
                     raise error
                 raise TimeoutError(
                     f"{self.describe()}: command {command.value!r} was not confirmed by a poll response within "
-                    f"{self.timeout:g} s (connection {link.state.value})"
+                    f"{self.timeout:g} s (connection {link.state.value}; word {index + 1} of {len(words)})"
                 )
+        if self.control == "command" and not link.run:
+            scanner.release_control(link)  # nothing of ours runs: give control back, monitor again
 
     def _preview_command(self, command: Command) -> list[str]:
         link = self.link
@@ -314,10 +395,21 @@ class DeviceNetTransport(Transport):
 
     def _read_points(self, points: Sequence[PointDef]) -> list[Reading]:
         scanner, link = self._require()
+        self._retake(scanner, link, strict=True)
         return [self._read_measurement(scanner, link, point) for point in points]
 
     def _read_measurement(self, scanner: Scanner, link: SlaveLink, point: PointDef) -> Reading:
         phases = self.profile.phase_currents()
+        if not link.polling:
+            if phases and point.key == phases[0].key:
+                return Reading(point, self._explicit_inputs(scanner, link).current_a, CURRENT_RESOLUTION_A)
+            raise self.unsupported(
+                f"read {point.key}",
+                "the status parameters travel only in the polled I/O connection, whose output assembly also "
+                "carries the run bit; reading never takes control: send a command first in this session, open "
+                "with control=open (refused while the motor runs under another control), or read it over "
+                "another transport; the input assembly (explicit messaging) carries the status and the L1 current",
+            )
         if link.assemblies is AssemblySet.BASIC:
             if phases and point.key == phases[0].key:
                 sample = self._fresh_sample(link, scanner)
@@ -364,6 +456,8 @@ class DeviceNetTransport(Transport):
     def _identify(self) -> dict[str, object]:
         """Identity object attributes 1-7 (Get_Attribute_Single each; the product name is fragmented)."""
         scanner, link = self._require()
+        if not link.established:
+            scanner.wait_for(lambda: link.established or scanner.machine.link_error(link) is not None, self.timeout)
         raw: dict[int, bytes] = {}
         for attribute in sorted(ATTRIBUTE_NAMES):
             request = ExplicitRequest(
@@ -374,7 +468,9 @@ class DeviceNetTransport(Transport):
         result: dict[str, object] = {"mac": link.mac, **identity.as_dict()}
         if link.assemblies is not None:
             result["input_assembly"], result["output_assembly"] = self.settings.instances(link.assemblies)
-        result["expected_packet_rate_ms"] = link.epr_ms
+        result["io_connection"] = link.io.name.lower()
+        if link.polling:
+            result["expected_packet_rate_ms"] = link.epr_ms
         return result
 
     def connection_info(self) -> dict[str, object]:
@@ -382,6 +478,7 @@ class DeviceNetTransport(Transport):
         _, link = self._require()
         return {
             "state": link.state.value,
+            "io_connection": link.io.value,
             "assemblies": link.assemblies.value if link.assemblies else None,
             "expected_packet_rate_ms": link.epr_ms,
             "responses": link.responses,
