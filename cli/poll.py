@@ -16,6 +16,7 @@ from starterbus.fleet.probing import DEFAULT_PROBE_SHARE, DEFAULT_PROBE_TIMEOUT
 
 if TYPE_CHECKING:
     from starterbus.fleet.config import FleetConfig
+    from starterbus.fleet.output import CsvLog, JsonLines
     from starterbus.fleet.plan import BusPlan
     from starterbus.fleet.poller import FleetPoller, Sample
     from starterbus.fleet.probing import ProbeSettings
@@ -26,7 +27,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--once", action="store_true", help="poll every device once, print, exit")
     p.add_argument("--json", action="store_true", help="stream one JSON object per sample")
     p.add_argument(
-        "--csv", metavar="FILE", help="append every sample to a CSV log (wide: a column per point, ISO 8601 times)"
+        "--csv",
+        metavar="FILE",
+        help="append every sample to a CSV log (wide: a column per point, ISO 8601 UTC times); - = stdout",
     )
     p.add_argument("--csv-long", action="store_true", help="CSV in long format: one row per value")
     p.add_argument("--record", metavar="DB", help="write samples and events to this SQLite history (see `history`)")
@@ -100,11 +103,15 @@ def run_fleet(
     csv_long: bool = False,
 ) -> int:
     """Poll a fleet and show it; shared by ``poll`` and ``demo``. Returns the exit code."""
+    from starterbus.core.errors import ConfigurationError
     from starterbus.fleet.output import CsvLog, JsonLines
     from starterbus.fleet.poller import FleetPoller
 
     out = out or sys.stdout
     sinks = list(sinks or [])
+    if csv_path == "-" and json_out:
+        raise ConfigurationError("--csv - and --json both write to standard output: give one of them")
+    quiet = json_out or csv_path == "-"  # stdout carries the JSON or the CSV only: no table
     csv_log = CsvLog(csv_path, config, long=csv_long) if csv_path else None
     if csv_log is not None:
         sinks.append(csv_log)
@@ -117,7 +124,7 @@ def run_fleet(
             sink(sample)
 
     poller = FleetPoller(config, on_sample, rounds=1 if once else None, probing=probing)
-    in_place = out.isatty() and not json_out
+    in_place = out.isatty() and not quiet
     poller.start()
     interrupted = False
     try:
@@ -128,12 +135,12 @@ def run_fleet(
         while poller.running:
             if deadline is not None and time.monotonic() >= deadline:
                 break
-            if json_lines is not None and json_lines.closed:  # the reader went away (`| head -1`)
+            if _reader_gone(json_lines, csv_log):  # the reader went away (`| head -1`)
                 break
             poller.stopping.wait(refresh if in_place else 0.2)
             if in_place:
                 render(poller, out, True, banner() if banner else "")
-            elif not json_out and not once and time.monotonic() - last_print >= config.period:
+            elif not quiet and not once and time.monotonic() - last_print >= config.period:
                 last_print = time.monotonic()  # on a pipe: one table per fleet period, not a redraw
                 render(poller, out, False, banner() if banner else "")
                 out.write("\n")
@@ -143,14 +150,19 @@ def run_fleet(
         poller.stop()
         if csv_log is not None:
             csv_log.close()
-    if json_lines is not None and json_lines.closed:
-        raise BrokenPipeError("the JSON reader went away")  # after the clean stop; `main` exits 0 quietly
-    if not json_out:
+    if _reader_gone(json_lines, csv_log):
+        raise BrokenPipeError("the reader went away")  # after the clean stop; `main` exits 0 quietly
+    if not quiet:
         render(poller, out, in_place)
     if interrupted:
         return 130  # Ctrl-C: after a clean shutdown, as every command
     bad = [r for r in poller.runtimes() if not r.online]
     return 1 if once and bad else 0
+
+
+def _reader_gone(*sinks: JsonLines | CsvLog | None) -> bool:
+    """The reader of the JSON or CSV on stdout went away (a closed pipe)."""
+    return any(sink is not None and sink.closed for sink in sinks)
 
 
 def _ms(seconds: float | None) -> str:

@@ -15,8 +15,9 @@ serve a :class:`~starterbus.core.simulator.SimulatedStarter` behind your protoco
 The kit checks declared capabilities against behaviour (what is declared works, what is not is refused with
 ``UnsupportedOperationError``), read/write round trips against the simulator's own registers, the status,
 every command through the guarded path (the state reached), validation before sending, typed device errors,
-dry-run previews, the lifecycle (no thread or file descriptor left behind), and a cross-check against the
-reference transport (Modbus RTU on a pseudo-terminal) serving the same starter.
+dry-run previews, the lifecycle (no thread or file descriptor left behind), a cross-check against the
+reference transport (Modbus RTU on a pseudo-terminal) serving the same starter, and that no read-only operation
+changes a running motor's state or sends it a control output (:mod:`starterbus.testing.read_only`).
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.core.status import Command, MotorState
 from starterbus.core.transport import Capability, Transport
 from starterbus.core.url import DeviceUrl
+from starterbus.testing.read_only import check_reads_never_actuate
 
 REFERENCE = "modbus-rtu"
 
@@ -366,3 +368,8 @@ class TransportConformance:
         with ModbusRtuSimulator({1: starter}, pty=True) as reference:
             report = crosscheck([url, reference.client_urls()[1]], profile)
         assert report.ok, [row.what for row in report.rows if row.agree is False] + [p.error for p in report.paths]
+
+    def test_reads_never_actuate(self, url: str, profile: Profile, starter: SimulatedStarter) -> None:
+        """The motor runs (started from the keypad); every read-only operation of the transport runs against it;
+        none may change its state or a parameter, or send it a control output (the failure names which)."""
+        check_reads_never_actuate(url, profile, starter)
