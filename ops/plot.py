@@ -22,7 +22,7 @@ STATE_COLOURS = {
     "stopping": "#64b5f6",
     "fault": "#e53935",
     "ready": "#bdbdbd",
-    "stopped": "#bdbdbd",
+    "stopped": "#757575",  # darker than ready: idle and not known to be ready
     "unknown": "#ffffff",
 }
 LEGEND_COLUMNS = 6
