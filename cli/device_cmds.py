@@ -208,7 +208,7 @@ def cmd_command(args: argparse.Namespace) -> int:
         )
     with device:
         try:
-            outcome = device.command(command, timeout=args.wait)
+            outcome = device.command(command, timeout=args.wait, force=args.force)
         except GuardedOperationError as exc:
             if exc.outcomes and args.json:
                 emit_json({"device": args.url, "command": command.value, **exc.outcomes[0].as_json()})
@@ -220,6 +220,8 @@ def cmd_command(args: argparse.Namespace) -> int:
 
 
 def _show_command(args: argparse.Namespace, device: Device, outcome: Outcome) -> None:
+    if outcome.overridden:
+        print(f"starterbus: warning: --force: sent although {outcome.overridden}", file=sys.stderr)
     if args.json:
         emit_json({"device": args.url, "command": outcome.action, **outcome.as_json()})
         return
@@ -245,6 +247,6 @@ def _hold(args: argparse.Namespace, device: Device) -> int:
             device.guard.sleep(min(0.5, max(0.0, until - clock())) if until is not None else 0.5)
     except KeyboardInterrupt:
         interrupted = True
-    outcome = device.command(Command.SOFT_STOP, timeout=args.wait)
+    outcome = device.command(Command.SOFT_STOP, timeout=args.wait, force=args.force)
     _show_command(args, device, outcome)
     return 130 if interrupted else 0

@@ -135,6 +135,11 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
             p.add_argument("--hold-for", type=float, metavar="S", help="as --hold, but soft-stop after S seconds")
         else:
             p.set_defaults(hold=False, hold_for=None)
+        p.add_argument(
+            "--force",
+            action="store_true",
+            help="send it even though the starter is controlled from elsewhere (keypad, terminals, another master)",
+        )
         _guard_args(p)
         p.set_defaults(handler=_handler("device_cmds", "cmd_command"), command=name)
 

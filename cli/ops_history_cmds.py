@@ -17,6 +17,7 @@ from starterbus.cli.target import recorded_name
 from starterbus.core.audit import AuditLog
 from starterbus.core.device import open_device
 from starterbus.core.errors import ConfigurationError
+from starterbus.core.timestamps import iso_time
 from starterbus.ops.history import EVENT_COLUMNS, SAMPLE_COLUMNS, HistoryStore
 
 _RELATIVE = re.compile(r"(\d+(?:\.\d+)?)\s*(s|m|h|d|w)")
@@ -98,13 +99,13 @@ def cmd_history(args: argparse.Namespace) -> int:
             rows = store.samples(device=device, since=since, until=until, limit=args.limit)
             columns = SAMPLE_COLUMNS
     if args.json:
-        rows = [{**row, "time_iso": _stamp(row["time"])} for row in rows]
+        rows = [{**row, "time": iso_time(row["time"])} for row in rows]
         emit_json({"events" if columns is EVENT_COLUMNS else "samples": rows})
     elif args.csv:
         out = csv.writer(sys.stdout)
-        out.writerow(["time_iso", *columns])
+        out.writerow(columns)
         for row in rows:
-            out.writerow([_stamp(row["time"]), *(_cell(row[c]) for c in columns)])
+            out.writerow([iso_time(row[c]) if c == "time" else _cell(row[c]) for c in columns])
     elif columns is EVENT_COLUMNS:
         table(["id", "time", "device", "kind", "what"], [[r["id"], _stamp(r["time"]), r["device"], r["kind"], r["text"]]
                                                          for r in rows])  # fmt: skip

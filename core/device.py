@@ -198,18 +198,26 @@ class Device:
         self._require_open()
         self.transport.send_command(command)
 
-    def command(self, command: Command, *, timeout: float | None = None, actor: str | None = None) -> Outcome:
-        """Send a command through the guarded path; returns the outcome with the state reached."""
-        return self.guard.command(command, timeout=timeout, actor=actor)
+    def command(
+        self, command: Command, *, timeout: float | None = None, actor: str | None = None, force: bool = False
+    ) -> Outcome:
+        """Send a command through the guarded path; returns the outcome with the state reached.
 
-    def start(self, *, timeout: float | None = None) -> Outcome:
-        return self.command(Command.START, timeout=timeout)
+        Refused, nothing sent, while the starter is controlled from elsewhere (its control-source parameter, or a
+        motor its status shows driven by the terminals, the keypad or another master):
+        :class:`~starterbus.core.errors.ControlSourceError`; ``force=True`` sends it anyway (and the audit record
+        says what it overrode). A start on a faulted starter is refused whatever ``force`` says.
+        """
+        return self.guard.command(command, timeout=timeout, actor=actor, force=force)
 
-    def stop(self, *, timeout: float | None = None) -> Outcome:
-        return self.command(Command.SOFT_STOP, timeout=timeout)
+    def start(self, *, timeout: float | None = None, force: bool = False) -> Outcome:
+        return self.command(Command.START, timeout=timeout, force=force)
 
-    def reset(self, *, timeout: float | None = None) -> Outcome:
-        return self.command(Command.FAULT_RESET, timeout=timeout)
+    def stop(self, *, timeout: float | None = None, force: bool = False) -> Outcome:
+        return self.command(Command.SOFT_STOP, timeout=timeout, force=force)
+
+    def reset(self, *, timeout: float | None = None, force: bool = False) -> Outcome:
+        return self.command(Command.FAULT_RESET, timeout=timeout, force=force)
 
 
 def open_device(

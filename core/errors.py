@@ -46,6 +46,21 @@ class ValidationError(StarterbusError, ValueError):
     """A value was refused before anything was sent (range, access, enum, resolution)."""
 
 
+class StateRuleError(ValidationError):
+    """An operation the device's present state forbids (a parameter the profile locks while the motor runs, a
+    start while faulted), or whose state cannot be proven; nothing was sent."""
+
+
+class ControlSourceError(StateRuleError):
+    """The starter takes its start/stop commands from elsewhere (its terminals, its keypad, another master), so
+    a command from here would be ignored or would fight that control; nothing was sent. The override is
+    ``force=True`` (CLI ``--force``); ``reason`` says what showed it."""
+
+    def __init__(self, message: str, reason: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
 class UnsupportedOperationError(StarterbusError):
     """The transport or the device model lacks the requested capability."""
 

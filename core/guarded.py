@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from starterbus.core.audit import AuditLog
-from starterbus.core.errors import StarterbusError, ValidationError
+from starterbus.core.command_rules import check_command, reached
+from starterbus.core.errors import StarterbusError, StateRuleError, ValidationError
 from starterbus.core.model import PointDef, Value
 from starterbus.core.status import Command, MotorState, Status
 from starterbus.core.transport import Capability
@@ -31,10 +32,6 @@ class ConfirmationRefused(StarterbusError):
 
 class UncertainValueError(ValidationError):
     """A value whose raw code or scale the manual does not print, written without an acknowledgement."""
-
-
-class StateRuleError(ValidationError):
-    """A parameter the profile locks while the motor runs, asked for while it runs (or its state is unknown)."""
 
 
 class GuardedOperationError(StarterbusError):
@@ -108,6 +105,7 @@ class Outcome:
     read_back: Value | None = None
     before: Status | None = None
     reached: Status | None = None
+    overridden: str | None = None  # what a forced command went against (see core/command_checks.py)
     audit: dict[str, object] = field(default_factory=dict)
 
     @property
@@ -129,27 +127,13 @@ class Outcome:
             out["before"] = self.before.state.value if self.before else None
             out["reached"] = self.reached.state.value if self.reached else None
             out["status"] = self.reached.as_json() if self.reached else None
+        if self.overridden is not None:
+            out["overridden"] = self.overridden
         out["error"] = self.error
         return out
 
 
-#: the states that show a command took effect
-_TARGETS: Mapping[Command, frozenset[MotorState]] = {
-    Command.START: frozenset({MotorState.STARTING, MotorState.RUNNING}),
-    Command.SOFT_STOP: frozenset({MotorState.STOPPING, MotorState.READY, MotorState.STOPPED}),
-}
 _IDLE = frozenset({MotorState.READY, MotorState.STOPPED})
-
-
-def reached(command: Command, status: Status) -> bool | None:
-    """Whether ``status`` shows ``command`` took effect; None when this path cannot tell."""
-    if command in _TARGETS:
-        return status.state in _TARGETS[command]
-    if command is Command.FAULT_RESET:
-        return not status.fault
-    if status.bus_control is None:
-        return None
-    return status.bus_control is (command is Command.TAKE_BUS_CONTROL)
 
 
 class Guard:
@@ -298,28 +282,45 @@ class Guard:
 
     # -- commands -------------------------------------------------------------------------------------------
 
-    def command(self, command: Command, *, timeout: float | None = None, actor: str | None = None) -> Outcome:
-        """Confirm, send, then read the status until the command's state is reached (or ``timeout`` passes).
+    def command(
+        self, command: Command, *, timeout: float | None = None, actor: str | None = None, force: bool = False
+    ) -> Outcome:
+        """Check who controls the starter and its state, confirm, send, then read the status until the command's
+        state is reached (or ``timeout`` passes).
 
         Returns the outcome (``ok``, with ``reached``); raises :class:`CommandNotReached` (with the outcome)
-        when the state was not reached or the device tripped, :class:`ConfirmationRefused` when not confirmed.
+        when the state was not reached or the device tripped, :class:`ConfirmationRefused` when not confirmed,
+        :class:`~starterbus.core.errors.ControlSourceError` when the starter is controlled from elsewhere
+        (unless ``force``) and :class:`StateRuleError` for a start on a faulted starter; nothing sent then.
         """
         self.device.check_command(command)
-        frames = self._frames(lambda: self.device.transport.preview_command(command))
+        self.last_outcomes = []
         actor = actor or self.actor
+        can_verify = Capability.STATUS in self.device.capabilities
+        status = self.fresh_status() if can_verify else None
+        try:
+            overridden = check_command(self.device, command, status, force=force)
+        except StateRuleError as exc:  # refused before anything was sent: audited as such
+            ident = self._identity(actor)
+            self.audit.append(**ident, action="command", command=command.value, result=f"refused: {exc}")
+            raise
+        frames = self._frames(lambda: self.device.transport.preview_command(command))
         self._confirm(Proposal(self.device.describe(), command.value, command=command, frames=frames), actor)
-        outcome = Outcome(command.value, self.device.describe())
+        outcome = Outcome(command.value, self.device.describe(), overridden=overridden)
         self.last_outcomes = [outcome]
         failure: StarterbusError | None = None
-        can_verify = Capability.STATUS in self.device.capabilities
         try:
             outcome.before = self.device.status() if can_verify else None
+            again = check_command(self.device, command, outcome.before, force=force, read_source=False)
+            outcome.overridden = outcome.overridden or again  # the state may have changed while confirming
             self.device.send_command(command)
             outcome.result = "sent, not verified (this path cannot read the status)"
             if can_verify:
                 self._await(command, outcome, self.command_timeout if timeout is None else timeout)
         except StarterbusError as exc:
             outcome.result, outcome.error, failure = "failed", str(exc), exc
+            if isinstance(exc, StateRuleError):
+                outcome.result = "refused"
         self._record(outcome, actor)
         if failure is not None:
             raise failure
@@ -395,5 +396,7 @@ class Guard:
                 "before": outcome.before.state.value if outcome.before else None,
                 "reached": outcome.reached.state.value if outcome.reached else None,
             }
+            if outcome.overridden is not None:
+                record["overridden"] = outcome.overridden
         record["result"] = outcome.result if outcome.error is None else f"{outcome.result}: {outcome.error}"
         outcome.audit = self.audit.append(**record)

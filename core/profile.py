@@ -9,7 +9,7 @@ from __future__ import annotations
 import re
 import sys
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
@@ -21,6 +21,7 @@ from starterbus.core.profile_points import (
     AddressParser,
     build_point,
     enum_table,
+    is_int,
     key_text,
     provenance,
     shown,
@@ -69,6 +70,10 @@ class ControlTraits:
     bit12_is_mains_voltage: bool = False
     write_protect_key: str = ""
     locked_while_running: frozenset[str] = frozenset()
+    #: the parameter saying where start/stop commands come from ("" = the profile names none)
+    source_key: str = ""
+    #: its codes under which the bus may command, bus alone first (the simulated starter's setting)
+    source_bus_codes: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True, slots=True)
@@ -342,11 +347,30 @@ def _control(data: Mapping[str, Any], points: Mapping[str, PointDef], source: st
         bit12_is_mains_voltage=bit12 == "mains_voltage",
         write_protect_key=text(data, "write_protect_key", source, "control.", ""),
         locked_while_running=frozenset(text_list(data, "locked_while_running", source, "control.")),
+        source_key=text(data, "source_key", source, "control.", ""),
     )
-    for ref in [control.write_protect_key, *sorted(control.locked_while_running)]:
+    for ref in [control.write_protect_key, control.source_key, *sorted(control.locked_while_running)]:
         if ref and (ref not in points or points[ref].kind is not Kind.PARAMETER):
             raise ProfileError(source, "control", f"{ref!r} is not a parameter of this profile")
-    return control
+    return _control_source(control, data.get("source_bus_codes"), points, source)
+
+
+def _control_source(
+    control: ControlTraits, codes: object, points: Mapping[str, PointDef], source: str
+) -> ControlTraits:
+    """``source_key`` and ``source_bus_codes`` come together: the codes are values of the key's enum."""
+    where = "control.source_bus_codes"
+    if not control.source_key:
+        if codes is not None:
+            raise ProfileError(source, where, "given without control.source_key")
+        return control
+    if not isinstance(codes, list) or not codes or not all(is_int(c) for c in codes):
+        raise ProfileError(source, where, f"{shown(codes)} is not a non-empty list of codes that let the bus command")
+    point = points[control.source_key]
+    for code in codes:
+        if point.enum is None or code not in point.enum.labels:
+            raise ProfileError(source, where, f"{code} is not a code of {control.source_key}")
+    return replace(control, source_bus_codes=tuple(codes))
 
 
 def _roles(data: Mapping[str, Any], points: Mapping[str, PointDef], source: str) -> dict[str, Any]:

@@ -8,6 +8,7 @@ from starterbus.aio import RemoteNotAllowed
 from starterbus.core.errors import (
     RemoteDeviceError,
     StarterbusError,
+    StateRuleError,
     TimeoutError,
     TransportError,
     UnsupportedOperationError,
@@ -17,7 +18,6 @@ from starterbus.core.guarded import (
     CommandNotReached,
     ConfirmationRefused,
     ReadBackMismatch,
-    StateRuleError,
     UncertainValueError,
 )
 

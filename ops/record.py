@@ -17,6 +17,7 @@ from starterbus.core.device import Device
 from starterbus.core.errors import StarterbusError, UnsupportedOperationError
 from starterbus.core.model import PointDef
 from starterbus.core.status import Command, MotorState, Status
+from starterbus.core.timestamps import iso_time
 from starterbus.core.transport import Capability
 from starterbus.ops.history import HistoryStore
 
@@ -150,8 +151,9 @@ def write_csv(rec: Recording, path: str | Path) -> None:
         out = csv.writer(f)
         out.writerow(["t_s", "time", "state", "fault_code", *(f"current_{p}_A" for p in PHASES)])
         for p in rec.points:
-            stamp = time.strftime("%Y-%m-%dT%H:%M:%S", time.gmtime(p.time)) + f".{int(p.time % 1 * 1000):03d}Z"
-            out.writerow([f"{p.t:.4f}", stamp, p.state, p.fault_code or "", *(p.currents.get(x, "") for x in PHASES)])
+            out.writerow(
+                [f"{p.t:.4f}", iso_time(p.time), p.state, p.fault_code or "", *(p.currents.get(x, "") for x in PHASES)]
+            )
 
 
 def write_db(rec: Recording, path: str | Path) -> int:

@@ -29,6 +29,7 @@ from starterbus.core.audit import AuditLog
 from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
+from starterbus.core.timestamps import parse_iso_time
 from starterbus.core.url import DeviceUrl
 from starterbus.fleet.config import FleetConfig
 from starterbus.fleet.poller import Sample
@@ -210,7 +211,7 @@ class HistoryRecorder:
 def _audit_time(entry: Mapping[str, object]) -> float:
     text = str(entry.get("time", ""))
     try:
-        return time.mktime(time.strptime(text[:19], "%Y-%m-%dT%H:%M:%S")) if text else time.time()
+        return parse_iso_time(text) if text else time.time()  # the zone it was written with
     except ValueError:
         return time.time()
 

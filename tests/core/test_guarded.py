@@ -13,13 +13,12 @@ import pytest
 
 from starterbus.core.audit import AuditLog
 from starterbus.core.device import open_device
-from starterbus.core.errors import RemoteDeviceError, ValidationError
+from starterbus.core.errors import RemoteDeviceError, StateRuleError, ValidationError
 from starterbus.core.guarded import (
     CommandNotReached,
     ConfirmationRefused,
     Proposal,
     ReadBackMismatch,
-    StateRuleError,
     UncertainValueError,
 )
 from starterbus.core.model import PointDef
@@ -52,6 +51,14 @@ class DeafToStart(SimulatedStarter):
         return False
 
 
+class TripsOnStart(SimulatedStarter):
+    """Trips (overheat) the moment it is started."""
+
+    def start(self, why: str = "start command") -> bool:
+        self.inject_fault(2)
+        return False
+
+
 class Sticky(SimulatedStarter):
     def write(self, point: PointDef, raw: int) -> None:
         if point.key != "ramp_time":
@@ -61,7 +68,13 @@ class Sticky(SimulatedStarter):
 @pytest.fixture
 def line() -> Iterator[Line]:
     j5, j8 = get_profile("jjr5000"), get_profile("jjr8000")
-    starters = {2: SimulatedStarter(j5), 3: SimulatedStarter(j8), 4: DeafToStart(j5), 5: Sticky(j5)}
+    starters = {
+        2: SimulatedStarter(j5),
+        3: SimulatedStarter(j8),
+        4: DeafToStart(j5),
+        5: Sticky(j5),
+        6: TripsOnStart(j5),
+    }
     line = Line(starters)
     try:
         yield line
@@ -195,9 +208,19 @@ def test_a_command_not_reached_fails_and_says_so(line: Line, tmp_path: Path) -> 
 
 
 def test_a_start_that_trips_is_not_a_success(line: Line) -> None:
-    line.starters[2].inject_fault(2)
-    with open_device(line.url(2), "jjr5000") as dev, pytest.raises(CommandNotReached, match="tripped: fault 2"):
+    with open_device(line.url(6), "jjr5000") as dev, pytest.raises(CommandNotReached, match="tripped: fault 2"):
         dev.start(timeout=1)
+
+
+def test_a_start_on_a_faulted_starter_is_refused_before_any_frame(line: Line, tmp_path: Path) -> None:
+    line.starters[2].inject_fault(2)
+    log = tmp_path / "a.jsonl"
+    with open_device(line.url(2), "jjr5000", audit=AuditLog(log)) as dev:
+        line.functions.clear()
+        with pytest.raises(StateRuleError, match=r"faulted \(fault 2: overheat\); reset the fault first.*nothing sent"):
+            dev.start(force=True)  # no override for this one
+    assert 6 not in line.functions and line.starters[2].control_word == 0
+    assert str(entries(log)[-1]["result"]).startswith("refused: ")
 
 
 def test_validation_errors_send_nothing(line: Line) -> None:
