@@ -17,7 +17,7 @@ from starterbus.cli.target import recorded_name
 from starterbus.core.audit import AuditLog
 from starterbus.core.device import open_device
 from starterbus.core.errors import ConfigurationError
-from starterbus.core.timestamps import iso_time
+from starterbus.core.timestamps import iso_time, parse_iso_time
 from starterbus.ops.history import EVENT_COLUMNS, SAMPLE_COLUMNS, HistoryStore
 
 _RELATIVE = re.compile(r"(\d+(?:\.\d+)?)\s*(s|m|h|d|w)")
@@ -66,7 +66,8 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted
 
 
 def parse_time(text: str | None, now: float | None = None) -> float | None:
-    """An absolute local time (ISO 8601) or an age before now (``10m``, ``2h``, ``1d``)."""
+    """An ISO 8601 time (local without a zone, as the JSON and CSV print it with one) or an age before now
+    (``10m``, ``2h``, ``1d``)."""
     if text is None:
         return None
     now = time.time() if now is None else now
@@ -74,7 +75,7 @@ def parse_time(text: str | None, now: float | None = None) -> float | None:
     if match:
         return now - float(match.group(1)) * _UNITS[match.group(2)]
     try:
-        return datetime.fromisoformat(text.strip()).timestamp()
+        return parse_iso_time(text)
     except ValueError:
         raise ConfigurationError(f"{text!r} is neither a time (2026-11-23T08:00) nor an age (10m, 2h, 1d)") from None
 

@@ -248,3 +248,13 @@ def test_deadband_per_key_and_unknown_keys() -> None:
     assert by_name["Measurements/phase_b_current"].deadband == 0
     with pytest.raises(ConfigurationError, match="no device of f.toml publishes ramp_time"):
         EdgeSession.for_fleet(config, SessionOptions("g", "n"), deadband_per_key={"ramp_time": 2})
+
+
+def test_primary_host_offline_before_the_births_walks_only_with_several_servers() -> None:
+    one, several = session(primary_host="scada"), session(primary_host="scada", servers=2)
+    for s in (one, several):
+        s.on_sample(sample(T0), T0)
+        assert connect(s, T0) == []
+    assert one.on_message("spBv1.0/STATE/scada", state(False, 5), T0) == []  # one server: wait for it there
+    out = several.on_message("spBv1.0/STATE/scada", state(False, 5), T0)
+    assert out == [Reconnect()] and not several.connected  # several: the next server (no NDEATH: never born)
