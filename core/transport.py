@@ -187,6 +187,12 @@ class Transport(ABC):
         its connections may still poll only by blocking (``start_poll`` then gives None)."""
         return cls._start_poll is not Transport._start_poll
 
+    def read_refusal(self, point: PointDef) -> str | None:
+        """Why this connection, as its URL configures it, reads ``point`` only after taking control of the
+        device (None: a read is enough). A fleet leaves such points out of its defaults and refuses them when
+        listed; the default is None."""
+        return None
+
     def describe(self) -> str:
         """Where this transport talks to, for messages: URL and device address."""
         return self.url.text

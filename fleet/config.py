@@ -39,6 +39,7 @@ from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.status import Command
 from starterbus.core.textinput import read_text_file
+from starterbus.core.transport import Transport
 from starterbus.core.url import DeviceUrl
 
 if sys.version_info >= (3, 11):
@@ -256,7 +257,7 @@ def build_fleet(data: Mapping[str, Any], source: str = "<fleet>", lines: _Lines 
             if "url" in dev:
                 raise fail(f"{dwhere}.url", "give address/options; the URL comes from the bus")
             try:  # the transport's own URL parsing: every setting the model cannot speak, named
-                _check_url(url.transport, dev_url, profile)
+                transport = _check_url(url.transport, dev_url, profile)
             except StarterbusError as exc:
                 raise fail(dwhere, str(exc)) from None
             points: dict[str, tuple[str, ...]] = {}
@@ -275,10 +276,14 @@ def build_fleet(data: Mapping[str, Any], source: str = "<fleet>", lines: _Lines 
                             f"{dwhere}.{kind}",
                             f"{k!r} is a {point.kind.value}, list it under {point.kind.value}s",
                         )
+                    refusal = transport.read_refusal(point)
+                    if refusal is not None:
+                        raise fail(f"{dwhere}.{kind}", f"{k!r}: {refusal}")
                     resolved.append(point.key)
                 points[kind] = tuple(resolved)
             if "measurements" not in dev:
-                points["measurements"] = tuple(p.key for p in profile.phase_currents())
+                phases = profile.phase_currents()
+                points["measurements"] = tuple(p.key for p in phases if transport.read_refusal(p) is None)
             remote = _remote(dev.get("remote", {}), profile, f"{dwhere}.remote", fail)
             config = DeviceConfig(
                 name=dname,
@@ -305,12 +310,12 @@ def _url_parameters(transport: str) -> tuple[str | None, str | None]:
     return plugin.address_parameter, plugin.period_parameter
 
 
-def _check_url(transport: str, url: str, profile: Profile) -> None:
+def _check_url(transport: str, url: str, profile: Profile) -> Transport:
     """What opening the device would refuse in its URL, found without opening anything: the plugin builds the
     transport (``TransportPlugin.open`` checks the URL against the model and opens nothing) and it is dropped."""
     from starterbus.core.registry import get_transport
 
-    get_transport(transport).open(DeviceUrl.parse(url), profile)
+    return get_transport(transport).open(DeviceUrl.parse(url), profile)
 
 
 def _device_url(bus: DeviceUrl, param: str | None, address: int | None, options: Mapping[str, Any]) -> str:

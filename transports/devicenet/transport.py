@@ -398,18 +398,26 @@ class DeviceNetTransport(Transport):
         self._retake(scanner, link, strict=True)
         return [self._read_measurement(scanner, link, point) for point in points]
 
+    def read_refusal(self, point: PointDef) -> str | None:
+        """Monitoring (``control=command``) reads the input assembly only: the status and the L1 current."""
+        phases = self.profile.phase_currents()
+        if self.control == "open" or (phases and point.key == phases[0].key):
+            return None
+        return (
+            "the status parameters travel only in the polled I/O connection, whose output assembly also carries "
+            "the run bit; reading never takes control: send a command first in this session, open with "
+            "control=open (refused while the motor runs under another control), or read it over another "
+            "transport; the input assembly (explicit messaging) carries the status and the L1 current"
+        )
+
     def _read_measurement(self, scanner: Scanner, link: SlaveLink, point: PointDef) -> Reading:
         phases = self.profile.phase_currents()
         if not link.polling:
+            refusal = self.read_refusal(point)
+            if refusal is not None:
+                raise self.unsupported(f"read {point.key}", refusal)
             if phases and point.key == phases[0].key:
                 return Reading(point, self._explicit_inputs(scanner, link).current_a, CURRENT_RESOLUTION_A)
-            raise self.unsupported(
-                f"read {point.key}",
-                "the status parameters travel only in the polled I/O connection, whose output assembly also "
-                "carries the run bit; reading never takes control: send a command first in this session, open "
-                "with control=open (refused while the motor runs under another control), or read it over "
-                "another transport; the input assembly (explicit messaging) carries the status and the L1 current",
-            )
         if link.assemblies is AssemblySet.BASIC:
             if phases and point.key == phases[0].key:
                 sample = self._fresh_sample(link, scanner)
