@@ -1,23 +1,33 @@
-"""``--metrics HOST:PORT``: the fleet and the edge node for Prometheus (prometheus-client, collected at scrape).
+"""``--metrics HOST:PORT``: the fleet and the edge node for Prometheus (prometheus-client, collected at scrape),
+and the supervisor's probes ``/healthz`` and ``/readyz`` on the same port.
 
-Per device: online, state (one series per state, 1 for the current one), fault code and every polled value.
-Per line: transactions and offline devices from the poller; requests, retries, timeouts, errors and
-utilisation when the poller counts them (``FleetPoller.line_stats()``: each line's ``wire`` counters and
-``utilisation``; else same-named attributes of the bus workers). A poller without them: those series are absent.
+Per device: online, state (one series per state, 1 for the current one), fault code, every polled value and the
+age of its last good poll. Per line: transactions and offline devices from the poller; requests, retries,
+timeouts, errors and utilisation when the poller counts them (``FleetPoller.line_stats()``: each line's ``wire``
+counters and ``utilisation``; else same-named attributes of the bus workers). A poller without them: those series
+are absent. Also ``starterbus_build_info`` and the client library's process and platform collectors.
 """
 
 from __future__ import annotations
 
+import json
+import math
+import platform
+import socket
 import threading
-from collections.abc import Iterator
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Iterable, Iterator
+from socketserver import ThreadingMixIn
+from typing import TYPE_CHECKING, Any
+from wsgiref.simple_server import WSGIRequestHandler, WSGIServer, make_server
 
-from prometheus_client import CollectorRegistry, start_http_server
-from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
+from prometheus_client import CollectorRegistry, PlatformCollector, ProcessCollector, make_wsgi_app
+from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, InfoMetricFamily, Metric
 from prometheus_client.registry import Collector
 
+import starterbus
 from starterbus.core.status import MotorState
 from starterbus.core.textinput import listen_error, parse_host_port
+from starterbus.fleet.health import PollHealth
 from starterbus.fleet.poller import FleetPoller, Sample
 
 if TYPE_CHECKING:
@@ -42,9 +52,16 @@ class FleetCollector(Collector):
         with self._lock:
             self._latest[sample.device] = sample
 
-    def collect(self) -> Iterator[Metric]:
+    def _samples(self) -> list[Sample]:
+        """The latest sample of each device: the poller's own (``poll``, ``opcua``), else those observed."""
+        runtimes = getattr(self.poller, "runtimes", None)
+        if callable(runtimes):
+            return [r.last_sample for r in runtimes() if r.last_sample is not None]
         with self._lock:
-            samples = list(self._latest.values())
+            return list(self._latest.values())
+
+    def collect(self) -> Iterator[Metric]:
+        samples = self._samples()
         online = GaugeMetricFamily(
             "starterbus_device_online", "1 if the device answered its last poll", labels=["device", "line", "model"]
         )
@@ -65,8 +82,27 @@ class FleetCollector(Collector):
             for key, v in s.values.items():
                 value.add_metric([s.device, key, v.unit], float(v.value))
         yield from (online, state, fault, value)
+        yield from self._ages()
         yield from self._lines(samples)
         yield from self._node()
+        yield InfoMetricFamily(
+            "starterbus_build", "starterbus version", value={"version": starterbus.__version__, "python": _PYTHON}
+        )
+
+    def _ages(self) -> Iterator[Metric]:
+        poller = self.poller
+        runtimes = getattr(poller, "runtimes", None)
+        if poller is None or not callable(runtimes):
+            return
+        age = GaugeMetricFamily(
+            "starterbus_device_last_good_poll_age_seconds",
+            "seconds since the device last answered a poll (+Inf: not since the start)",
+            labels=["device"],
+        )
+        now = poller.clock()
+        for r in runtimes():
+            age.add_metric([r.config.name], now - r.last_ok if r.last_ok is not None else math.inf)
+        yield age
 
     def _lines(self, samples: list[Sample]) -> Iterator[Metric]:
         poller = self.poller
@@ -130,15 +166,68 @@ class FleetCollector(Collector):
         )
 
 
-def start_metrics_server(address: str, collector: FleetCollector, *more: Collector) -> tuple[str, int, object]:
-    """Serve ``/metrics`` on ``HOST:PORT`` (port 0: any free port); returns the host, the port and the server.
-    ``more``: other collectors served beside (the service's own health)."""
+_PYTHON = platform.python_version()
+Respond = Callable[[str, list[tuple[str, str]]], Any]
+App = Callable[[dict[str, Any], Respond], Iterable[bytes]]
+
+
+def health_app(metrics: App, health: PollHealth | None) -> App:
+    """``/healthz`` (the process answers: 200), ``/readyz`` (200 while ready, else 503; a JSON body says why), and
+    on every other path the metrics (prometheus-client's application)."""
+
+    def app(environ: dict[str, Any], respond: Respond) -> Iterable[bytes]:
+        path = environ.get("PATH_INFO", "")
+        if path not in ("/healthz", "/readyz"):
+            return metrics(environ, respond)
+        body: dict[str, object] = {"alive": True}
+        code = "200 OK"
+        if path == "/readyz":
+            body = health.check().as_json() if health is not None else {"ready": True, "reason": "polling"}
+            code = "200 OK" if body["ready"] else "503 Service Unavailable"
+        data = (json.dumps(body) + "\n").encode()
+        respond(code, [("Content-Type", "application/json"), ("Content-Length", str(len(data)))])
+        return [data]
+
+    return app
+
+
+class _QuietHandler(WSGIRequestHandler):
+    def log_message(self, format: str, *args: Any) -> None:
+        pass
+
+
+class MetricsServer:
+    """The HTTP server of ``--metrics`` in a thread of its own (one more per request); :meth:`close` stops it."""
+
+    def __init__(self, host: str, port: int, app: App) -> None:
+        class Server(ThreadingMixIn, WSGIServer):
+            daemon_threads = True
+            address_family = socket.AF_INET6 if ":" in host else socket.AF_INET
+
+        self.server = make_server(host, port, app, Server, _QuietHandler)
+        self.port = int(self.server.server_address[1])
+        self.thread = threading.Thread(target=self.server.serve_forever, name="metrics-http", daemon=True)
+        self.thread.start()
+
+    def close(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
+def start_metrics_server(
+    address: str, collector: FleetCollector, *more: Collector, health: PollHealth | None = None
+) -> tuple[str, int, MetricsServer]:
+    """Serve ``/metrics``, ``/healthz`` and ``/readyz`` on ``HOST:PORT`` (port 0: any free port); returns the
+    host, the port and the server. ``more``: other collectors served beside (the service's own health);
+    ``health``: what ``/readyz`` reports (none: ready while the process answers)."""
     host, port = parse_host_port(address, option="--metrics")
     registry = CollectorRegistry(auto_describe=False)
     for each in (collector, *more):
         registry.register(each)
+    ProcessCollector(registry=registry)
+    PlatformCollector(registry=registry)
     try:
-        server, _thread = start_http_server(port, host, registry)
+        server = MetricsServer(host, port, health_app(make_wsgi_app(registry), health))
     except OSError as exc:
         raise listen_error("--metrics", host, port, exc) from None
-    return host, int(server.server_address[1]), server
+    return host, server.port, server
