@@ -30,10 +30,12 @@ CREATE TABLE IF NOT EXISTS history (
     id INTEGER PRIMARY KEY, device TEXT NOT NULL, ts INTEGER NOT NULL, size INTEGER NOT NULL, ddata TEXT NOT NULL
 );
 CREATE INDEX IF NOT EXISTS history_ts ON history (ts);
-CREATE TABLE IF NOT EXISTS counters (name TEXT PRIMARY KEY, value INTEGER NOT NULL);
-INSERT OR IGNORE INTO counters VALUES ('buffered', 0), ('delivered', 0), ('dropped', 0);
+CREATE TABLE IF NOT EXISTS counters (
+    one INTEGER PRIMARY KEY CHECK (one = 1), buffered INTEGER NOT NULL, delivered INTEGER NOT NULL,
+    dropped INTEGER NOT NULL
+);
+INSERT OR IGNORE INTO counters VALUES (1, 0, 0, 0);
 """
-_COUNTERS = ("buffered", "delivered", "dropped")
 
 
 def default_buffer_file(state_file: Path) -> Path:
@@ -63,8 +65,8 @@ class SqliteStore:
         self.path = path
         self.bounds = bounds
         self.failing: str | None = None  # the last write failure, until a write succeeds again
-        counters = dict(db.execute("SELECT name, value FROM counters").fetchall())
-        self.buffered, self.delivered, self.dropped = (int(counters.get(n, 0)) for n in _COUNTERS)
+        row = db.execute("SELECT buffered, delivered, dropped FROM counters").fetchone()
+        self.buffered, self.delivered, self.dropped = (int(v) for v in row)
         self._pending: Counter[str] = Counter()
         self._count = self._size = 0
         self._load_rows()
@@ -96,6 +98,11 @@ class SqliteStore:
 
     def __len__(self) -> int:
         return self._count
+
+    @property
+    def size(self) -> int:
+        """Bytes of stored records (what ``Bounds.size`` bounds; the file is larger, see docs/serve.md)."""
+        return self._size
 
     def pending(self) -> Mapping[str, int]:
         return self._pending
@@ -139,9 +146,9 @@ class SqliteStore:
         try:
             self.db.execute("BEGIN IMMEDIATE")
             work()
-            self.db.executemany(
-                "UPDATE counters SET value = ? WHERE name = ?",
-                ((self.buffered, "buffered"), (self.delivered, "delivered"), (self.dropped, "dropped")),
+            self.db.execute(
+                "UPDATE counters SET buffered = ?, delivered = ?, dropped = ?",
+                (self.buffered, self.delivered, self.dropped),
             )
             self.db.execute("COMMIT")
         except sqlite3.Error as exc:
