@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import csv
 import re
+import shlex
 import sys
 import time
 from datetime import datetime
@@ -16,12 +17,13 @@ from starterbus.cli.output import emit_json, table
 from starterbus.cli.target import recorded_name
 from starterbus.core.audit import AuditLog
 from starterbus.core.device import open_device
-from starterbus.core.errors import ConfigurationError
+from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.timestamps import iso_time, parse_iso_time
 from starterbus.ops.history import EVENT_COLUMNS, SAMPLE_COLUMNS, HistoryStore
 
 _RELATIVE = re.compile(r"(\d+(?:\.\d+)?)\s*(s|m|h|d|w)")
 _UNITS = {"s": 1, "m": 60, "h": 3600, "d": 86400, "w": 604800}
+FORCE_HELP = "start even though the starter is controlled from elsewhere (keypad, terminals, another master)"
 _DEVICE_HELP = "{}: its name in the database (a fleet file's device name), or a fleet device's URL"
 
 
@@ -49,7 +51,9 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted
     p.add_argument("--limit", type=float, default=60.0, metavar="S", help="stop after S seconds (default 60)")
     p.add_argument("--settle", type=float, default=1.0, metavar="S", help="keep recording S s after running")
     p.add_argument("--name", help="the device name in the database (default: the device name, else the URL)")
+    p.add_argument("--no-plot", action="store_true", help="CSV and starts.db only (no matplotlib needed)")
     p.add_argument("--yes", "-y", action="store_true", help="start without asking (required without a terminal)")
+    p.add_argument("--force", action="store_true", help=FORCE_HELP)
     p.add_argument("--audit-log", metavar="PATH", default=None, help="the JSON-lines audit log (see `write`)")
     p.set_defaults(handler=cmd_record)
 
@@ -132,21 +136,37 @@ def _cell(value: Any) -> Any:
 
 
 def cmd_record(args: argparse.Namespace) -> int:
-    from starterbus.ops.record import record_start, write_all
+    from starterbus.ops.extras import require
+    from starterbus.ops.record import prepare_output, record_start, write_all
 
+    if not args.no_plot:  # every precondition before the device is opened, let alone started
+        require("plot", "record's PNG plot (--no-plot: CSV and starts.db only)")
+    folder = prepare_output(args.output)
     device = open_device(
         args.url, args.model, audit=AuditLog(args.audit_log), actor=f"cli:{_user()}", confirm=prompt_hook(args)
     )
-    with device:
-        if not args.json:
-            what = "starting" if args.start else "waiting for the next start of"
-            print(f"{what} {device.describe()}; recording up to {args.limit:g} s", file=sys.stderr)
-        name = args.name or getattr(args, "device_name", None)
-        rec = record_start(device, start=args.start, limit=args.limit, settle=args.settle, name=name)
+    try:
+        with device:
+            name = args.name or getattr(args, "device_name", None)
+            rec = record_start(
+                device,
+                start=args.start,
+                limit=args.limit,
+                settle=args.settle,
+                name=name,
+                force=args.force,
+                announce=lambda: _announce(args, device.describe()),
+            )
+    except (StarterbusError, KeyboardInterrupt):
+        if args.start and any(o.result not in ("not sent", "refused") for o in device.guard.last_outcomes):
+            outcome = device.guard.last_outcomes[-1]
+            _motor_note(args, device.describe(), outcome.reached.state.value if outcome.reached else None)
+        raise
     if not rec.points:
         raise ConfigurationError(f"nothing recorded: {rec.ended}")
-    paths = write_all(rec, args.output)
+    saved = write_all(rec, folder, plot=not args.no_plot)
     peak = max(((p.t, a) for p in rec.points for a in p.currents.values()), key=lambda x: x[1], default=None)
+    ok = rec.ended == "running" and not saved.errors
     summary = {
         "device": rec.device,
         "samples": len(rec.points),
@@ -155,7 +175,8 @@ def cmd_record(args: argparse.Namespace) -> int:
         "peak_a": peak[1] if peak else None,
         "peak_at_s": peak[0] if peak else None,
         "current_limit_a": rec.limit_a,
-        "files": {k: str(v) for k, v in paths.items()},
+        "files": {k: str(v) for k, v in saved.files.items()},
+        "not_saved": saved.errors,
     }
     if args.json:
         emit_json(summary)
@@ -165,12 +186,39 @@ def cmd_record(args: argparse.Namespace) -> int:
         if peak:
             limit = f" (current limit {rec.limit_a:.1f} A)" if rec.limit_a is not None else ""
             print(f"peak {peak[1]:.1f} A at {peak[0]:.2f} s{limit}")
-        for kind, path in paths.items():
+        for kind, path in saved.files.items():
             print(f"{kind}: {path}")
-    return 0 if rec.ended == "running" else 1
+    for why in saved.errors.values():
+        print(f"starterbus: error: not saved: {why}", file=sys.stderr)
+    if rec.commanded and not ok:
+        _motor_note(args, rec.device, rec.state_at_end())
+    return 130 if rec.ended.startswith("interrupted") else 0 if ok else 1
+
+
+def _announce(args: argparse.Namespace, device: str) -> None:
+    if not args.json:
+        what = "starting" if args.start else "waiting for the next start of"
+        print(f"{what} {device}; recording up to {args.limit:g} s", file=sys.stderr)
+
+
+def _motor_note(args: argparse.Namespace, device: str, state: str | None) -> None:
+    """After a failure, the motor this command started: whether it runs, and the command that stops it."""
+    if state == "fault":  # tripped: the motor is off, and a reset clears the run command
+        return
+    target = getattr(args, "device_name", None) or args.url
+    stop = f"starterbus stop {shlex.quote(target)}" + ("" if target != args.url else f" --model {args.model}")
+    if state in ("ready", "stopped"):
+        print(f"starterbus: {device} is {state}, but the start this command sent may still be set; clear it with: "
+              f"{stop}", file=sys.stderr)  # fmt: skip
+        return
+    now = f"is {state}" if state in ("starting", "running", "stopping") else "may be running"
+    print(f"starterbus: the motor of {device} {now} (this command started it); stop it with: {stop}", file=sys.stderr)
 
 
 def cmd_plot(args: argparse.Namespace) -> int:
+    from starterbus.ops.extras import require
+
+    require("plot", "plot")
     from starterbus.ops.plot import plot_event
 
     device = recorded_name(args.device, args.fleet)
