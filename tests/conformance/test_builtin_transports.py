@@ -7,9 +7,6 @@ import itertools
 import os
 from collections.abc import Iterator
 
-import pytest
-
-from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.testing import TransportConformance
 
@@ -65,7 +62,3 @@ class TestDeviceNet(TransportConformance):
         with DeviceNetSimulator(("virtual", channel), dup_mac_wait=0.05) as sim:
             sim.add_node(starter, 5)
             yield f"devicenet://virtual/{channel}?mac=5&assemblies=extended&dup_mac_wait=0.05&timeout=1"
-
-    @pytest.mark.xfail(strict=True, reason="issue 25: DeviceNet reads allocate the polled I/O connection (being fixed)")
-    def test_reads_never_actuate(self, url: str, profile: Profile, starter: SimulatedStarter) -> None:
-        super().test_reads_never_actuate(url, profile, starter)
