@@ -16,6 +16,7 @@ if TYPE_CHECKING:
     from starterbus.core.canbus import check_peer, open_bus, parse_bus_spec
     from starterbus.core.canbus import shutdown as shutdown_bus
     from starterbus.core.canframe import CanFrame, annotate_candump, parse_candump
+    from starterbus.core.control_log import ControlWrite
     from starterbus.core.device import Device, open_device
     from starterbus.core.errors import (
         ChecksumError,
@@ -120,6 +121,7 @@ _LAZY = {
     "get_profile": "starterbus.core.registry",
     "get_transport": "starterbus.core.registry",
     "ManualClock": "starterbus.core.simulator",
+    "ControlWrite": "starterbus.core.control_log",
     "SimulatedStarter": "starterbus.core.simulator",
     "Command": "starterbus.core.status",
     "ControlWordState": "starterbus.core.status",
@@ -192,6 +194,7 @@ __all__ = [
     "ConfirmationRefused",
     "ControlSourceError",
     "ControlWordState",
+    "ControlWrite",
     "DecodeError",
     "Device",
     "DeviceUrl",
