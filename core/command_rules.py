@@ -41,7 +41,7 @@ if TYPE_CHECKING:
 #: the states in which a motor is being driven by whoever holds its control
 _MOVING = frozenset({MotorState.STARTING, MotorState.RUNNING, MotorState.STOPPING})
 _HAND_OVER = frozenset({Command.TAKE_BUS_CONTROL, Command.RELEASE_BUS_CONTROL})
-OVERRIDE_HINT = "send it anyway with --force (API: force=True) only if that control lets go"
+OVERRIDE_HINT = "override (CLI --force, API force=True; never from remote callers) only if that control lets go"
 
 
 def source_parameter(device: Device) -> str | None:

@@ -62,7 +62,9 @@ def test_backup_diff_restore_diff(
 
     assert main(["diff", str(file_a), b, "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["equal"] is True
-    assert main(["diff", "defaults", str(file_a)]) == 0  # A was at the profile's defaults
+    assert main(["diff", "defaults", str(file_a), "--json"]) == 1  # A is at the profile's defaults, but for its
+    differences = json.loads(capsys.readouterr().out)["differences"]  # commissioning for the bus
+    assert [(d["key"], d["raw_a"], d["raw_b"]) for d in differences] == [("control_source", 0, 4)]
 
 
 def test_restore_puts_the_lock_back_last(line: Line, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
