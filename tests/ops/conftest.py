@@ -2,7 +2,8 @@
 
 Units 2 and 3 are JJR5000 with different parameters (A at the profile's defaults but for control_source, as
 every simulated starter is commissioned for the bus; B changed, with its parameter-modify lock ON), unit 4 an
-SSD1, unit 5 a JJR8000 (parameters locked while running, uncertain scales). The starters run on a clock 20 times faster than the wall clock, so a 10 s ramp takes half a second.
+SSD1, unit 5 a JJR8000 (parameters locked while running, uncertain scales). The starters run on a clock 20
+times faster than the wall clock, so a 10 s ramp takes half a second.
 """
 
 from __future__ import annotations
