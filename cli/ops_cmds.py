@@ -10,7 +10,7 @@ from starterbus.cli.device_cmds import _show_outcomes, _user, prompt_hook, show_
 from starterbus.cli.output import emit_json, table
 from starterbus.core.audit import AuditLog
 from starterbus.core.device import open_device
-from starterbus.core.errors import StarterbusError
+from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.guarded import GuardedOperationError
 from starterbus.core.outfiles import check_target
 from starterbus.ops import backup as backups
@@ -24,7 +24,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
 
     p = sub.add_parser("backup", help="save every readable parameter of a device to an editable TOML file")
     _device_args(p)
-    p.add_argument("-o", "--output", required=True, metavar="FILE", help="the backup file to write (TOML)")
+    p.add_argument("-o", "--output", required=True, metavar="FILE", help="the backup file to write (TOML); - = stdout")
     p.add_argument("--force", action="store_true", help="replace FILE if it exists (default: refuse)")
     p.set_defaults(handler=cmd_backup)
 
@@ -53,9 +53,17 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
 
 
 def cmd_backup(args: argparse.Namespace) -> int:
-    check_target(args.output, force=args.force, what="backup file")  # before the device is opened
+    to_stdout = args.output == "-"
+    if to_stdout and args.json:
+        raise ConfigurationError("-o - and --json both write to standard output: give one of them")
+    if not to_stdout:
+        check_target(args.output, force=args.force, what="backup file")  # before the device is opened
     with open_device(args.url, args.model) as device:
         taken = backups.take_backup(device)
+    if to_stdout:
+        sys.stdout.write(backups.dumps(taken, device.profile))
+        print(f"{len(taken.parameters)} parameters of {device.describe()} written to stdout", file=sys.stderr)
+        return 0
     backups.save(taken, device.profile, args.output, replace=args.force)
     if args.json:
         emit_json({"device": args.url, "model": taken.model, "file": args.output, "parameters": len(taken.parameters)})

@@ -12,6 +12,7 @@ from starterbus.cli.output import emit_json_line, paint, table, use_colour
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
 from starterbus.core.status import MotorState, Status
+from starterbus.core.timestamps import iso_time
 from starterbus.core.transport import Capability
 from starterbus.ops.faults import value_text
 
@@ -52,7 +53,7 @@ def cmd_watch(args: argparse.Namespace) -> int:
                 emit_json_line(
                     {
                         "device": args.url,
-                        "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+                        "time": iso_time(status.timestamp if status else None),
                         "status": status.as_json() if status else None,
                         "values": values,
                         "error": error,

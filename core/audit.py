@@ -6,8 +6,9 @@ import getpass
 import json
 import os
 import threading
-import time
 from pathlib import Path
+
+from starterbus.core.timestamps import iso_time
 
 ENV_VAR = "STARTERBUS_AUDIT_LOG"
 
@@ -28,7 +29,7 @@ class AuditLog:
 
     def append(self, **record: object) -> dict[str, object]:
         entry: dict[str, object] = {
-            "time": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+            "time": iso_time(),
             "user": _user(),
             **record,
         }

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 from starterbus.core.model import Label, Value
+from starterbus.core.timestamps import iso_time
 
 if TYPE_CHECKING:
     from starterbus.core.profile import Profile
@@ -136,7 +137,7 @@ class Status:
             "raw": {k: f"0x{v:04X}" for k, v in self.raw.items()},
             "unknown_bits": f"0x{self.unknown_bits:04X}",
             "source": self.source,
-            "timestamp": self.timestamp,
+            "timestamp": iso_time(self.timestamp),
         }
 
 

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 from starterbus.core.model import Value
 from starterbus.core.status import Status
+from starterbus.core.timestamps import iso_time
 from starterbus.core.transport import TransportCounters
 
 
@@ -31,7 +32,7 @@ class Sample:
             "device": self.device,
             "bus": self.bus,
             "model": self.model,
-            "time": round(self.time, 3),
+            "time": iso_time(self.time),
             "online": self.online,
             "status": self.status.as_json() if self.status else None,
             "values": {

@@ -14,7 +14,6 @@ import dataclasses
 import hashlib
 import json
 import sys
-import time
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +26,7 @@ from starterbus.core.outfiles import write_atomically
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.textinput import read_text_file
+from starterbus.core.timestamps import iso_time
 from starterbus.core.transport import Capability
 from starterbus.ops.faults import is_fault_code, value_text
 
@@ -101,7 +101,7 @@ def take_backup(device: Device) -> Backup:
     return Backup(
         model=profile.name,
         parameters={k: Entry(k, v.raw, value_text(profile, v)) for k, v in values.items()},
-        taken=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        taken=iso_time(),
         transport=transport.name,
         url=transport.url.text,
         identity=identity,
