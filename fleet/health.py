@@ -8,7 +8,7 @@ fleet's ``max_backoff``, plus :data:`STALL_MARGIN` for one slow poll), unless th
 The service is **ready** once every device was polled once, while no bus is stalled and every extra check (a
 broker connection, for ``serve``) passes. :class:`Watchdog` tells systemd: ``READY=1`` after the first round,
 ``WATCHDOG=1`` every half ``WatchdogSec`` only while no bus is stalled (so systemd restarts a hung service),
-``STATUS=`` lines when the summary changes, ``STOPPING=1`` at the end.
+``STATUS=`` lines when the summary changes, ``STOPPING=1`` when the poller stops (:func:`notify_systemd`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 from starterbus.fleet.config import FleetConfig
@@ -133,6 +133,7 @@ class Watchdog:
         self.ticks = 0
         self._ticked = threading.Condition()
         self._stop = threading.Event()
+        self._stopped = False
         self._thread = threading.Thread(target=self._run, name="systemd-notify", daemon=True)
 
     def start(self) -> Watchdog:
@@ -162,8 +163,15 @@ class Watchdog:
             with self._ticked:
                 self.ticks += 1
                 self._ticked.notify_all()
-            if self._stop.wait(self.tick):
-                return
+            if self._stop.wait(self.tick) or self.health.poller.stopping.is_set():
+                break
+        self._stopping()
+
+    def _stopping(self) -> None:
+        if not self._stopped:
+            self._stopped = True
+            self.notifier.notify("STOPPING=1", "STATUS=stopping")
+            self.notifier.close()
 
     def wait_ticks(self, count: int, timeout: float) -> bool:
         """Wait until the thread has looked ``count`` more times (tests: an observable instead of a sleep)."""
@@ -172,15 +180,21 @@ class Watchdog:
             return self._ticked.wait_for(lambda: self.ticks >= target, timeout)
 
     def stop(self) -> None:
-        """``STOPPING=1``: the service is shutting down (systemd then expects no more pings)."""
+        """``STOPPING=1``: the service is shutting down (systemd then expects no more pings); also sent by the
+        thread itself once the poller stops."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join()
-        self.notifier.notify("STOPPING=1", "STATUS=stopping")
-        self.notifier.close()
+        self._stopping()
 
     def __enter__(self) -> Watchdog:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
+
+
+def notify_systemd(poller: FleetPoller, environ: Mapping[str, str] | None = None) -> Watchdog:
+    """Tell systemd about ``poller`` from now until it stops, when systemd listens (``$NOTIFY_SOCKET``; else
+    nothing runs): ``READY=1`` after the first round, ``WATCHDOG=1`` while its polls progress, ``STOPPING=1``."""
+    return Watchdog(PollHealth(poller), SystemdNotifier.from_environment(environ)).start()

@@ -214,13 +214,24 @@ class MetricsServer:
         self.server.server_close()
 
 
+def _health_of(collector: FleetCollector) -> PollHealth | None:
+    poller, session = collector.poller, collector.session
+    if not isinstance(poller, FleetPoller):
+        return None
+    if session is None:
+        return PollHealth(poller)
+    return PollHealth(poller, checks=[lambda: None if session.connected else "not connected to a broker"])
+
+
 def start_metrics_server(
     address: str, collector: FleetCollector, *more: Collector, health: PollHealth | None = None
 ) -> tuple[str, int, MetricsServer]:
     """Serve ``/metrics``, ``/healthz`` and ``/readyz`` on ``HOST:PORT`` (port 0: any free port); returns the
     host, the port and the server. ``more``: other collectors served beside (the service's own health);
-    ``health``: what ``/readyz`` reports (none: ready while the process answers)."""
+    ``health``: what ``/readyz`` reports (by default the collector's poller, and for ``serve`` its broker
+    connection)."""
     host, port = parse_host_port(address, option="--metrics")
+    health = health if health is not None else _health_of(collector)
     registry = CollectorRegistry(auto_describe=False)
     for each in (collector, *more):
         registry.register(each)

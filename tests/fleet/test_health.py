@@ -20,9 +20,10 @@ from starterbus.core.registry import get_profile
 from starterbus.core.transport import PollResult
 from starterbus.core.url import DeviceUrl
 from starterbus.fleet.config import parse_fleet
-from starterbus.fleet.health import PollHealth, Watchdog, default_stall_after
+from starterbus.fleet.health import PollHealth, Watchdog, default_stall_after, notify_systemd
 from starterbus.fleet.poller import FleetPoller
 from starterbus.fleet.sdnotify import SystemdNotifier
+from starterbus.testing.conformance import wait_until
 from starterbus.tests.stub_transport import StubTransport
 
 WAIT = 20.0
@@ -202,3 +203,15 @@ def test_the_notifier_outside_systemd_and_with_a_socket_path(tmp_path: Path) -> 
         notifier.close()
     finally:
         directory.rmdir()
+
+
+def test_notify_systemd_follows_the_poller_until_it_stops(rig: Rig, listener: Listener) -> None:
+    """What the commands call once their poller runs: nothing to stop by hand, STOPPING=1 once the poller stops."""
+    rig.poller.start()
+    watchdog = notify_systemd(rig.poller, {"NOTIFY_SOCKET": listener.address, "WATCHDOG_USEC": "200000"})
+    listener.until("READY=1")
+    listener.until("WATCHDOG=1")
+    rig.poller.stop()
+    listener.until("STOPPING=1")
+    assert wait_until(lambda: not watchdog._thread.is_alive(), WAIT)
+    assert not notify_systemd(rig.poller, {})._thread.is_alive(), "outside systemd no thread runs"
