@@ -111,7 +111,8 @@ class SqliteStore:
         names = [d for d in devices if self._pending.get(d)]
         if not names:
             return []
-        query, params = "SELECT id, device, ddata FROM history", [limit]
+        query = "SELECT id, device, ddata FROM history"
+        params: list[object] = [limit]
         if len(names) < len(self._pending):
             query += f" WHERE device IN ({','.join('?' * len(names))})"
             params = [*names, limit]
