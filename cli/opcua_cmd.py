@@ -51,6 +51,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
         "--locale", choices=["en", "zh"], default="en", help="language of display names (the other: descriptions)"
     )
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
+    p.add_argument(
+        "--metrics",
+        metavar="HOST:PORT",
+        help="Prometheus endpoint and health probes (/healthz, /readyz), e.g. 127.0.0.1:9478",
+    )
     p.add_argument("--json", action="store_true", help="one JSON line when the server is up (endpoint, devices...)")
     p.set_defaults(handler=cmd_opcua)
 
@@ -126,6 +131,7 @@ async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace
     stop = asyncio.Event()
     interrupted = until_signalled(stop, args.duration)
     async with AsyncFleet(config) as fleet, OpcUaServer(fleet, settings) as server:
+        metrics = _start_health(fleet.poller, args.metrics)
         policies = [
             "Basic256Sha256 Sign",
             "Basic256Sha256 SignAndEncrypt",
@@ -140,6 +146,7 @@ async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace
                     "security": policies,
                     "users": len(settings.users),
                     "anonymous": settings.anonymous,
+                    "metrics": metrics,
                 }
             )
         else:
@@ -147,8 +154,27 @@ async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace
             users = f"{count} user{'' if count == 1 else 's'}" + (", anonymous read-only" if settings.anonymous else "")
             security = "Basic256Sha256 Sign, SignAndEncrypt" + (", None" if settings.allow_insecure else "")
             print(f"OPC UA: {len(config.devices)} devices on {server.endpoint_url} ({security}; {users})", flush=True)
+            if metrics:
+                print(f"  Prometheus metrics: {metrics}", flush=True)
         await stop.wait()
     return 130 if interrupted else 0
+
+
+def _start_health(poller: object, address: str | None) -> str | None:
+    """systemd's notifications, and with ``--metrics`` the fleet's series, ``/healthz`` and ``/readyz``; returns
+    the metrics URL."""
+    from starterbus.fleet.health import notify_systemd
+    from starterbus.fleet.poller import FleetPoller
+    from starterbus.serve.prometheus import FleetCollector, start_metrics_server
+
+    assert isinstance(poller, FleetPoller)
+    notify_systemd(poller)  # under systemd: READY=1 after the first round, WATCHDOG=1 while the polls progress
+    if address is None:
+        return None
+    collector = FleetCollector()
+    collector.poller = poller
+    host, port, _server = start_metrics_server(address, collector)
+    return f"http://{host}:{port}/metrics"
 
 
 def cmd_opcua_user(args: argparse.Namespace) -> int:

@@ -104,6 +104,7 @@ def run_fleet(
 ) -> int:
     """Poll a fleet and show it; shared by ``poll`` and ``demo``. Returns the exit code."""
     from starterbus.core.errors import ConfigurationError
+    from starterbus.fleet.health import notify_systemd
     from starterbus.fleet.output import CsvLog, JsonLines
     from starterbus.fleet.poller import FleetPoller
 
@@ -126,6 +127,7 @@ def run_fleet(
     poller = FleetPoller(config, on_sample, rounds=1 if once else None, probing=probing)
     in_place = out.isatty() and not quiet
     poller.start()
+    notify_systemd(poller)  # under systemd: READY=1 after the first round, WATCHDOG=1 while the polls progress
     interrupted = False
     try:
         if during is not None:

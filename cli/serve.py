@@ -174,6 +174,9 @@ async def _serve(args: argparse.Namespace) -> int:
         collector = FleetCollector(session)
         async with AsyncFleet(config) as fleet:
             collector.poller = fleet.poller
+            from starterbus.fleet.health import notify_systemd
+
+            notify_systemd(fleet.poller)  # under systemd: READY=1 after the first round, WATCHDOG=1 while polls go on
             driver = EdgeNodeDriver(
                 fleet, session, broker, state_file=state_file, on_sample=collector.observe,
                 retry_delay=args.reconnect_delay,

@@ -13,6 +13,7 @@ broker connection, for ``serve``) passes. :class:`Watchdog` tells systemd: ``REA
 
 from __future__ import annotations
 
+import atexit
 import math
 import threading
 import time
@@ -139,6 +140,7 @@ class Watchdog:
     def start(self) -> Watchdog:
         if self.notifier.enabled:
             self._thread.start()
+            atexit.register(self.stop)  # STOPPING=1 even when the process ends before the thread looks again
         return self
 
     def _run(self) -> None:
@@ -163,15 +165,17 @@ class Watchdog:
             with self._ticked:
                 self.ticks += 1
                 self._ticked.notify_all()
-            if self._stop.wait(self.tick) or self.health.poller.stopping.is_set():
+            if self.health.poller.stopping.wait(self.tick) or self._stop.is_set():
                 break
         self._stopping()
 
     def _stopping(self) -> None:
-        if not self._stopped:
+        with self._ticked:  # the thread and stop() may both get here: one STOPPING=1
+            if self._stopped:
+                return
             self._stopped = True
-            self.notifier.notify("STOPPING=1", "STATUS=stopping")
-            self.notifier.close()
+        self.notifier.notify("STOPPING=1", "STATUS=stopping")
+        self.notifier.close()
 
     def wait_ticks(self, count: int, timeout: float) -> bool:
         """Wait until the thread has looked ``count`` more times (tests: an observable instead of a sleep)."""
@@ -182,6 +186,7 @@ class Watchdog:
     def stop(self) -> None:
         """``STOPPING=1``: the service is shutting down (systemd then expects no more pings); also sent by the
         thread itself once the poller stops."""
+        atexit.unregister(self.stop)
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join()
