@@ -30,6 +30,7 @@ from starterbus.core.errors import StarterbusError
 from starterbus.core.guarded import Outcome
 from starterbus.core.model import Value
 from starterbus.core.status import Command, Status
+from starterbus.core.supervision import ServiceFailed, Supervisor
 from starterbus.fleet.config import DeviceConfig, FleetConfig
 from starterbus.fleet.poller import FleetPoller, Sample
 
@@ -88,20 +89,38 @@ class AsyncFleet:
 
     ``samples()`` streams every poll; ``remote_write`` / ``remote_command`` check the fleet file's ``remote``
     table, then run the guarded path in the device's bus worker (between polls), audited with ``actor``.
+
+    ``supervisor`` (:mod:`starterbus.core.supervision`) watches the poller's threads and whatever tasks the
+    application runs beside it (``serve``'s edge node, the OPC UA server); if the poller fails, ``samples()``
+    raises :class:`~starterbus.core.supervision.ServiceFailed`.
     """
 
-    def __init__(self, config: FleetConfig, *, queue_size: int = 10_000, **poller_kwargs: object) -> None:
+    def __init__(
+        self,
+        config: FleetConfig,
+        *,
+        queue_size: int = 10_000,
+        supervisor: Supervisor | None = None,
+        **poller_kwargs: object,
+    ) -> None:
         self.config = config
+        self.supervisor = supervisor or Supervisor()
         self._queue_size = queue_size
         self._poller_kwargs = poller_kwargs
-        self._subscribers: list[asyncio.Queue[Sample]] = []
+        self._subscribers: list[asyncio.Queue[Sample | None]] = []
         self.dropped = 0  # samples a slow subscriber missed (its queue was full)
         self._loop: asyncio.AbstractEventLoop | None = None
         self.poller: FleetPoller | None = None
 
     async def __aenter__(self) -> AsyncFleet:
         self._loop = asyncio.get_running_loop()
-        self.poller = FleetPoller(self.config, self._on_sample, **self._poller_kwargs)  # type: ignore[arg-type]
+        self.poller = FleetPoller(
+            self.config,
+            self._on_sample,
+            supervisor=self.supervisor,
+            **self._poller_kwargs,  # type: ignore[arg-type]
+        )
+        self.supervisor.on_fatal(self._on_failure)
         self.poller.start()
         return self
 
@@ -114,20 +133,34 @@ class AsyncFleet:
         if loop is not None and not loop.is_closed():
             loop.call_soon_threadsafe(self._deliver, sample)
 
-    def _deliver(self, sample: Sample) -> None:  # the event loop
+    def _deliver(self, sample: Sample | None) -> None:  # the event loop; None: the poller failed
         for queue in self._subscribers:
+            if sample is None and queue.full():
+                queue.get_nowait()  # room for the end: a reader must not wait for samples that never come
+                self.dropped += 1
             try:
                 queue.put_nowait(sample)
             except asyncio.QueueFull:
                 self.dropped += 1
 
+    def _on_failure(self, _failure: ServiceFailed) -> None:  # any thread
+        loop = self._loop
+        if loop is not None and not loop.is_closed():
+            loop.call_soon_threadsafe(self._deliver, None)
+
     async def samples(self) -> AsyncIterator[Sample]:
-        """Every sample from now on, in the order the poller produced them."""
-        queue: asyncio.Queue[Sample] = asyncio.Queue(self._queue_size)
+        """Every sample from now on, in the order the poller produced them; raises
+        :class:`~starterbus.core.supervision.ServiceFailed` if the service fails."""
+        queue: asyncio.Queue[Sample | None] = asyncio.Queue(self._queue_size)
         self._subscribers.append(queue)
         try:
             while True:
-                yield await queue.get()
+                self.supervisor.check()
+                sample = await queue.get()
+                if sample is None:
+                    self.supervisor.check()
+                    continue
+                yield sample
         finally:
             self._subscribers.remove(queue)
 

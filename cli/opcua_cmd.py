@@ -12,12 +12,13 @@ import getpass
 import sys
 from pathlib import Path
 
-from starterbus.cli.lifetime import until_signalled
+from starterbus.cli.lifetime import exit_code, until_signalled
 from starterbus.cli.output import emit_json, emit_json_line
 from starterbus.core.errors import ConfigurationError
 from starterbus.core.outfiles import write_atomically
 from starterbus.core.registry import get_profile
 from starterbus.core.status import Command
+from starterbus.core.supervision import Supervisor
 from starterbus.fleet.config import FleetConfig, RemotePolicy, load_fleet
 
 
@@ -129,8 +130,9 @@ async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace
 
     assert isinstance(settings, OpcUaSettings)
     stop = asyncio.Event()
-    interrupted = until_signalled(stop, args.duration)
-    async with AsyncFleet(config) as fleet, OpcUaServer(fleet, settings) as server:
+    supervisor = Supervisor()  # the poller's threads and the server's tasks: a fatal failure stops it, exit 1
+    interrupted = until_signalled(stop, args.duration, supervisor)
+    async with AsyncFleet(config, supervisor=supervisor) as fleet, OpcUaServer(fleet, settings) as server:
         metrics = _start_health(fleet.poller, args.metrics)
         policies = [
             "Basic256Sha256 Sign",
@@ -157,7 +159,7 @@ async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace
             if metrics:
                 print(f"  Prometheus metrics: {metrics}", flush=True)
         await stop.wait()
-    return 130 if interrupted else 0
+    return exit_code(interrupted, supervisor)
 
 
 def _start_health(poller: object, address: str | None) -> str | None:

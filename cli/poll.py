@@ -6,20 +6,24 @@ The fleet machinery is imported when the command runs, not when its options are 
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 import time
 from collections.abc import Callable
-from typing import TYPE_CHECKING, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 from starterbus.cli.output import emit_json, table
 from starterbus.fleet.probing import DEFAULT_PROBE_SHARE, DEFAULT_PROBE_TIMEOUT
 
 if TYPE_CHECKING:
+    from starterbus.core.supervision import Supervisor
     from starterbus.fleet.config import FleetConfig
     from starterbus.fleet.output import CsvLog, JsonLines
     from starterbus.fleet.plan import BusPlan
     from starterbus.fleet.poller import FleetPoller, Sample
     from starterbus.fleet.probing import ProbeSettings
+    from starterbus.ops.recorder import HistoryRecorder
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -34,6 +38,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--csv-long", action="store_true", help="CSV in long format: one row per value")
     p.add_argument("--record", metavar="DB", help="write samples and events to this SQLite history (see `history`)")
     p.add_argument("--keep", action="append", metavar="AGE|SIZE", help="history retention: 30d, 12h, 500MB")
+    p.add_argument(
+        "--record-backlog",
+        type=int,
+        default=10_000,
+        metavar="N",
+        help="samples kept in memory while the history cannot be written; older ones are dropped (default 10000)",
+    )
+    p.add_argument("--metrics", metavar="HOST:PORT", help="Prometheus endpoint (/metrics), e.g. 127.0.0.1:9477")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("--refresh", type=float, default=0.5, help="table refresh period on a terminal, s")
     p.add_argument(
@@ -101,9 +113,15 @@ def run_fleet(
     banner: Callable[[], str] | None = None,
     probing: ProbeSettings | None = None,
     csv_long: bool = False,
+    recorder: HistoryRecorder | None = None,
+    supervisor: Supervisor | None = None,
+    metrics: str | None = None,
 ) -> int:
-    """Poll a fleet and show it; shared by ``poll`` and ``demo``. Returns the exit code."""
+    """Poll a fleet and show it; shared by ``poll`` and ``demo``. Returns the exit code: 0 after the duration,
+    a stop or the rounds asked for; 130 after Ctrl-C; a worker's fatal failure (or the poller ending by
+    itself) raises :class:`~starterbus.core.supervision.ServiceFailed` once everything is shut down."""
     from starterbus.core.errors import ConfigurationError
+    from starterbus.core.supervision import ServiceFailed
     from starterbus.fleet.health import notify_systemd
     from starterbus.fleet.output import CsvLog, JsonLines
     from starterbus.fleet.poller import FleetPoller
@@ -119,16 +137,24 @@ def run_fleet(
     json_lines = JsonLines(out) if json_out else None
     if json_lines is not None:
         sinks.append(json_lines)
+    if recorder is not None:
+        sinks.insert(0, recorder)
+        if json_lines is not None:
+            recorder.writer.on_event = json_lines.event  # the history failing and recovering: event lines
 
     def on_sample(sample: Sample) -> None:
         for sink in sinks:
             sink(sample)
 
-    poller = FleetPoller(config, on_sample, rounds=1 if once else None, probing=probing)
+    poller = FleetPoller(config, on_sample, rounds=1 if once else None, probing=probing, supervisor=supervisor)
     in_place = out.isatty() and not quiet
+    if metrics is not None:
+        _serve_metrics(metrics, poller, recorder)
+    terminated: list[int] = []
+    previous = _on_sigterm(poller, terminated)
     poller.start()
     notify_systemd(poller)  # under systemd: READY=1 after the first round, WATCHDOG=1 while the polls progress
-    interrupted = False
+    interrupted = asked = False
     try:
         if during is not None:
             during(poller)
@@ -136,8 +162,10 @@ def run_fleet(
         last_print = time.monotonic()
         while poller.running:
             if deadline is not None and time.monotonic() >= deadline:
+                asked = True
                 break
             if _reader_gone(json_lines, csv_log):  # the reader went away (`| head -1`)
+                asked = True
                 break
             poller.stopping.wait(refresh if in_place else 0.2)
             if in_place:
@@ -150,16 +178,58 @@ def run_fleet(
         interrupted = True
     finally:
         poller.stop()
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
         if csv_log is not None:
             csv_log.close()
+    asked = asked or bool(terminated)
     if _reader_gone(json_lines, csv_log):
         raise BrokenPipeError("the reader went away")  # after the clean stop; `main` exits 0 quietly
     if not quiet:
         render(poller, out, in_place)
+    poller.supervisor.check()  # a worker failed for good: one line, exit 1
     if interrupted:
         return 130  # Ctrl-C: after a clean shutdown, as every command
+    if not asked and not once:  # every thread ended, and nobody asked for it (a defect): never a quiet exit 0
+        raise ServiceFailed("the poller", RuntimeError("every polling thread ended by itself"))
     bad = [r for r in poller.runtimes() if not r.online]
     return 1 if once and bad else 0
+
+
+def _on_sigterm(poller: FleetPoller, terminated: list[int]) -> signal.Handlers | Any | None:
+    """SIGTERM (systemd's stop) stops the poller cleanly, as the duration does; returns the handler it replaced
+    (None off the main thread, where signals cannot be caught)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def on_term(signum: int, _frame: object) -> None:
+        terminated.append(signum)
+        poller.request_stop()
+
+    return signal.signal(signal.SIGTERM, on_term)
+
+
+def _serve_metrics(address: str, poller: FleetPoller, recorder: HistoryRecorder | None) -> None:
+    """``--metrics``: the fleet's and the service's series (workers' failures, the history's writes)."""
+    from starterbus.ops.service_metrics import ServiceCollector
+    from starterbus.serve.prometheus import FleetCollector, start_metrics_server
+
+    fleet = FleetCollector()
+    fleet.poller = poller
+    poller.on_sample = _also(poller.on_sample, fleet.observe)
+    host, port, _server = start_metrics_server(
+        address, fleet, ServiceCollector(poller.supervisor, recorder.writer if recorder else None)
+    )
+    print(f"Prometheus metrics: http://{host}:{port}/metrics", file=sys.stderr, flush=True)
+
+
+def _also(first: Callable[[Sample], None] | None, then: Callable[[Sample], None]) -> Callable[[Sample], None]:
+    def both(sample: Sample) -> None:
+        if first is not None:
+            first(sample)
+        then(sample)
+
+    return both
 
 
 def _reader_gone(*sinks: JsonLines | CsvLog | None) -> bool:
@@ -209,9 +279,15 @@ def cmd_poll(args: argparse.Namespace) -> int:
         probing = ProbeSettings(args.probe_timeout, args.probe_share)
     except ValueError as exc:
         raise ConfigurationError(str(exc)) from None
+    from starterbus.core.supervision import Supervisor
     from starterbus.ops.recorder import for_fleet as recorder_for_fleet
 
-    recorder = recorder_for_fleet(args.record, config, args.keep) if args.record else None
+    supervisor = Supervisor()
+    recorder = None
+    if args.record:
+        recorder = recorder_for_fleet(
+            args.record, config, args.keep, backlog=args.record_backlog, supervisor=supervisor
+        )
     try:
         return run_fleet(
             config,
@@ -222,7 +298,9 @@ def cmd_poll(args: argparse.Namespace) -> int:
             duration=args.duration,
             refresh=args.refresh,
             probing=probing,
-            sinks=[recorder] if recorder is not None else None,
+            recorder=recorder,
+            supervisor=supervisor,
+            metrics=args.metrics,
         )
     finally:
         if recorder is not None:

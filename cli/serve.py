@@ -8,11 +8,10 @@ import contextlib
 import logging
 import socket
 import sys
-import threading
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from starterbus.cli.lifetime import until_signalled
+from starterbus.cli.lifetime import exit_code, until_signalled
 from starterbus.cli.output import emit_json_line
 from starterbus.core.errors import ConfigurationError
 
@@ -111,7 +110,9 @@ def _opcua_server(args: argparse.Namespace, fleet: object) -> contextlib.Abstrac
 
 async def _serve(args: argparse.Namespace) -> int:
     from starterbus.aio import AsyncFleet
+    from starterbus.core.supervision import Supervisor
     from starterbus.fleet.config import load_fleet
+    from starterbus.ops.service_metrics import ServiceCollector
     from starterbus.serve.broker import BrokerOptions, load_credentials, parse_broker_url
     from starterbus.serve.driver import EdgeNodeDriver
     from starterbus.serve.prometheus import FleetCollector, start_metrics_server
@@ -119,6 +120,7 @@ async def _serve(args: argparse.Namespace) -> int:
     from starterbus.serve.state import default_state_file, load_bdseq
     from starterbus.serve.store import SqliteStore, default_buffer_file
 
+    supervisor = Supervisor()  # every thread and task of the service: a fatal failure stops it, exit 1
     demo = broker_proc = store = None
     interrupted: list[int] = []  # SIGINT once Ctrl-C stopped it: exit 130 after the clean shutdown
     node = args.node or socket.gethostname().split(".")[0]
@@ -172,7 +174,7 @@ async def _serve(args: argparse.Namespace) -> int:
             config, options, deadband_steps=steps, deadband_per_key=per_key, bdseq=bdseq, store=store
         )
         collector = FleetCollector(session)
-        async with AsyncFleet(config) as fleet:
+        async with AsyncFleet(config, supervisor=supervisor) as fleet:
             collector.poller = fleet.poller
             from starterbus.fleet.health import notify_systemd
 
@@ -182,10 +184,10 @@ async def _serve(args: argparse.Namespace) -> int:
                 retry_delay=args.reconnect_delay,
             )  # fmt: skip
             stop = asyncio.Event()
-            interrupted = until_signalled(stop, args.duration)
+            interrupted = until_signalled(stop, args.duration, supervisor)
             metrics = None
             if args.metrics:
-                mhost, mport, _server = start_metrics_server(args.metrics, collector)
+                mhost, mport, _server = start_metrics_server(args.metrics, collector, ServiceCollector(supervisor))
                 metrics = f"http://{mhost}:{mport}/metrics"
             if demo is not None:
                 _run_demo_scenario(fleet.poller, demo, stop, asyncio.get_running_loop())
@@ -221,7 +223,7 @@ async def _serve(args: argparse.Namespace) -> int:
             broker_proc.close()
         if demo is not None:
             demo.close()
-    return 130 if interrupted else 0
+    return exit_code(interrupted, supervisor)
 
 
 def _print_banner(session: object, node: str, brokers: object, embedded: bool, commands_allowed: bool) -> None:
@@ -291,4 +293,4 @@ def _run_demo_scenario(poller: object, demo: object, stop: asyncio.Event, loop: 
             if poller.stopping.wait(max(0.0, start + 32 - time.monotonic())):
                 return
 
-    threading.Thread(target=run, name="demo-scenario", daemon=True).start()
+    poller.supervisor.thread("demo-scenario", run).start()

@@ -100,7 +100,8 @@ class BusWorker:
         self.devices = [DeviceRuntime(d, slot=i) for i, d in enumerate(bus.devices)]
         self.jobs = JobQueue()
         self.wake = threading.Event()
-        self.thread = threading.Thread(target=self.run, name=f"bus-{bus.name}", daemon=True)
+        self.name = f"bus-{bus.name}"  # its thread's, and its name for the supervisor
+        self.thread = poller.supervisor.thread(self.name, self.run)
         self.stats = LineStats(bus.name, started=poller.clock())
         self.budget = ProbeBudget(poller.probing.share, poller.probing.timeout or 1.0, poller.clock())
         self.queue = [(0.0, i) for i in range(len(self.devices))]  # (due, device index), a heap
@@ -176,19 +177,39 @@ class BusWorker:
         precise_timers()
         try:
             if first is not None:
-                self._poll_and_pause(first)
+                self._contained(self._poll_and_pause, first)
             while not poller.stopping.is_set() and not self.finished:
-                self.run_jobs()
-                now = poller.clock()
-                due, _ = self.next_due(now)
-                wait = due - now
-                if wait > 0:
-                    self.wake.wait(wait)
-                    self.wake.clear()
-                    continue
-                self._poll_and_pause(self.take(due))
+                self._contained(self._step)
         finally:
             self.shut_down()
+
+    def _step(self) -> None:
+        """The queued jobs, then the next poll or a wait until it is due (or a job comes)."""
+        self.run_jobs()
+        now = self.poller.clock()
+        due, _ = self.next_due(now)
+        wait = due - now
+        if wait > 0:
+            self.wake.wait(wait)
+            self.wake.clear()
+            return
+        self._poll_and_pause(self.take(due))
+
+    def _contained(self, step: Callable[..., None], *args: DeviceRuntime) -> None:
+        """``step(*args)``; an unexpected exception (``on_sample`` raised, a bug) is the supervisor's: counted,
+        logged, and the bus starts afresh after the backoff."""
+        try:
+            step(*args)
+        except Exception as exc:
+            pause = self.poller.supervisor.contain(self.name, exc)
+            self.restart(self.poller.clock() + pause)
+            self.poller.stopping.wait(pause)
+
+    def restart(self, at: float) -> None:
+        """After a contained failure: the devices closed (reopened by their next poll), every device due at
+        ``at`` (a poll cut short left its device out of the queue)."""
+        self._close_all()
+        self.queue = [(at, i) for i in range(len(self.devices))]
 
     def _poll_and_pause(self, runtime: DeviceRuntime) -> None:
         """One poll, then the bus's ``delay`` before anything else goes on its line."""

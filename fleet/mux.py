@@ -84,7 +84,6 @@ class _Bus:
     returned: bool = False  # the job thread is done with it
     crash: StarterbusError | None = None  # what went wrong where a task raised what it should not
     handed_over: bool = False  # to a thread of its own
-    failed: bool = False  # stopped by an error that is not its line's (see Multiplexer._serve)
 
 
 class Multiplexer:
@@ -93,7 +92,7 @@ class Multiplexer:
     def __init__(self, poller: FleetPoller, workers: list[BusWorker]) -> None:
         self.poller = poller
         self.buses = [_Bus(w) for w in workers]
-        self.thread = threading.Thread(target=self._run, name="bus-mux", daemon=True)
+        self.thread = poller.supervisor.thread("bus-mux", self._run)  # fatal: the loop itself failing stops all
         self._wake_r, self._wake_w = -1, -1  # a pipe from start() to the end of the loop
         self._wake_lock = threading.Lock()  # closing the pipe vs writing to it: never to a reused descriptor
         self._waiter = Waiter()
@@ -139,7 +138,7 @@ class Multiplexer:
                 until = now + IDLE
                 busy = False
                 for bus in self.buses:
-                    if bus.handed_over or bus.failed:
+                    if bus.handed_over:
                         continue
                     if bus.task is None:
                         self._serve(bus, now)
@@ -174,15 +173,19 @@ class Multiplexer:
             self._shut_down()
 
     def _serve(self, bus: _Bus, now: float) -> None:
-        """:meth:`_service`; an exception that is not the line's (``on_sample`` raised, a bug) stops this bus
-        alone, reported as an uncaught exception in a bus's own thread is, and the other buses go on."""
+        """:meth:`_service`; an exception that is not the line's (``on_sample`` raised, a bug) is contained for
+        this bus alone (:meth:`BusWorker._contained <starterbus.fleet.bus_worker.BusWorker>`): counted and
+        logged by the supervisor, its poll cancelled, its devices closed, the bus resumed after the backoff; the
+        other buses go on."""
         try:
             self._service(bus, now)
         except Exception as exc:
-            bus.failed = True
+            worker = bus.worker
+            pause = self.poller.supervisor.contain(worker.name, exc)
             self._stop_bus(bus)
-            bus.worker.shut_down()
-            threading.excepthook(threading.ExceptHookArgs((type(exc), exc, exc.__traceback__, self.thread)))
+            resume = self.poller.clock() + pause
+            worker.restart(resume)
+            bus.free_at = resume
 
     def _service(self, bus: _Bus, now: float) -> None:
         """Advance the bus's poll; when it is over, start the next one that is due at once (the line's
@@ -258,7 +261,7 @@ class Multiplexer:
             if not lend:
                 return False
             bus.returned = False
-            bus.lent = threading.Thread(target=self._jobs, args=(bus,), name=f"jobs-{worker.bus.name}", daemon=True)
+            bus.lent = self.poller.supervisor.thread(f"jobs-{worker.bus.name}", self._jobs, bus)
             bus.lent.start()
             return False
         if worker.finished or self.poller.stopping.is_set():
@@ -319,7 +322,7 @@ class Multiplexer:
         bus.attempt = None
         worker = bus.worker
         worker.notify = worker.wake.set
-        worker.thread = threading.Thread(target=worker.run, args=(runtime,), name=f"bus-{worker.bus.name}", daemon=True)
+        worker.thread = self.poller.supervisor.thread(worker.name, worker.run, runtime)
         worker.thread.start()
 
     def _drop_closed(self) -> None:
@@ -357,7 +360,7 @@ class Multiplexer:
         for bus in self.buses:  # every line given back first
             self._stop_bus(bus)
         for bus in self.buses:
-            if not bus.handed_over and not bus.failed:
+            if not bus.handed_over:
                 bus.worker.shut_down()
         self._waiter.close()
         with self._wake_lock:

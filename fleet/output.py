@@ -122,6 +122,17 @@ class JsonLines:
             except BrokenPipeError:
                 self.closed = True
 
+    def event(self, data: dict[str, object]) -> None:
+        """One line that is not a sample (``{"event": "history", ...}``), between the samples (any thread)."""
+        with self.lock:
+            if self.closed:
+                return
+            try:
+                self.out.write(json.dumps(data, ensure_ascii=False, default=str) + "\n")
+                self.out.flush()
+            except BrokenPipeError:
+                self.closed = True
+
 
 class CsvLog:
     """Wide format (default): one row per sample, one column per configured point (``key [unit]``).

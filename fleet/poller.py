@@ -21,6 +21,7 @@ from typing import TypeVar
 from starterbus.core.device import Device
 from starterbus.core.errors import StarterbusError
 from starterbus.core.registry import get_profile, get_transport
+from starterbus.core.supervision import ServiceFailed, Supervisor
 from starterbus.core.url import DeviceUrl
 from starterbus.fleet.bus_worker import BusWorker, DeviceRuntime
 from starterbus.fleet.config import BusConfig, FleetConfig
@@ -51,6 +52,11 @@ class FleetPoller:
 
     ``multiplex=False`` gives every bus a thread of its own (the way before :mod:`starterbus.fleet.mux`; the
     benchmark compares both).
+
+    Its threads run under ``supervisor`` (:mod:`starterbus.core.supervision`; one of its own if not given): an
+    unexpected exception in a bus's polls or in ``on_sample`` is contained (logged, counted under the bus's
+    thread name, the bus's devices closed and the bus resumed after a backoff); one in the machinery around
+    them stops the poller, with :attr:`failure` set.
     """
 
     def __init__(
@@ -63,8 +69,10 @@ class FleetPoller:
         probing: ProbeSettings | None = None,
         rng: random.Random | None = None,
         multiplex: bool = True,
+        supervisor: Supervisor | None = None,
     ) -> None:
         self.config = config
+        self.supervisor = supervisor or Supervisor()
         self.on_sample = on_sample
         self.rounds = rounds
         self.clock = clock
@@ -77,6 +85,12 @@ class FleetPoller:
         self.mux = Multiplexer(self, shared) if shared else None
         self._own_thread = [w for w in self.workers if w not in shared]
         self._emit_lock = threading.Lock()
+        self.supervisor.on_fatal(lambda _failure: self.request_stop())
+
+    @property
+    def failure(self) -> ServiceFailed | None:
+        """What stopped the poller against its will (None while it runs, and after a requested stop)."""
+        return self.supervisor.failure
 
     def _emit(self, sample: Sample) -> None:
         if self.on_sample is not None:
@@ -93,13 +107,17 @@ class FleetPoller:
     def stop(self, timeout: float = 10.0) -> None:
         """Stop polling and wait (up to ``timeout``) until every bus is done; called from one of the poller's
         own threads (``on_sample``, a job) it does not wait: those threads may wait for the caller."""
+        self.request_stop()
+        if threading.current_thread() not in self._threads():
+            self.join(timeout)
+
+    def request_stop(self) -> None:
+        """Stop polling, without waiting (a signal handler, a fatal failure)."""
         self.stopping.set()
         for worker in self.workers:
             worker.wake.set()
         if self.mux is not None:
             self.mux.wake()
-        if threading.current_thread() not in self._threads():
-            self.join(timeout)
 
     def _threads(self) -> list[threading.Thread]:
         threads = [w.thread for w in self.workers]

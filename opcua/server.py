@@ -191,18 +191,24 @@ class OpcUaServer:
             await self._apply(initial_updates(device, now))
         with listening(*parse_endpoint(settings.endpoint)):
             await server.start()
-        self._pump = asyncio.create_task(self._serve_samples(), name="opcua-samples")
+        self._pump = self.fleet.supervisor.task("opcua-samples", self._serve_samples)  # fatal if it fails
         log.info("OPC UA server on %s (namespace %s)", self.endpoint_url, NAMESPACE)
 
     async def stop(self) -> None:
+        """Stop serving; a failure of the sample pump (already told to the supervisor) is raised after."""
+        failed: BaseException | None = None
         if self._pump is not None:
             self._pump.cancel()
             try:
                 await self._pump
             except asyncio.CancelledError:
                 pass
+            except Exception as exc:
+                failed = exc
             self._pump = None
         await self.server.stop()
+        if failed is not None:
+            raise failed
 
     def _create_session(self, name: str, user: User = _ANONYMOUS, external: bool = False) -> Any:
         iserver = self.server.iserver

@@ -9,7 +9,7 @@ Tables::
 
     samples(id, time, device, model, online, state, fault_code, current_a, current_b, current_c, "values", error)
     events(id, time, device, kind, code, text, detail)   kind: state | fault | offline | online | write |
-                                                         command | start
+                                                         command | start | gap (device "*": every device)
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import json
 import sqlite3
 import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -59,6 +59,10 @@ SAMPLE_COLUMNS = (
     "values", "error",
 )  # fmt: skip
 EVENT_COLUMNS = ("id", "time", "device", "kind", "code", "text", "detail")
+#: the device name of events about every device (a gap in the recording)
+ALL_DEVICES = "*"
+#: the first bytes of every SQLite 3 database file
+SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,12 +76,15 @@ class Retention:
 class HistoryStore:
     """One SQLite history file. Thread-safe (one connection behind a lock)."""
 
-    def __init__(self, path: str | Path, *, create: bool = True) -> None:
+    def __init__(self, path: str | Path, *, create: bool = True, busy_timeout: float = 10.0) -> None:
+        """``busy_timeout``: how long a write waits for another connection's lock before it fails."""
         self.path = Path(path)
         if not create and not self.path.exists():
             raise ConfigurationError(f"{self.path}: no such history database")
         try:
-            self.conn = sqlite3.connect(str(self.path), check_same_thread=False, isolation_level=None, timeout=10)
+            self.conn = sqlite3.connect(
+                str(self.path), check_same_thread=False, isolation_level=None, timeout=busy_timeout
+            )
         except sqlite3.Error as exc:
             raise ConfigurationError(f"{self.path}: cannot open: {exc}") from exc
         try:
@@ -110,6 +117,34 @@ class HistoryStore:
         sql = f"INSERT INTO samples ({', '.join(_q(c) for c in cols)}) VALUES ({', '.join('?' * len(cols))})"
         with self.lock:
             self.conn.execute(sql, values)
+
+    def add_batch(self, samples: Sequence[Mapping[str, Any]], events: Sequence[Mapping[str, Any]]) -> None:
+        """Sample rows and event rows (``time, device, kind, text``, ``code``, ``detail``) in one transaction:
+        all written, or none (the error raised)."""
+        with self.lock:
+            self.conn.execute("BEGIN IMMEDIATE")
+            try:
+                for row in samples:
+                    cols = [c for c in SAMPLE_COLUMNS if c != "id" and c in row]
+                    values = [json.dumps(row[c], ensure_ascii=False) if c == "values" else row[c] for c in cols]
+                    self.conn.execute(
+                        f"INSERT INTO samples ({', '.join(_q(c) for c in cols)}) VALUES ({', '.join('?' * len(cols))})",
+                        values,
+                    )
+                for ev in events:
+                    detail = json.dumps(dict(ev.get("detail") or {}), ensure_ascii=False, default=str)
+                    self.conn.execute(
+                        "INSERT INTO events (time, device, kind, code, text, detail) VALUES (?, ?, ?, ?, ?, ?)",
+                        (ev["time"], ev["device"], ev["kind"], ev.get("code"), ev.get("text", ""), detail),
+                    )
+                self.conn.execute("COMMIT")
+            except BaseException:
+                if self.conn.in_transaction:
+                    try:
+                        self.conn.execute("ROLLBACK")
+                    except sqlite3.Error:  # the disk failing again: SQLite rolls back when it can
+                        pass
+                raise
 
     def add_event(
         self,
@@ -202,7 +237,7 @@ class HistoryStore:
         """Every device name with a sample or an event, sorted."""
         with self.lock:
             rows = self.conn.execute("SELECT device FROM samples UNION SELECT device FROM events ORDER BY 1").fetchall()
-        return [r[0] for r in rows]
+        return [r[0] for r in rows if r[0] != ALL_DEVICES]
 
     def event(self, event_id: int) -> dict[str, Any]:
         with self.lock:
@@ -223,9 +258,9 @@ def _q(column: str) -> str:
 def _filters(device: str | None, since: float | None, until: float | None) -> tuple[str, list[Any]]:
     clauses: list[str] = []
     params: list[Any] = []
-    if device is not None:
-        clauses.append("device = ?")
-        params.append(device)
+    if device is not None:  # with the events about every device (a gap in the recording)
+        clauses.append("device IN (?, ?)")
+        params += [device, ALL_DEVICES]
     if since is not None:
         clauses.append("time >= ?")
         params.append(since)

@@ -12,6 +12,10 @@ Events it writes: ``state`` (every change of the motor state), ``fault`` (code, 
 table, and the phase currents of the last samples before the trip), ``offline``/``online`` episodes, and every
 guarded ``write`` and ``command`` found in the audit trail (followed from where it ended when recording began)
 or handed over with :meth:`HistoryRecorder.record_audit`.
+
+The rows are written by a :class:`~starterbus.ops.history_writer.HistoryWriter` in a thread of its own: a
+call never waits for the disk, and a disk that fails (full, read-only, gone, a locked or corrupted database)
+stops nothing; the gap is recorded once the history can be written again.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ import json
 import threading
 import time
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,12 +33,14 @@ from starterbus.core.audit import AuditLog
 from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
+from starterbus.core.supervision import Supervisor
 from starterbus.core.timestamps import parse_iso_time
 from starterbus.core.url import DeviceUrl
 from starterbus.fleet.config import FleetConfig
 from starterbus.fleet.poller import Sample
 from starterbus.ops.faults import value_text
-from starterbus.ops.history import HistoryStore, Retention
+from starterbus.ops.history import Retention
+from starterbus.ops.history_writer import DEFAULT_BACKLOG, DEFAULT_RETRY, HistoryWriter
 
 _BEFORE_TRIP = 5  # samples of currents kept per device for a fault event
 
@@ -75,7 +81,7 @@ def sample_row(sample: Sample, profile: Profile | None) -> dict[str, Any]:
 
 
 class HistoryRecorder:
-    """Writes samples and events to a :class:`HistoryStore`; call it with each :class:`Sample`."""
+    """Writes samples and events to a history database; call it with each :class:`Sample`."""
 
     def __init__(
         self,
@@ -85,24 +91,39 @@ class HistoryRecorder:
         audit: AuditLog | None = None,
         devices: Mapping[str, str] | None = None,
         prune_every: float = 60.0,
+        backlog: int = DEFAULT_BACKLOG,
+        retry: float = DEFAULT_RETRY,
+        supervisor: Supervisor | None = None,
+        on_event: Callable[[dict[str, Any]], None] | None = None,
     ) -> None:
         """``audit``: follow this audit log from its current end; ``devices``: device URL -> fleet name, to name
-        the device of an audit record (else its URL is the name)."""
-        self.store = HistoryStore(path)
-        self.retention = retention or Retention()
+        the device of an audit record (else its URL is the name); ``backlog``, ``retry``, ``on_event``: see
+        :class:`~starterbus.ops.history_writer.HistoryWriter`."""
+        self.writer = HistoryWriter(
+            path,
+            retention=retention,
+            backlog=backlog,
+            retry=retry,
+            prune_every=prune_every,
+            supervisor=supervisor,
+            on_event=on_event,
+        )
         self.audit_path = audit.path if audit is not None else None
         self._audit_offset = self._size(self.audit_path)
         self.devices = dict(devices or {})
-        self.prune_every = prune_every
-        self._last_prune = time.monotonic()
         self._tracks: dict[str, _Track] = {}
         self._profiles: dict[str, Profile | None] = {}
         self._lock = threading.Lock()
         self.samples = 0
 
+    @property
+    def path(self) -> Path:
+        return self.writer.path
+
     def close(self) -> None:
+        """Write what waits (see :meth:`HistoryWriter.close`) and close the file."""
         self.follow_audit()
-        self.store.close()
+        self.writer.close()
 
     def __enter__(self) -> HistoryRecorder:
         return self
@@ -122,48 +143,44 @@ class HistoryRecorder:
 
     def __call__(self, sample: Sample) -> None:
         with self._lock:
-            self.store.add_sample(sample_row(sample, self._profile(sample.model)))
-            self._events(sample)
+            row = sample_row(sample, self._profile(sample.model))
+            self.writer.add([row], self._events(sample))
             self.samples += 1
         self.follow_audit()
-        if self.retention != Retention() and time.monotonic() - self._last_prune >= self.prune_every:
-            self._last_prune = time.monotonic()
-            self.store.prune(self.retention)
 
-    def _events(self, sample: Sample) -> None:
+    def _events(self, sample: Sample) -> list[dict[str, Any]]:
         track = self._tracks.setdefault(sample.device, _Track())
-        store, name, now = self.store, sample.device, sample.time
+        name, now = sample.device, sample.time
+        events: list[dict[str, Any]] = []
+
+        def event(kind: str, text: str, **more: Any) -> None:
+            events.append({"time": now, "device": name, "kind": kind, "text": text, **more})
+
         if not sample.online:
             if track.online is not False:
                 track.offline_since = now
-                store.add_event(now, name, "offline", sample.error or "no answer")
+                event("offline", sample.error or "no answer")
             track.online = False
-            return
+            return events
         if track.online is False:
             away = now - track.offline_since if track.offline_since is not None else 0.0
-            store.add_event(now, name, "online", f"answering again after {away:.1f} s", detail={"offline_s": away})
+            event("online", f"answering again after {away:.1f} s", detail={"offline_s": away})
         track.online = True
         status = sample.status
         if status is None:
-            return
+            return events
         state = status.state.value
         if track.state is not None and state != track.state:
-            store.add_event(now, name, "state", f"{track.state} -> {state}", detail={"from": track.state, "to": state})
+            event("state", f"{track.state} -> {state}", detail={"from": track.state, "to": state})
         if status.fault and track.state != state:
             code = status.fault_code
             profile = self._profile(sample.model)
             text = status.fault_text or (profile.faults.text(code) if profile and code is not None else "")
-            store.add_event(
-                now,
-                name,
-                "fault",
-                f"{code}: {text}",
-                code=code,
-                detail={"currents_before": list(track.currents)},
-            )
+            event("fault", f"{code}: {text}", code=code, detail={"currents_before": list(track.currents)})
         track.state = state
         if status.currents:
             track.currents.append({"time": now, **{k: v.value for k, v in status.currents.items()}})
+        return events
 
     # -- the audit trail ----------------------------------------------------------------------------------
 
@@ -181,7 +198,7 @@ class HistoryRecorder:
             text = f"{what}: {entry.get('before')} -> {entry.get('reached')}: {result}"
             kind = "command" if entry.get("action") == "command" else str(entry.get("action", "command"))
         with self._lock:
-            self.store.add_event(when, name, kind, text, detail=dict(entry))
+            self.writer.add([], [{"time": when, "device": name, "kind": kind, "text": text, "detail": dict(entry)}])
 
     def follow_audit(self) -> None:
         """Read the audit records appended since the last call (or since recording began)."""
@@ -241,7 +258,14 @@ def parse_keep(texts: list[str] | None) -> Retention:
     return Retention(max_age, max_bytes)
 
 
-def for_fleet(path: str | Path, config: FleetConfig, keep: list[str] | None = None) -> HistoryRecorder:
+def for_fleet(
+    path: str | Path,
+    config: FleetConfig,
+    keep: list[str] | None = None,
+    *,
+    backlog: int = DEFAULT_BACKLOG,
+    supervisor: Supervisor | None = None,
+) -> HistoryRecorder:
     """The recorder ``poll --record`` uses: the fleet's device names, the user's audit log followed."""
     names: dict[str, str] = {}
     for bus in config.buses:
@@ -251,4 +275,6 @@ def for_fleet(path: str | Path, config: FleetConfig, keep: list[str] | None = No
                 names[DeviceUrl.parse(dev.url).text] = dev.name
             except StarterbusError:
                 pass
-    return HistoryRecorder(path, retention=parse_keep(keep), audit=AuditLog(), devices=names)
+    return HistoryRecorder(
+        path, retention=parse_keep(keep), audit=AuditLog(), devices=names, backlog=backlog, supervisor=supervisor
+    )

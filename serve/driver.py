@@ -25,6 +25,7 @@ from paho.mqtt.enums import CallbackAPIVersion
 from starterbus.aio import AsyncFleet, RemoteNotAllowed
 from starterbus.core.errors import ConfigurationError, ValidationError
 from starterbus.core.guarded import ConfirmationRefused, GuardedOperationError, Outcome
+from starterbus.core.supervision import Supervisor
 from starterbus.fleet.poller import Sample
 from starterbus.serve.broker import BrokerOptions
 from starterbus.serve.session import Action, CommandRequest, EdgeSession, HistoryReady, Publish, Reconnect
@@ -163,7 +164,8 @@ class EdgeNodeDriver:
         if fileno < 0:  # closed again before the loop got here
             return
         loop.add_reader(fileno, read)
-        self._watched[id(sock)] = (fileno, loop.create_task(self._misc(client)))
+        keepalive = self._supervisor().task("serve-keepalive", functools.partial(self._misc, client))
+        self._watched[id(sock)] = (fileno, keepalive)
 
     def _unwatch(self, sock: Any) -> None:
         watched = self._watched.pop(id(sock), None)
@@ -331,19 +333,40 @@ class EdgeNodeDriver:
         self.session.on_disconnected()
         await self._close(client)
 
+    def _supervisor(self) -> Supervisor:
+        """The fleet's (:mod:`starterbus.core.supervision`): a task failing stops the service, poller included."""
+        supervisor = getattr(self.fleet, "supervisor", None)
+        if not isinstance(supervisor, Supervisor):  # a stand-in for the fleet (the benchmark's)
+            supervisor = Supervisor()
+            setattr(self.fleet, "supervisor", supervisor)  # noqa: B010
+        return supervisor
+
     async def run(self, stop: asyncio.Event) -> None:
-        """Until ``stop`` is set; a failing part (e.g. TLS files that cannot be read) ends it with its error."""
-        self._loop = asyncio.get_running_loop()
+        """Until ``stop`` is set; a failing part (e.g. TLS files that cannot be read) ends it with its error, and so
+        does a failure anywhere in the service (:class:`~starterbus.core.supervision.ServiceFailed`)."""
+        self._loop = loop = asyncio.get_running_loop()
         self._loop_thread = threading.get_ident()
-        jobs = [asyncio.create_task(c) for c in (self._samples(), self._ticks(), self._connections(), self._history())]
-        stopped = asyncio.create_task(stop.wait())
+        supervisor = self._supervisor()
+        failed = asyncio.Event()
+
+        def on_fatal(_failure: object) -> None:  # any thread
+            if not loop.is_closed():
+                loop.call_soon_threadsafe(failed.set)
+
+        supervisor.on_fatal(on_fatal)
+        jobs = [
+            supervisor.task(f"serve-{make.__name__.strip('_')}", make)
+            for make in (self._samples, self._ticks, self._connections, self._history)
+        ]
+        stopped, died = asyncio.create_task(stop.wait()), asyncio.create_task(failed.wait())
         try:
-            await asyncio.wait([stopped, *jobs], return_when=asyncio.FIRST_COMPLETED)
+            await asyncio.wait([stopped, died, *jobs], return_when=asyncio.FIRST_COMPLETED)
         finally:
-            for job in (*jobs, stopped):
+            for job in (*jobs, stopped, died):
                 job.cancel()
             results = await asyncio.gather(*jobs, return_exceptions=True)
             await self._stop_cleanly()
         for result in results:
             if isinstance(result, Exception) and not isinstance(result, asyncio.CancelledError):
                 raise result
+        supervisor.check()

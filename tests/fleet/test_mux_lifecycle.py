@@ -151,31 +151,6 @@ def test_stop_from_on_sample_returns_at_once_and_ends_the_poller(
     assert not [key for key in leases() if any(sim.client_path in key for sim in lines.sims)]
 
 
-@pytest.mark.parametrize("multiplex", [True, False])
-def test_an_error_in_on_sample_stops_that_bus_alone(
-    lines: Lines, samples: Samples, monkeypatch: pytest.MonkeyPatch, multiplex: bool
-) -> None:
-    reported: list[BaseException | None] = []
-    monkeypatch.setattr(threading, "excepthook", lambda args: reported.append(args.exc_value))
-
-    def fail_on_line0(sample: Sample) -> None:
-        if sample.bus == "line0":
-            raise ValueError("on_sample failed")
-
-    samples.hooks.append(fail_on_line0)
-    poller = FleetPoller(lines.fleet(buses=2), samples, multiplex=multiplex)
-    with poller:
-        samples.wait_for(lambda ss: len(ss) >= 12)  # line1 goes on
-        still_polling = poller.running
-    assert still_polling
-    assert [str(e) for e in reported] == ["on_sample failed"], "reported once, as an uncaught exception"
-    assert {s.bus for s in samples.list} == {"line1"}
-    assert not poller.running
-    assert not [key for key in leases() if any(sim.client_path in key for sim in lines.sims)]
-    limit = poller.submit("b0u1", lambda d: d.read_value("current_limit").raw).result(0)
-    assert limit == lines.starter("b0u1").params["current_limit"], "a job after the end runs at once"
-
-
 def test_after_the_end_the_poller_writes_to_no_descriptor(lines: Lines, samples: Samples) -> None:
     """Once the loop is over its wake-up pipe is closed: a later stop() must not write to whatever file now has
     that descriptor number."""
