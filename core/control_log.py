@@ -3,15 +3,17 @@
 What counts (the manuals' control word, docs/manuals.md#1-common-model: bit 0 start / soft stop, bit 2 fault
 reset, bit 3 bus control, where bit 3 = 0 is "no operation"):
 
-- a **one-off write** of the control word (Modbus FC06 to the control register) always counts: the device acts
-  on its levels, so even 0x0000 is a soft stop for a JJR5000;
-- a **cyclic write** (Profibus PZD STW, DeviceNet poll output, CANopen RPDO) counts when it is not "no
-  operation" and not the word already in force: when it sets the start, reset or bus-control bit, or clears a
-  run bit that was in force (a stop). A DP master (a gateway) must send an STW on every cycle; 0x0000 there is
-  the manuals' "no operation" and a master that only reads sends exactly that, so it does not count. A cyclic
-  master holding one word is one output, counted when the word first reached the starter;
-- a **lost command connection** (``command_lost``: a polled I/O connection timed out or was released, a CANopen
-  master's heartbeat lost) counts when it drops a run command, because the motor soft-stops.
+One-off writes of the control word (Modbus FC06 to the control register) always count: the device acts on
+their levels, so even 0x0000 is a soft stop for a JJR5000.
+
+Cyclic writes (Profibus PZD STW, DeviceNet poll output, CANopen RPDO) count when they are not "no operation"
+and not the word already in force: when they set the start, reset or bus-control bit, or clear a run bit that
+was in force (a stop). A DP master (a gateway) must send an STW on every cycle; 0x0000 there is the manuals'
+"no operation" and a master that only reads sends exactly that, so it does not count. A cyclic master holding
+one word is one output, counted when the word first reached the starter.
+
+A lost command connection (``command_lost``: a polled I/O connection timed out or was released, a CANopen
+master's heartbeat lost) counts when it drops a run command, because the motor soft-stops.
 """
 
 from __future__ import annotations
