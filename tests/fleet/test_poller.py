@@ -40,7 +40,8 @@ def test_poll_once_json_gives_every_device(demo: DemoFleet, tmp_path: Path, caps
     assert by_device["mill"]["values"]["current_limit"]["value"] == demo.starters["mill"].params["current_limit"]
     assert by_device["mixer"]["unreadable"] == []  # PPO3 polls status only: nothing configured that it cannot read
     assert by_device["pump-a"]["status"]["currents"]["a"]["resolution"] == 1.0
-    assert by_device["pump-a"]["values"]["phase_a_current"]["resolution"] == pytest.approx(0.1)
+    # monitored over explicit messaging (reads never take control): the input assembly's whole amperes
+    assert by_device["pump-a"]["values"]["phase_a_current"]["resolution"] == 1.0
     rows = csv_file.read_text(encoding="utf-8").splitlines()
     assert rows[0].startswith("time,device,bus,model,online,state")
     assert len(rows) == 1 + 7  # wide format: one row per sample, a column per configured point
