@@ -178,6 +178,7 @@ async def _serve(args: argparse.Namespace) -> int:
             collector.poller = fleet.poller
             from starterbus.fleet.health import notify_systemd
 
+            assert fleet.poller is not None  # started by `async with`
             notify_systemd(fleet.poller)  # under systemd: READY=1 after the first round, WATCHDOG=1 while polls go on
             driver = EdgeNodeDriver(
                 fleet, session, broker, state_file=state_file, on_sample=collector.observe,
