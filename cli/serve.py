@@ -124,6 +124,14 @@ async def _serve(args: argparse.Namespace) -> int:
     demo = broker_proc = store = None
     interrupted: list[int] = []  # SIGINT once Ctrl-C stopped it: exit 130 after the clean shutdown
     node = args.node or socket.gethostname().split(".")[0]
+    if args.opcua:  # where it listens: checked before the fleet, the broker or anything else starts
+        from starterbus.opcua.endpoint import parse_endpoint
+
+        parse_endpoint(args.opcua)
+    if args.metrics:
+        from starterbus.core.textinput import parse_host_port
+
+        parse_host_port(args.metrics, option="--metrics")
     try:
         if args.demo:
             from starterbus.fleet.demo import start_demo_fleet
