@@ -56,9 +56,9 @@ class ControlSourceError(StateRuleError):
     a command from here would be ignored or would fight that control; nothing was sent. The override is
     ``force=True`` (CLI ``--force``); ``reason`` says what showed it."""
 
-    def __init__(self, message: str, reason: str) -> None:
+    def __init__(self, message: str, reason: str = "") -> None:
         super().__init__(message)
-        self.reason = reason
+        self.reason = reason or message
 
 
 class UnsupportedOperationError(StarterbusError):

@@ -37,7 +37,12 @@ import threading
 import time
 from collections.abc import Sequence
 
-from starterbus.core.errors import ConfigurationError, DecodeError, StarterbusError, TimeoutError
+from starterbus.core.errors import (
+    ConfigurationError,
+    ControlSourceError,
+    DecodeError,
+    TimeoutError,
+)
 from starterbus.core.model import PointDef, Reading
 from starterbus.core.profile import Profile
 from starterbus.core.sharing import SharedPool
@@ -82,7 +87,7 @@ __all__ = [
 SCANNERS: SharedPool[Scanner] = SharedPool("devicenet scanners")
 
 
-class ControlConflictError(StarterbusError):
+class ControlConflictError(ControlSourceError):
     """Taking control (the polled I/O connection) would override a run command this master did not give."""
 
 
