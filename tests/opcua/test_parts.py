@@ -10,8 +10,8 @@ import pytest
 from asyncua import ua
 
 from starterbus.aio import RemoteNotAllowed
-from starterbus.core.errors import ConfigurationError, TimeoutError, ValidationError
-from starterbus.core.guarded import CommandNotReached, StateRuleError
+from starterbus.core.errors import ConfigurationError, StateRuleError, TimeoutError, ValidationError
+from starterbus.core.guarded import CommandNotReached
 from starterbus.core.model import Value
 from starterbus.core.registry import get_profile
 from starterbus.core.status import decode_status_word

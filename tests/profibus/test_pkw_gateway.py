@@ -13,8 +13,7 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from starterbus.core.device import Device, open_device
-from starterbus.core.errors import ConfigurationError, RemoteDeviceError, TransportError
-from starterbus.core.guarded import StateRuleError
+from starterbus.core.errors import ConfigurationError, RemoteDeviceError, StateRuleError, TransportError
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.core.status import Status
