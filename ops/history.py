@@ -146,6 +146,12 @@ class HistoryStore:
                         pass
                 raise
 
+    def checkpoint(self) -> None:
+        """Copy the write-ahead log into the database and empty it: on a full disk the log's older copies of the
+        same pages give their space back (errors are the caller's)."""
+        with self.lock:
+            self.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+
     def add_event(
         self,
         time_: float,

@@ -104,7 +104,7 @@ class HistoryWriter:
         self.retry = retry
         self.prune_every = prune_every
         self.busy_timeout = busy_timeout
-        self.on_event = on_event
+        self._on_event = on_event
         self.store: HistoryStore | None = None
         self._identity: tuple[int, int] | None = None  # (device, inode) of the file open
         self._samples: deque[tuple[int, Row]] = deque()
@@ -136,6 +136,17 @@ class HistoryWriter:
         supervisor = supervisor or Supervisor()
         self.thread = supervisor.thread("history-writer", self._run, restart=True, until=self._closing)
         self.thread.start()
+
+    @property
+    def on_event(self) -> Callable[[dict[str, Any]], None] | None:
+        return self._on_event
+
+    @on_event.setter
+    def on_event(self, listener: Callable[[dict[str, Any]], None] | None) -> None:
+        """A listener set late hears at once that the history is failing, if it is (e.g. since the start)."""
+        self._on_event = listener
+        if listener is not None and self.failing_since is not None:
+            self._tell({"state": "failing", "error": self.error})
 
     # -- the producers' side --------------------------------------------------------------------------------
 
@@ -191,7 +202,7 @@ class HistoryWriter:
         left_samples, left_events = len(self._samples), len(self._events)
         if left_samples or left_events:
             log.error(
-                "%s: %d samples and %d events not written at the end (%s)",
+                "%s: not written at the end: %d samples and %d events (%s)",
                 self.path,
                 left_samples,
                 left_events,
@@ -346,7 +357,12 @@ class HistoryWriter:
             self._corrupted(text)
             return
         view = file_system_view(self.path)
-        reason = f"{text} ({view})" if view else text
+        reason = f"{text}: {view}" if view else text
+        if "full" in text and self.store is not None:
+            try:
+                self.store.checkpoint()  # the log's older page copies freed: the next attempt may fit
+            except sqlite3.Error:
+                pass
         self.write_errors += 1
         self._next_attempt = time.monotonic() + self.retry
         if not self.path.exists():
@@ -357,7 +373,7 @@ class HistoryWriter:
         if reason != self.error:  # logged once per cause, not per attempt
             self.error = reason
             log.error(
-                "%s: cannot write the history: %s; polling goes on, %d samples kept in memory (at most %d), "
+                "%s: cannot write the history: %s; polling goes on, samples kept in memory: %d (at most %d), "
                 "retrying every %g s",
                 self.path,
                 reason,
@@ -416,5 +432,5 @@ class HistoryWriter:
         )
 
     def _tell(self, what: dict[str, Any]) -> None:
-        if self.on_event is not None:
-            self.on_event({"event": "history", "file": str(self.path), "time": time.time(), **what})
+        if self._on_event is not None:
+            self._on_event({"event": "history", "file": str(self.path), "time": time.time(), **what})
