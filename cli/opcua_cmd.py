@@ -167,6 +167,7 @@ def _start_health(poller: object, address: str | None) -> str | None:
     the metrics URL."""
     from starterbus.fleet.health import notify_systemd
     from starterbus.fleet.poller import FleetPoller
+    from starterbus.ops.service_metrics import ServiceCollector
     from starterbus.serve.prometheus import FleetCollector, start_metrics_server
 
     assert isinstance(poller, FleetPoller)
@@ -175,7 +176,7 @@ def _start_health(poller: object, address: str | None) -> str | None:
         return None
     collector = FleetCollector()
     collector.poller = poller
-    host, port, _server = start_metrics_server(address, collector)
+    host, port, _server = start_metrics_server(address, collector, ServiceCollector(poller.supervisor))
     return f"http://{host}:{port}/metrics"
 
 
