@@ -35,7 +35,7 @@ class MotorState(str, enum.Enum):
 
     ``ready`` and ``stopped`` are both an idle motor, but not the same state: ``ready`` is idle with status word
     bit 13 set ("ready to start": main circuit powered, start allowed); ``stopped`` is idle and not known to be
-    ready: bit 13 clear (no mains, a start inhibit), or a path that does not report it (DeviceNet assemblies,
+    ready: bit 13 clear (no mains, a start inhibit), or a path that does not report it (an input assembly,
     where ``Status.ready`` is None). A start from ``stopped`` may be refused by the starter.
     """
 
