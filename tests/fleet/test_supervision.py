@@ -78,7 +78,7 @@ def test_contained_failures_are_counted_and_paced_and_a_fatal_one_is_kept_and_to
 def test_a_failing_sink_is_contained_for_its_bus_which_resumes(
     lines: Lines, samples: Samples, multiplex: bool, caplog: pytest.LogCaptureFixture
 ) -> None:
-    failures = []
+    failures: list[Sample] = []
 
     def fail_twice_on_line0(sample: Sample) -> None:
         if sample.bus == "line0" and len(failures) < 2:
@@ -90,7 +90,8 @@ def test_a_failing_sink_is_contained_for_its_bus_which_resumes(
     poller = FleetPoller(lines.fleet(buses=2), samples, multiplex=multiplex, supervisor=supervisor)
     with poller:
         samples.wait_for(lambda ss: sum(s.bus == "line0" for s in ss) >= 6)  # line0 back after two failures
-        assert poller.running and poller.failure is None
+        still_polling = poller.running
+    assert still_polling and poller.failure is None
     assert supervisor.failures == {"bus-line0": 2}
     assert any(s.bus == "line1" for s in samples.list), "the other bus went on"
     logged = [r.getMessage() for r in caplog.records if r.name == "starterbus.service"]
@@ -111,7 +112,7 @@ def test_a_defect_in_a_poll_is_contained_and_the_bus_reopens_its_devices(
     supervisor = Supervisor(FAST)
     poller = FleetPoller(lines.fleet(buses=2), samples, multiplex=multiplex, supervisor=supervisor)
     with poller:
-        samples.wait_for(lambda ss: supervisor.failures and sum(s.bus == "line1" for s in ss) >= 6)
+        samples.wait_for(lambda ss: bool(supervisor.failures) and sum(s.bus == "line1" for s in ss) >= 6)
     assert supervisor.failures == {"bus-line1": 1} and poller.failure is None
     line1 = [s for s in samples.list if s.bus == "line1"]
     assert all(s.online for s in line1), "the bus started afresh: its devices reopened and answering"

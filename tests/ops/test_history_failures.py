@@ -19,6 +19,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from prometheus_client import CollectorRegistry, generate_latest
+from prometheus_client.parser import text_string_to_metric_families
 
 from starterbus.cli.main import main
 from starterbus.core.supervision import Backoff, Supervisor
@@ -26,6 +28,7 @@ from starterbus.fleet.poller import Sample
 from starterbus.ops.history import HistoryStore
 from starterbus.ops.history_writer import HistoryWriter
 from starterbus.ops.recorder import HistoryRecorder
+from starterbus.ops.service_metrics import ServiceCollector
 from starterbus.testing.conformance import wait_until
 
 from .conftest import Line
@@ -218,18 +221,37 @@ def test_a_vanished_directory_then_back(tmp_path: Path) -> None:
         assert sorted(e["kind"] for e in store.events()) == ["gap", "offline"]
 
 
-def test_a_locked_database_waits_and_loses_nothing(tmp_path: Path) -> None:
+def metrics(collector: ServiceCollector) -> dict[str, float]:
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(collector)
+    text = generate_latest(registry).decode()
+    return {
+        s.name + "".join(f"{{{v}}}" for v in s.labels.values()): s.value
+        for family in text_string_to_metric_families(text)
+        for s in family.samples
+    }
+
+
+def test_a_locked_database_waits_and_loses_nothing_and_the_metrics_say_so(tmp_path: Path) -> None:
     db = tmp_path / "h.db"
-    writer = HistoryWriter(db, retry=0.02, busy_timeout=0.05)
+    supervisor = Supervisor()
+    writer = HistoryWriter(db, retry=0.02, busy_timeout=0.05, supervisor=supervisor)
+    collector = ServiceCollector(supervisor, writer)
     try:
         other = sqlite3.connect(db, isolation_level=None)
         other.execute("BEGIN EXCLUSIVE")
         writer.add([{"time": 1.0, "device": "d", "online": 1}], [])
         assert wait_until(lambda: writer.failing_since is not None, WAIT)
         assert "locked" in str(writer.error) and writer.pending == 1
+        seen = metrics(collector)
+        assert seen["starterbus_history_writable"] == 0 and seen["starterbus_history_backlog"] == 1
+        assert seen["starterbus_history_write_errors_total"] >= 1 and seen["starterbus_history_outages_total"] == 1
         other.execute("COMMIT")
         other.close()
         assert wait_until(lambda: writer.failing_since is None and writer.pending == 0, WAIT)
+        seen = metrics(collector)
+        assert seen["starterbus_history_writable"] == 1 and seen["starterbus_history_written_total{samples}"] == 1
+        assert seen["starterbus_history_dropped_total{samples}"] == 0
     finally:
         writer.close()
     with HistoryStore(db, create=False) as store:
