@@ -143,8 +143,14 @@ def run_fleet(
             recorder.writer.on_event = json_lines.event  # the history failing and recovering: event lines
 
     def on_sample(sample: Sample) -> None:
-        for sink in sinks:
-            sink(sample)
+        failed: Exception | None = None
+        for sink in sinks:  # one failing sink (a CSV on a full disk) keeps the sample from no other
+            try:
+                sink(sample)
+            except Exception as exc:
+                failed = failed or exc
+        if failed is not None:
+            raise failed  # the poller's supervisor: logged, counted, the bus resumes after a backoff
 
     poller = FleetPoller(config, on_sample, rounds=1 if once else None, probing=probing, supervisor=supervisor)
     in_place = out.isatty() and not quiet
