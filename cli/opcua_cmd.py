@@ -133,7 +133,7 @@ async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace
     supervisor = Supervisor()  # the poller's threads and the server's tasks: a fatal failure stops it, exit 1
     interrupted = until_signalled(stop, args.duration, supervisor)
     async with AsyncFleet(config, supervisor=supervisor) as fleet, OpcUaServer(fleet, settings) as server:
-        metrics = _start_health(fleet.poller, args.metrics)
+        metrics = _start_health(fleet.poller, args.metrics, server)
         policies = [
             "Basic256Sha256 Sign",
             "Basic256Sha256 SignAndEncrypt",
@@ -162,21 +162,25 @@ async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace
     return exit_code(interrupted, supervisor)
 
 
-def _start_health(poller: object, address: str | None) -> str | None:
-    """systemd's notifications, and with ``--metrics`` the fleet's series, ``/healthz`` and ``/readyz``; returns
-    the metrics URL."""
+def _start_health(poller: object, address: str | None, server: object) -> str | None:
+    """systemd's notifications, and with ``--metrics`` the fleet's series, the logins' (``starterbus_opcua_*``),
+    ``/healthz`` and ``/readyz``; returns the metrics URL."""
     from starterbus.fleet.health import notify_systemd
     from starterbus.fleet.poller import FleetPoller
+    from starterbus.opcua.logins import LoginCollector
+    from starterbus.opcua.server import OpcUaServer
     from starterbus.ops.service_metrics import ServiceCollector
     from starterbus.serve.prometheus import FleetCollector, start_metrics_server
 
-    assert isinstance(poller, FleetPoller)
+    assert isinstance(poller, FleetPoller) and isinstance(server, OpcUaServer)
     notify_systemd(poller)  # under systemd: READY=1 after the first round, WATCHDOG=1 while the polls progress
     if address is None:
         return None
     collector = FleetCollector()
     collector.poller = poller
-    host, port, _server = start_metrics_server(address, collector, ServiceCollector(poller.supervisor))
+    host, port, _server = start_metrics_server(
+        address, collector, ServiceCollector(poller.supervisor), LoginCollector(lambda: server.logins)
+    )
     return f"http://{host}:{port}/metrics"
 
 

@@ -9,7 +9,7 @@ import logging
 import socket
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from starterbus.cli.lifetime import exit_code, until_signalled
 from starterbus.cli.output import emit_json_line
@@ -108,6 +108,15 @@ def _opcua_server(args: argparse.Namespace, fleet: object) -> contextlib.Abstrac
     return server
 
 
+def _opcua_metrics(args: argparse.Namespace, box: list[object]) -> list[Any]:
+    """With ``--opcua``, the series of its logins (``starterbus_opcua_*``), once the server in ``box`` started."""
+    if not args.opcua:
+        return []
+    from starterbus.opcua.logins import LoginCollector
+
+    return [LoginCollector(lambda: getattr(box[0], "logins", None) if box else None)]
+
+
 async def _serve(args: argparse.Namespace) -> int:
     from starterbus.aio import AsyncFleet
     from starterbus.core.supervision import Supervisor
@@ -195,12 +204,15 @@ async def _serve(args: argparse.Namespace) -> int:
             stop = asyncio.Event()
             interrupted = until_signalled(stop, args.duration, supervisor)
             metrics = None
+            opcua_box: list[object] = []  # the OPC UA server once started (its login series)
             if args.metrics:
-                mhost, mport, _server = start_metrics_server(args.metrics, collector, ServiceCollector(supervisor))
+                more = [ServiceCollector(supervisor), *_opcua_metrics(args, opcua_box)]
+                mhost, mport, _server = start_metrics_server(args.metrics, collector, *more)
                 metrics = f"http://{mhost}:{mport}/metrics"
             if demo is not None:
                 _run_demo_scenario(fleet.poller, demo, stop, asyncio.get_running_loop())
             async with _opcua_server(args, fleet) as opcua:  # the banner once every listener is up
+                opcua_box.append(opcua)
                 if not args.json:
                     _print_banner(session, node, broker, broker_proc is not None, options.commands_allowed)
                     if metrics:

@@ -26,7 +26,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
-from asyncua import Server, ua
+from asyncua import ua
 from asyncua.crypto.permission_rules import User, UserRole
 from asyncua.server.address_space import AttributeService
 from asyncua.server.internal_session import InternalSession
@@ -37,6 +37,8 @@ from starterbus.core.status import Command
 from starterbus.opcua.address_space import DeviceNodes, FleetNodes, PointNode, build_fleet
 from starterbus.opcua.certs import client_validator, ensure_certificate
 from starterbus.opcua.endpoint import listening, parse_endpoint
+from starterbus.opcua.logins import LoginGuard, LoginPolicy
+from starterbus.opcua.processor import GuardedServer
 from starterbus.opcua.refusals import code_name, status_code
 from starterbus.opcua.users import Role, RoleRuleset, UserEntry, UserManager
 from starterbus.opcua.values import initial_updates, point_updates, sample_updates, timestamp_now
@@ -72,6 +74,7 @@ class OpcUaSettings:
     application_uri: str = ""  # default urn:starterbus:HOSTNAME:opcua
     locale: str = "en"  # "en": English display names, Chinese descriptions; "zh": the other way round
     server_name: str = "starterbus OPC UA server"
+    logins: LoginPolicy = field(default_factory=LoginPolicy)  # throttling and lockout of failed logins
 
     def check(self) -> None:
         """Refuse settings under which nobody could connect, before anything starts."""
@@ -131,8 +134,9 @@ class OpcUaServer:
     def __init__(self, fleet: AsyncFleet, settings: OpcUaSettings) -> None:
         self.fleet = fleet
         self.settings = settings
-        self.users = UserManager(settings.users, anonymous=settings.anonymous)
-        self.server = Server(user_manager=self.users)
+        self.logins = LoginGuard(settings.users, settings.logins)
+        self.users = UserManager(settings.users, anonymous=settings.anonymous, guard=self.logins)
+        self.server = GuardedServer(self.logins, user_manager=self.users)
         self.nodes: FleetNodes | None = None
         self._pump: asyncio.Task[None] | None = None
         self.samples_served = 0

@@ -11,8 +11,9 @@ role = "read-only"     # read, browse and subscribe only
 password = "pbkdf2-sha256$..."
 ```
 
-Passwords are never stored or passed in clear. asyncua asks the user manager synchronously on the event loop,
-so one PBKDF2 verification (about 0.1 s at the default 600,000 iterations) blocks the server that long per login.
+Passwords are never stored or passed in clear. asyncua asks the user manager synchronously on the event loop;
+the server's :class:`~starterbus.opcua.logins.LoginGuard` has verified the password in a worker thread by then
+(about 0.1 s of PBKDF2 at the default 600,000 iterations), so the user manager only reads its verdict.
 """
 
 from __future__ import annotations
@@ -26,13 +27,16 @@ import sys
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from asyncua import ua
 from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User, UserRole
 
 from starterbus.core.errors import ConfigurationError
 from starterbus.core.textinput import read_text_file
+
+if TYPE_CHECKING:
+    from starterbus.opcua.logins import LoginGuard
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -136,17 +140,26 @@ def _toml_key(name: str) -> str:
 
 
 class UserManager:
-    """asyncua's user manager: users of the file by password; anonymous (read-only) only when enabled."""
+    """asyncua's user manager: users of the file by password; anonymous (read-only) only when enabled.
 
-    def __init__(self, users: Mapping[str, UserEntry], *, anonymous: bool = False) -> None:
+    With a ``guard`` (the server's), the password was verified off the loop and throttled before asyncua asks;
+    without one, :meth:`get_user` verifies here, synchronously.
+    """
+
+    def __init__(
+        self, users: Mapping[str, UserEntry], *, anonymous: bool = False, guard: LoginGuard | None = None
+    ) -> None:
         self.users = dict(users)
         self.anonymous = anonymous
+        self.guard = guard
 
     def get_user(
         self, iserver: object, username: str | None = None, password: str | None = None, certificate: object = None
     ) -> User | None:
         if username is None:
             return User(role=UserRole.Anonymous) if self.anonymous else None
+        if self.guard is not None:
+            return self.guard.decide(username, password)
         entry = self.users.get(username)
         if entry is None or password is None or not verify_password(password, entry.password_hash):
             return None
