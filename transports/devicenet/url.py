@@ -59,7 +59,7 @@ def parse_url(url: DeviceUrl, profile: Profile) -> tuple[ScannerConfig, LinkConf
     bitrates = settings.bitrates
     bitrate = url.get_int("bitrate", 500000)
     if bitrate not in bitrates:
-        raise ConfigurationError(f"{url.text}: bitrate: {bitrate} is not one of {', '.join(map(str, bitrates))} (bit/s)")
+        raise ConfigurationError(f"{url.text}: bitrate: {bitrate} is not one of {', '.join(map(str, bitrates))}")
     assemblies = url.get_str("assemblies", "auto", choices=("auto", "basic", "extended"))
     if "period" in url.query:
         if "poll" in url.query:
