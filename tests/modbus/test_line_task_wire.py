@@ -16,14 +16,16 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from starterbus.core.device import open_device
-from starterbus.core.errors import RemoteDeviceError, TimeoutError
+from starterbus.core.errors import RemoteDeviceError
 from starterbus.core.polling import PollResult, run_task
 from starterbus.tests.modbus.fault_peer import Step
 from starterbus.tests.modbus.test_answer_belongs import (
+    ATTEMPTS,
     FEW,
     PARAMS,
     Reader,
     pty_peer,
+    read_and_check,
     rtu_transport,
     run,
     schedules,
@@ -114,15 +116,15 @@ def test_one_late_answer_is_not_the_next_tasks_value(late: float) -> None:
     """Issue 11's measured bug, through tasks: after one late answer the next read got its values."""
     late_then_ok: list[Step] = [("late", 0.99), ("ok", 0.0)]
     read = task_read(late_by_up_to(late, 2) if late else on_time)
-    with pty_peer(late_then_ok, 2) as (path, peer), rtu_transport(f"modbus-rtu://{path}?{PARAMS}&retries=0") as t:
-        peer.watch(t.line.link)
-        try:
-            values = read(t, 0x0100, 2)
-        except TimeoutError:
-            pass
-        else:  # a task that looked late took the late answer as its own: it answers request #0
-            assert values == (0, 1)
-        assert read(t, 0x0200, 2) == (1, 2)  # request #1's own answer
+    for _ in range(ATTEMPTS):  # until the peer keeps its script (a loaded machine may hold it up)
+        with pty_peer(late_then_ok, 2) as (path, peer), rtu_transport(f"modbus-rtu://{path}?{PARAMS}&retries=0") as t:
+            tally = read_and_check(t, peer, 2, 2, (2,), read)
+        if not peer.off_script:
+            break
+    else:
+        pytest.fail(f"the peer was held up in each of {ATTEMPTS} attempts: the case never ran as scripted")
+    # a task that looked late took the late answer as its own: it answers request #0
+    assert tally.of(0) in ("TimeoutError", "value") and tally.of(1) == "value", tally  # request #1's own answer
 
 
 def test_an_exception_answer_ends_start_poll_with_the_device_refusal() -> None:
