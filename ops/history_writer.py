@@ -25,6 +25,7 @@ from typing import Any
 
 from starterbus.core.errors import ConfigurationError
 from starterbus.core.supervision import Supervisor
+from starterbus.core.timestamps import iso_time
 from starterbus.ops.history import ALL_DEVICES, SQLITE_MAGIC, HistoryStore, Retention
 
 log = logging.getLogger("starterbus.history")
@@ -433,4 +434,4 @@ class HistoryWriter:
 
     def _tell(self, what: dict[str, Any]) -> None:
         if self._on_event is not None:
-            self._on_event({"event": "history", "file": str(self.path), "time": time.time(), **what})
+            self._on_event({"event": "history", "file": str(self.path), "time": iso_time(), **what})
