@@ -153,7 +153,7 @@ class StarterApplication:
         if output.address is not None:
             self.selected_address = output.address
         word = output.control_word()
-        self.starter.write_control_word(word, cyclic=True)
+        self.starter.write_control_word(word, cyclic=True, source=f"DeviceNet output assembly {instance}")
         self._written = word
         self._cache.clear()
 
