@@ -92,7 +92,8 @@ class AsyncFleet:
 
     ``supervisor`` (:mod:`starterbus.core.supervision`) watches the poller's threads and whatever tasks the
     application runs beside it (``serve``'s edge node, the OPC UA server); if the poller fails, ``samples()``
-    raises :class:`~starterbus.core.supervision.ServiceFailed`.
+    raises :class:`~starterbus.core.supervision.ServiceFailed`. ``sink`` is called in the bus thread with every
+    sample before asyncio sees it, as ``poll``'s sinks are (``serve --record`` hands its history recorder).
     """
 
     def __init__(
@@ -101,10 +102,12 @@ class AsyncFleet:
         *,
         queue_size: int = 10_000,
         supervisor: Supervisor | None = None,
+        sink: Callable[[Sample], None] | None = None,
         **poller_kwargs: object,
     ) -> None:
         self.config = config
         self.supervisor = supervisor or Supervisor()
+        self.sink = sink
         self._queue_size = queue_size
         self._poller_kwargs = poller_kwargs
         self._subscribers: list[asyncio.Queue[Sample | None]] = []
@@ -129,9 +132,13 @@ class AsyncFleet:
             await asyncio.to_thread(self.poller.stop)
 
     def _on_sample(self, sample: Sample) -> None:  # a bus thread
-        loop = self._loop
-        if loop is not None and not loop.is_closed():
-            loop.call_soon_threadsafe(self._deliver, sample)
+        try:
+            if self.sink is not None:
+                self.sink(sample)  # a sink that raises is the bus's failure; the sample still reaches asyncio
+        finally:
+            loop = self._loop
+            if loop is not None and not loop.is_closed():
+                loop.call_soon_threadsafe(self._deliver, sample)
 
     def _deliver(self, sample: Sample | None) -> None:  # the event loop; None: the poller failed
         for queue in self._subscribers:

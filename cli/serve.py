@@ -55,6 +55,15 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p.add_argument("--buffer-size", type=float, default=100.0, help="MB of DDATA kept while the broker is away")
     p.add_argument("--buffer-age", type=float, default=86_400.0, help="oldest buffered DDATA kept, s")
     p.add_argument("--command-max-age", type=float, default=10.0, help="refuse DCMDs older than this, s")
+    p.add_argument("--record", metavar="DB", help="also write samples and events to this SQLite history")
+    p.add_argument("--keep", action="append", metavar="AGE|SIZE", help="history retention: 30d, 12h, 500MB")
+    p.add_argument(
+        "--record-backlog",
+        type=int,
+        default=10_000,
+        metavar="N",
+        help="samples kept in memory while the history cannot be written; older ones are dropped (default 10000)",
+    )
     p.add_argument("--primary-host", metavar="ID", help="publish only while this primary host's STATE is online")
     p.add_argument("--metrics", metavar="HOST:PORT", help="Prometheus endpoint, e.g. 127.0.0.1:9477")
     p.add_argument("--opcua", metavar="URL", help="also serve the fleet over OPC UA here, e.g. opc.tcp://0.0.0.0:4840")
@@ -121,6 +130,8 @@ async def _serve(args: argparse.Namespace) -> int:
     from starterbus.aio import AsyncFleet
     from starterbus.core.supervision import Supervisor
     from starterbus.fleet.config import load_fleet
+    from starterbus.ops.recorder import HistoryRecorder
+    from starterbus.ops.recorder import for_fleet as recorder_for_fleet
     from starterbus.ops.service_metrics import ServiceCollector
     from starterbus.serve.broker import BrokerOptions, load_credentials, parse_broker_url
     from starterbus.serve.driver import EdgeNodeDriver
@@ -131,6 +142,7 @@ async def _serve(args: argparse.Namespace) -> int:
 
     supervisor = Supervisor()  # every thread and task of the service: a fatal failure stops it, exit 1
     demo = broker_proc = store = None
+    recorder: HistoryRecorder | None = None
     interrupted: list[int] = []  # SIGINT once Ctrl-C stopped it: exit 130 after the clean shutdown
     node = args.node or socket.gethostname().split(".")[0]
     if args.opcua:  # where it listens: checked before the fleet, the broker or anything else starts
@@ -149,6 +161,10 @@ async def _serve(args: argparse.Namespace) -> int:
             config = demo.config
         else:
             config = await asyncio.to_thread(load_fleet, args.fleet)
+        if args.record:  # checked (and refused, one line) before the broker or the poller starts
+            recorder = await asyncio.to_thread(
+                recorder_for_fleet, args.record, config, args.keep, backlog=args.record_backlog, supervisor=supervisor
+            )
         if args.mqtt is None:
             from starterbus.serve.embedded import start_mosquitto
 
@@ -191,7 +207,7 @@ async def _serve(args: argparse.Namespace) -> int:
             config, options, deadband_steps=steps, deadband_per_key=per_key, bdseq=bdseq, store=store
         )
         collector = FleetCollector(session)
-        async with AsyncFleet(config, supervisor=supervisor) as fleet:
+        async with AsyncFleet(config, supervisor=supervisor, sink=recorder) as fleet:
             collector.poller = fleet.poller
             from starterbus.fleet.health import notify_systemd
 
@@ -206,7 +222,8 @@ async def _serve(args: argparse.Namespace) -> int:
             metrics = None
             opcua_box: list[object] = []  # the OPC UA server once started (its login series)
             if args.metrics:
-                more = [ServiceCollector(supervisor), *_opcua_metrics(args, opcua_box)]
+                history = recorder.writer if recorder is not None else None
+                more = [ServiceCollector(supervisor, history), *_opcua_metrics(args, opcua_box)]
                 mhost, mport, _server = start_metrics_server(args.metrics, collector, *more)
                 metrics = f"http://{mhost}:{mport}/metrics"
             if demo is not None:
@@ -238,6 +255,8 @@ async def _serve(args: argparse.Namespace) -> int:
                     print(f"  OPC UA: {getattr(opcua, 'endpoint_url', args.opcua)}", flush=True)
                 await driver.run(stop)
     finally:
+        if recorder is not None:
+            await asyncio.to_thread(recorder.close)  # what waits is written (the poller has stopped)
         if store is not None:
             store.close()
         if broker_proc is not None:
