@@ -55,6 +55,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p.add_argument("--buffer-size", type=float, default=100.0, help="MB of DDATA kept while the broker is away")
     p.add_argument("--buffer-age", type=float, default=86_400.0, help="oldest buffered DDATA kept, s")
     p.add_argument("--command-max-age", type=float, default=10.0, help="refuse DCMDs older than this, s")
+    p.add_argument(
+        "--command-max-skew", type=float, default=5.0, help="refuse DCMDs dated further in the future than this, s"
+    )
+    p.add_argument(
+        "--command-max-bytes", type=int, default=65_536, help="refuse larger NCMD/DCMD payloads, unparsed (bytes)"
+    )
     p.add_argument("--record", metavar="DB", help="also write samples and events to this SQLite history")
     p.add_argument("--keep", action="append", metavar="AGE|SIZE", help="history retention: 30d, 12h, 500MB")
     p.add_argument(
@@ -71,6 +77,11 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p.add_argument("--opcua-pki", metavar="DIR", default="pki", help="OPC UA server certificate directory")
     p.add_argument("--opcua-anonymous", action="store_true", help="let anonymous OPC UA clients read (never write)")
     p.add_argument("--opcua-allow-insecure", action="store_true", help="also offer OPC UA security None (trials only)")
+    p.add_argument(
+        "--opcua-trust-any-client",
+        action="store_true",
+        help="accept any OPC UA client certificate (trials only; default: those in OPCUA_PKI/trusted)",
+    )
     p.add_argument("--reconnect-delay", type=float, default=2.0, help="wait between connection attempts, s")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("-v", "--verbose", action="store_true", help="log every connection event")
@@ -111,6 +122,7 @@ def _opcua_server(args: argparse.Namespace, fleet: object) -> contextlib.Abstrac
         users=load_users(args.opcua_users) if args.opcua_users else {},
         anonymous=args.opcua_anonymous,
         allow_insecure=args.opcua_allow_insecure,
+        trust_any_client=args.opcua_trust_any_client,
     )
     settings.check()
     server: contextlib.AbstractAsyncContextManager[object] = OpcUaServer(fleet, settings)  # type: ignore[arg-type]
@@ -194,6 +206,8 @@ async def _serve(args: argparse.Namespace) -> int:
             buffer_size=bounds.size,
             buffer_age=bounds.age,
             command_max_age=args.command_max_age,
+            command_max_skew=args.command_max_skew,
+            command_max_bytes=args.command_max_bytes,
             commands_allowed=all(b.tls for b in broker) or args.allow_plaintext_commands,
             primary_host=args.primary_host,
             servers=len(broker),

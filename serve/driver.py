@@ -5,7 +5,13 @@ watched with ``add_reader``/``add_writer`` and ``loop_read``/``loop_write``/``lo
 burst of publishes costs no thread hand-off. Only ``connect`` (TCP and the TLS handshake, which block) runs in
 a worker thread. A new paho client is made for every connection, with the Will (NDEATH with the new bdSeq) set
 before its CONNECT; paho's own reconnect is not used, because it would reuse the old Will (SPARKPLUG.md
-pitfalls).
+pitfalls). bdSeq advances once per CONNECT sent: an attempt that got no TCP or TLS connection reuses it.
+
+Every DCMD/NCMD refused or ignored is appended to the audit log (:class:`~starterbus.core.audit.AuditLog`, the
+one the guarded path writes the executed operations to) with its reason, the topic and the actor: by the
+session's checks, by the fleet file's ``remote`` table, by validation. Refusals the guarded path audits itself (a
+state rule of a command, an operation not confirmed) and outcomes of operations that were sent are not written
+twice; an error raised while sending may be (the operation's record, and the DCMD's).
 """
 
 from __future__ import annotations
@@ -23,12 +29,27 @@ import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
 from starterbus.aio import AsyncFleet, RemoteNotAllowed
-from starterbus.core.errors import ConfigurationError, ValidationError
+from starterbus.core.audit import AuditLog
+from starterbus.core.errors import (
+    ConfigurationError,
+    StateRuleError,
+    UnknownPointError,
+    UnsupportedOperationError,
+    ValidationError,
+)
 from starterbus.core.guarded import ConfirmationRefused, GuardedOperationError, Outcome
 from starterbus.core.supervision import Supervisor
 from starterbus.fleet.poller import Sample
 from starterbus.serve.broker import BrokerOptions
-from starterbus.serve.session import Action, CommandRequest, EdgeSession, HistoryReady, Publish, Reconnect
+from starterbus.serve.session import (
+    Action,
+    CommandAudit,
+    CommandRequest,
+    EdgeSession,
+    HistoryReady,
+    Publish,
+    Reconnect,
+)
 from starterbus.serve.state import save_bdseq
 
 log = logging.getLogger("starterbus.serve")
@@ -57,9 +78,11 @@ class EdgeNodeDriver:
         on_sample: Callable[[Sample], None] | None = None,
         retry_delay: float = 2.0,
         history_batch: int = 200,
+        audit: AuditLog | None = None,
     ) -> None:
         """``broker``: one, or a list tried in turn (the first that answers; the next on a loss or when the
-        primary host goes offline there; ``retry_delay`` between rounds of the whole list)."""
+        primary host goes offline there; ``retry_delay`` between rounds of the whole list). ``audit``: where
+        refused commands go (default: the guarded path's default audit log)."""
         self.fleet = fleet
         self.session = session
         self.brokers = [broker] if isinstance(broker, BrokerOptions) else list(broker)
@@ -70,6 +93,7 @@ class EdgeNodeDriver:
         self.on_sample = on_sample
         self.retry_delay = retry_delay
         self.history_batch = history_batch
+        self.audit = audit if audit is not None else AuditLog()
         self._history_ready = asyncio.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._client: mqtt.Client | None = None
@@ -212,6 +236,8 @@ class EdgeNodeDriver:
             if isinstance(action, Publish):
                 if client is not None:
                     client.publish(action.topic, action.payload, qos=action.qos, retain=False)
+            elif isinstance(action, CommandAudit):
+                self._audit(action.device, action.topic, action.asked, action.result)
             elif isinstance(action, CommandRequest):
                 task = asyncio.get_running_loop().create_task(self._execute(action))
                 self._tasks.add(task)
@@ -221,7 +247,21 @@ class EdgeNodeDriver:
             elif isinstance(action, HistoryReady):
                 self._history_ready.set()
 
+    def _audit(self, device: str | None, topic: str, asked: str, result: str) -> None:
+        """One audit record for a command refused or ignored here (the guarded path records what it ran)."""
+        kind = topic.split("/")[2] if topic.count("/") >= 3 else "command"
+        record: dict[str, object] = {"device": None, "model": None}
+        config = getattr(getattr(self.fleet, "config", None), "devices_by_name", {}).get(device or "")
+        if config is not None:
+            record = {"device": config.url, "model": config.model}
+        record |= {"name": device, "actor": self.actor, "action": kind.lower(), "topic": topic, "asked": asked}
+        try:
+            self.audit.append(**record, result=result)
+        except OSError as exc:  # the audit file cannot be written: said, never a stop of the edge node
+            log.error("audit log %s: %s (%s %s: %s)", self.audit.path, exc, kind, device or "", result)
+
     async def _execute(self, req: CommandRequest) -> None:
+        audited = True  # by the guarded path; False: refused before it, audited here
         try:
             if req.command is not None:
                 outcome = await self.fleet.remote_command(req.device, req.command, actor=self.actor)
@@ -231,16 +271,24 @@ class EdgeNodeDriver:
                 outcomes = await self.fleet.remote_write(req.device, req.writes, actor=self.actor)
                 text, ok = describe_outcomes(outcomes), all(o.ok for o in outcomes)
             failed = not ok
-        except (RemoteNotAllowed, ValidationError, ConfirmationRefused) as exc:  # nothing was sent
-            text, ok, failed = str(exc), False, False
+        except (
+            RemoteNotAllowed, ValidationError, ConfirmationRefused, UnknownPointError, UnsupportedOperationError
+        ) as exc:  # fmt: skip
+            text, ok, failed = str(exc), False, False  # nothing was sent
+            audited = isinstance(exc, ConfirmationRefused) or (
+                req.command is not None and isinstance(exc, StateRuleError)
+            )
         except GuardedOperationError as exc:  # sent, but not as asked (not reached, read-back mismatch)
             text, ok, failed = f"{exc} [{describe_outcomes(exc.outcomes)}]", False, True
         except Exception as exc:  # transport errors and anything unforeseen: reported, never silent
-            text, ok, failed = f"{type(exc).__name__}: {exc}", False, True
+            text, ok, failed, audited = f"{type(exc).__name__}: {exc}", False, True, False
         log.info("DCMD %s %s: %s", req.device, req.command.value if req.command else req.writes, text)
         now = time.time()
-        done = self.session.command_done if ok else functools.partial(self.session.refuse, failed=failed)
-        self._apply(done(req.device, text, now))
+        if ok:
+            self._apply(self.session.command_done(req.device, text, now))
+            return
+        audit = None if audited else (req.topic, req.asked)
+        self._apply(self.session.refuse(req.device, text, now, failed=failed, audit=audit))
 
     # -- tasks ---------------------------------------------------------------------------------------------
 
@@ -274,12 +322,14 @@ class EdgeNodeDriver:
 
     async def _connections(self) -> None:
         index = 0
+        saved: int | None = None
         while True:
             b = self.broker = self.brokers[index]
             nxt = (index + 1) % len(self.brokers)
             will = self.session.next_will()
-            if self.state_file is not None:
+            if self.state_file is not None and saved != self.session.bdseq:  # before the CONNECT that carries it
                 await asyncio.to_thread(save_bdseq, self.state_file, self.session.bdseq)
+                saved = self.session.bdseq
             client = self._make_client(b, will)
             self._lost.clear()
             # current before CONNECT: its CONNACK and SUBACK may be read before this coroutine resumes
@@ -296,6 +346,7 @@ class EdgeNodeDriver:
                 else:
                     log.warning("broker %s unreachable: %s; trying %s", b.describe(), exc, self.brokers[nxt].describe())
                 continue
+            self.session.connect_sent()  # TCP (and TLS) up, the CONNECT with this Will written: a new bdSeq next time
             log.info("connected to %s (bdSeq %d)", b.describe(), self.session.bdseq)
             await self._lost.wait()  # cancelled on stop: _stop_cleanly says goodbye with this client
             self.session.on_disconnected()

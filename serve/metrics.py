@@ -2,8 +2,12 @@
 
 A device publishes its decoded status (``Status/*``), its configured measurements (``Measurements/<key>``) and
 parameters (``Parameters/<key>``), and offers ``Device Control/Start|Stop|Reset`` for DCMD; the outcome of the
-last command, refusals included, is ``Device Control/Last Command``. Each measurement or parameter carries the
-profile's unit, range, resolution, English and Chinese names as metric properties in the DBIRTH.
+last command, refusals included, is ``Device Control/Last Command``, and ``Device Control/Command Count`` goes +1
+with every outcome (so a repeated identical outcome is still seen). Each measurement or parameter carries the
+profile's unit, range, resolution, English and Chinese names as metric properties in the DBIRTH; an enum (and
+the fault code) its labels as the property set ``enum`` (code -> {``en``, ``zh``}); ``writable`` says what the
+fleet file's ``remote`` table lets a host write or command. Values polled from the device carry the Sparkplug
+``Quality`` property (192 good, 0 bad: not read in the device's last good poll).
 """
 
 from __future__ import annotations
@@ -11,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from starterbus.core.model import PointDef
+from starterbus.core.model import Label, PointDef
 from starterbus.core.profile import Profile
 from starterbus.core.status import Command
 from starterbus.fleet.config import DeviceConfig
@@ -19,12 +23,17 @@ from starterbus.fleet.poller import Sample
 from starterbus.serve.schema import DataType
 
 Scalar = float | int | bool | str
-Property = tuple[str, DataType, Scalar]
+#: a metric property: key, type and value; a PROPERTYSET's value is a tuple of properties
+Property = tuple[str, DataType, "Scalar | tuple[Property, ...]"]
+
+QUALITY = "Quality"  # Sparkplug's property: Int32, 192 good, 0 bad, 500 stale
+GOOD, BAD = 192, 0
 
 REBIRTH = "Node Control/Rebirth"
 BDSEQ = "bdSeq"
 LAST_COMMAND = "Device Control/Last Command"
 REFUSED = "Device Control/Commands Refused"
+COMMAND_COUNT = "Device Control/Command Count"
 COMMAND_METRICS = {
     "Device Control/Start": Command.START,
     "Device Control/Stop": Command.SOFT_STOP,
@@ -33,6 +42,8 @@ COMMAND_METRICS = {
 NODE_DEVICES_ONLINE = "Node Info/Devices Online"
 NODE_DROPPED = "Node Info/Buffered Messages Dropped"
 NODE_REFUSED = "Node Info/Commands Refused"
+NODE_LAST_COMMAND = "Node Info/Last Command"
+NODE_COMMAND_COUNT = "Node Info/Command Count"
 
 _STATUS_METRICS: tuple[tuple[str, DataType], ...] = (
     ("Status/State", DataType.STRING),
@@ -56,10 +67,8 @@ class MetricDef:
     deadband: float = 0.0  # a numeric change smaller than this is not reported (0: every change)
     point: PointDef | None = None  # the measurement or parameter behind it
     command: Command | None = None  # a Device Control metric: true in a DCMD asks for this command
-
-    @property
-    def writable(self) -> bool:
-        return self.point is not None and self.point.writable
+    writable: bool = False  # by a DCMD: the profile allows it and so does the fleet file's remote table
+    polled: bool = False  # a value read from the device: it carries the Quality property
 
 
 @dataclass(slots=True)
@@ -94,11 +103,22 @@ def node_metrics(aliases: Aliases) -> MetricSet:
             MetricDef(NODE_DEVICES_ONLINE, DataType.INT32, aliases.take()),
             MetricDef(NODE_DROPPED, DataType.INT64, aliases.take()),
             MetricDef(NODE_REFUSED, DataType.INT64, aliases.take()),
+            MetricDef(NODE_LAST_COMMAND, DataType.STRING, aliases.take()),
+            MetricDef(NODE_COMMAND_COUNT, DataType.INT64, aliases.take()),
         ]
     )
 
 
-def _point_metric(prefix: str, point: PointDef, aliases: Aliases, deadband_steps: float) -> MetricDef:
+def enum_property(labels: Mapping[int, Label]) -> Property:
+    """``enum``: code (decimal text) -> {``en``, ``zh``}, a PropertySet of PropertySets."""
+    codes = tuple(
+        (str(code), DataType.PROPERTYSET, (("en", DataType.STRING, label.en), ("zh", DataType.STRING, label.zh)))
+        for code, label in sorted(labels.items())
+    )
+    return ("enum", DataType.PROPERTYSET, codes)
+
+
+def _point_metric(prefix: str, point: PointDef, aliases: Aliases, deadband_steps: float, writable: bool) -> MetricDef:
     integral = point.enum is not None or point.scale == 1
     datatype = DataType.INT32 if integral else DataType.DOUBLE
     props: list[Property] = [
@@ -109,11 +129,13 @@ def _point_metric(prefix: str, point: PointDef, aliases: Aliases, deadband_steps
         ("nameEn", DataType.STRING, point.name_en),
         ("nameZh", DataType.STRING, point.name_zh),
         ("address", DataType.STRING, point.address),
-        ("writable", DataType.BOOLEAN, point.writable),
+        ("writable", DataType.BOOLEAN, writable),
     ]
-    return MetricDef(
-        f"{prefix}/{point.key}", datatype, aliases.take(), tuple(props), deadband_steps * point.scale, point
-    )
+    if point.enum is not None:
+        props.append(enum_property(point.enum.labels))
+    name = f"{prefix}/{point.key}"
+    deadband = deadband_steps * point.scale
+    return MetricDef(name, datatype, aliases.take(), tuple(props), deadband, point, writable=writable, polled=True)
 
 
 def device_metrics(
@@ -125,18 +147,28 @@ def device_metrics(
 ) -> MetricSet:
     """``deadband_steps``: resolution steps a value must move to be reported; ``per_key`` overrides it by key."""
     per_key = per_key or {}
+    remote = config.remote
 
     def point(prefix: str, key: str) -> MetricDef:
         p = profile.point(key)
-        return _point_metric(prefix, p, aliases, per_key.get(p.key, deadband_steps))
+        writable = p.writable and remote.allows_write(p.key)
+        return _point_metric(prefix, p, aliases, per_key.get(p.key, deadband_steps), writable)
 
-    defs = [MetricDef(name, datatype, aliases.take()) for name, datatype in _STATUS_METRICS]
+    faults = (enum_property(profile.faults.labels),)
+    defs = [
+        MetricDef(name, datatype, aliases.take(), faults if name == "Status/Fault Code" else (), polled=True)
+        for name, datatype in _STATUS_METRICS
+    ]
     defs += [point("Measurements", k) for k in config.measurements]
     defs += [point("Parameters", k) for k in config.parameters]
-    defs += [MetricDef(name, DataType.BOOLEAN, aliases.take(), command=cmd) for name, cmd in COMMAND_METRICS.items()]
+    for name, cmd in COMMAND_METRICS.items():
+        allowed = remote.allows_command(cmd)
+        props: tuple[Property, ...] = (("writable", DataType.BOOLEAN, allowed),)
+        defs.append(MetricDef(name, DataType.BOOLEAN, aliases.take(), props, command=cmd, writable=allowed))
     defs += [
         MetricDef(LAST_COMMAND, DataType.STRING, aliases.take()),
         MetricDef(REFUSED, DataType.INT64, aliases.take()),
+        MetricDef(COMMAND_COUNT, DataType.INT64, aliases.take()),
     ]
     return MetricSet(defs)
 
@@ -178,5 +210,5 @@ def changed(defn: MetricDef, old: Scalar | None, new: Scalar | None) -> bool:
 def initial_values() -> Mapping[str, Scalar | None]:
     """What a device's control metrics say before any command."""
     values: dict[str, Scalar | None] = {name: False for name in COMMAND_METRICS}
-    values.update({LAST_COMMAND: "", REFUSED: 0})
+    values.update({LAST_COMMAND: "", REFUSED: 0, COMMAND_COUNT: 0})
     return values

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from starterbus.serve.metrics import BDSEQ, MetricDef, Scalar
+from starterbus.serve.metrics import BDSEQ, QUALITY, MetricDef, Property, Scalar
 from starterbus.serve.schema import DataType, Payload, from_wire, to_wire, value_field
 
 #: one metric value to publish: its definition, the value (None: null) and its acquisition time in ms
@@ -20,10 +20,30 @@ def _set_value(target: Any, datatype: DataType, value: Scalar | None) -> None:
         setattr(target, value_field(datatype), to_wire(datatype, value))
 
 
+def _add_properties(target: Any, properties: Iterable[Property]) -> None:
+    """Fill a PropertySet; a PROPERTYSET value nests another set (payloads-propertyset-*: keys and values pair)."""
+    for key, ptype, pvalue in properties:
+        target.keys.append(key)
+        value = target.values.add(type=int(ptype))
+        if isinstance(pvalue, tuple):
+            _add_properties(value.propertyset_value, pvalue)
+        else:
+            _set_value(value, ptype, pvalue)
+
+
 def encode(
-    entries: Iterable[Entry], *, timestamp: int, seq: int | None, birth: bool, historical: bool = False
+    entries: Iterable[Entry],
+    *,
+    timestamp: int,
+    seq: int | None,
+    birth: bool,
+    historical: bool = False,
+    quality: Mapping[str, int] | None = None,
 ) -> bytes:
-    """A payload: in a BIRTH every metric has name, alias, datatype and properties; in DATA only the alias."""
+    """A payload: in a BIRTH every metric has name, alias, datatype and properties; in DATA only the alias.
+
+    ``quality``: metric name -> the Sparkplug ``Quality`` property to attach (Int32: 192 good, 0 bad)."""
+    quality = quality or {}
     payload = Payload(timestamp=timestamp)
     if seq is not None:
         payload.seq = seq
@@ -33,13 +53,13 @@ def encode(
             metric.name = defn.name
         if defn.alias is not None:
             metric.alias = defn.alias
+        properties: list[Property] = list(defn.properties) if birth else []
+        if defn.name in quality:
+            properties.append((QUALITY, DataType.INT32, quality[defn.name]))
         if birth:
             metric.datatype = int(defn.datatype)
-            if defn.properties:
-                props = metric.properties
-                for key, ptype, pvalue in defn.properties:
-                    props.keys.append(key)
-                    _set_value(props.values.add(type=int(ptype)), ptype, pvalue)
+        if properties:
+            _add_properties(metric.properties, properties)
         if historical:
             metric.is_historical = True
         _set_value(metric, defn.datatype, value)

@@ -38,6 +38,7 @@ class DataType(enum.IntEnum):
     STRING = 12
     DATETIME = 13
     TEXT = 14
+    PROPERTYSET = 20  # properties only: a nested set (an enum's labels)
 
 
 INT_TYPES = {DataType.INT8, DataType.INT16, DataType.INT32, DataType.UINT8, DataType.UINT16, DataType.UINT32}
@@ -74,7 +75,14 @@ def _build() -> tuple[Any, Any]:
         ]
     )
     prop_value = payload.nested_type.add(name="PropertyValue")
-    prop_value.field.extend([_field("type", 1, _U32), _field("is_null", 2, _BOOL), *_values(3, 0)])
+    prop_value.field.extend(
+        [
+            _field("type", 1, _U32),
+            _field("is_null", 2, _BOOL),
+            *_values(3, 0),
+            _field("propertyset_value", 9, _MSG, type_name="PropertySet", oneof=0),
+        ]
+    )
     prop_value.oneof_decl.add(name="value")
     prop_set = payload.nested_type.add(name="PropertySet")
     prop_set.field.extend([_field("keys", 1, _STR, _REP), _field("values", 2, _MSG, _REP, "PropertyValue")])
@@ -111,6 +119,7 @@ _FIELDS: dict[int, str] = {
     DataType.BOOLEAN.value: "boolean_value",
     DataType.STRING.value: "string_value",
     DataType.TEXT.value: "string_value",
+    DataType.PROPERTYSET.value: "propertyset_value",
 }
 _MASKS = {t.value: (1 << WIDTH.get(t, 32 if t in INT_TYPES else 64)) - 1 for t in INT_TYPES | LONG_TYPES}
 

@@ -2,41 +2,58 @@
 messages to publish (and commands to run through the guarded path) out. No sockets, threads or clocks here.
 
 Decisions (SPARKPLUG.md):
-- bdSeq goes +1 before every CONNECT (:meth:`EdgeSession.next_will`); the driver persists it, so it also
-  advances across restarts (pitfalls: Restarts), and sets the Will before every connect (pitfalls: Auto-reconnect).
+- bdSeq goes +1 once per CONNECT actually sent: :meth:`EdgeSession.next_will` gives the Will of the next CONNECT,
+  the same again after an attempt that never reached the broker (no TCP or TLS connection), a new one once
+  :meth:`EdgeSession.connect_sent` (or the CONNACK) said the last one went out. The driver persists it before
+  the CONNECT, so it also advances across restarts (pitfalls: Restarts), and sets the Will before every connect
+  (pitfalls: Auto-reconnect).
+- Every session starts with NBIRTH and the DBIRTH of every online device before any DATA: the births wait until
+  every device was polled once (answered or not; at most ``first_round_wait`` after the CONNACK) and, with a
+  primary host, for its online STATE. A device that answers later gets its DBIRTH then (allowed mid-session).
 - seq is one counter for NBIRTH/DBIRTH/DDATA/NDATA/DDEATH, 0 in every NBIRTH, wrapping 255 -> 0.
 - While no session is up (no broker, or the primary host offline) polling goes on: changed values are kept in a
   bounded store (``history.HistoryStore``, injected: in memory, or ``store.SqliteStore`` on disk); the oldest
   beyond the bounds are dropped and counted (``Node Info/Buffered Messages Dropped``). Once a device is born
   again (``HistoryReady``), :meth:`EdgeSession.history` hands its records out in order, in batches, as DDATA
   with is_historical=true; the driver reports them written with :meth:`EdgeSession.history_sent`.
-- A command is refused (and the refusal reported in ``Device Control/Last Command``) on a plaintext connection
-  unless allowed, when older than ``command_max_age`` by its metric (else payload) timestamp, for a device not
-  born, or for a metric that is not writable. Commands without any timestamp are accepted (the spec makes
-  timestamps optional); a host that wants the age check sends them.
+- Commands are checked by :mod:`starterbus.serve.commands` (size before parsing, plaintext, timestamps, types,
+  writability). Every outcome of a DCMD to a born device (executed, refused, failed, ignored) is published as
+  ``Device Control/Last Command`` with ``Device Control/Command Count`` + 1, of an NCMD as ``Node Info/Last
+  Command`` and ``Node Info/Command Count``; every refusal and ignored command is handed to the driver for the
+  audit log (:class:`CommandAudit`). DCMDs for unknown or unborn devices are ignored (audited, not published).
 """
 
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 from starterbus.core.errors import ConfigurationError
-from starterbus.core.status import Command
 from starterbus.fleet.config import FleetConfig
 from starterbus.fleet.poller import Sample
-from starterbus.serve.actions import Action, CommandRequest, HistoryReady, Publish, Reconnect, SessionOptions
+from starterbus.serve.actions import (
+    Action,
+    CommandAudit,
+    CommandRequest,
+    HistoryReady,
+    Publish,
+    Reconnect,
+    SessionOptions,
+)
 from starterbus.serve.history import Bounds, HistoryStore, MemoryStore
 from starterbus.serve.metrics import (
+    BAD,
     BDSEQ,
-    LAST_COMMAND,
+    GOOD,
+    NODE_COMMAND_COUNT,
     NODE_DEVICES_ONLINE,
     NODE_DROPPED,
+    NODE_LAST_COMMAND,
     NODE_REFUSED,
     REBIRTH,
-    REFUSED,
     Aliases,
+    MetricDef,
     MetricSet,
     Scalar,
     changed,
@@ -45,23 +62,27 @@ from starterbus.serve.metrics import (
     node_metrics,
     sample_values,
 )
-from starterbus.serve.payloads import (
-    BadCommandPayload,
-    CommandMetric,
-    Entry,
-    command_value,
-    decode_command,
-    encode,
-    encode_ndeath,
-)
+from starterbus.serve.payloads import Entry, encode, encode_ndeath
+from starterbus.serve.session_commands import SessionCommands
 
 NAMESPACE = "spBv1.0"
 
-__all__ = ["Action", "CommandRequest", "EdgeSession", "HistoryReady", "Publish", "Reconnect", "SessionOptions"]
+__all__ = [
+    "Action",
+    "CommandAudit",
+    "CommandRequest",
+    "EdgeSession",
+    "HistoryReady",
+    "Publish",
+    "Reconnect",
+    "SessionOptions",
+]
 
 
 @dataclass
-class _Device:
+class DeviceState:
+    """What the session knows of one device: its metrics, last values and what it published of them."""
+
     name: str
     metrics: MetricSet
     online: bool = False
@@ -70,13 +91,17 @@ class _Device:
     reported: dict[str, Scalar | None] = field(default_factory=dict)
     last_full: float = 0.0
     refused: int = 0
+    commands: int = 0  # outcomes published (Device Control/Command Count)
+    seen: bool = False  # polled at least once (answered or not)
+    fresh: set[str] = field(default_factory=set)  # polled metrics read in the last good poll
+    quality: dict[str, int] = field(default_factory=dict)  # the Quality last published per metric
 
 
 def _ms(t: float) -> int:
     return int(t * 1000)
 
 
-class EdgeSession:
+class EdgeSession(SessionCommands):
     def __init__(
         self,
         options: SessionOptions,
@@ -87,7 +112,7 @@ class EdgeSession:
     ):
         self.options = options
         self.node = node
-        self.devices = {name: _Device(name, metrics) for name, metrics in devices.items()}
+        self.devices = {name: DeviceState(name, metrics) for name, metrics in devices.items()}
         for dev in self.devices.values():
             dev.current = {k: (v, 0) for k, v in initial_values().items()}
         self.bdseq = bdseq  # the value of the current (or last) connection; -1 before the first
@@ -101,11 +126,15 @@ class EdgeSession:
         unknown = [r.id for r in self.store.take(set(self.store.pending()) - set(self.devices), 2**31)]
         self.store.discard(unknown)  # buffered by an earlier run for devices the fleet no longer has
         self.refused = 0
+        self.node_commands = 0
+        self.node_last_command = ""
         self.online = 0  # devices online now
         self.published = 0
         self.commands_allowed = options.commands_allowed
         self.topic_prefix = f"{NAMESPACE}/{options.group}"
         self._node_reported: dict[str, Scalar | None] = {}
+        self._will_pending = False  # the Will of next_will() is not yet sent in a CONNECT
+        self._connected_at: float | None = None
 
     @classmethod
     def for_fleet(
@@ -152,23 +181,38 @@ class EdgeSession:
     # -- connection ---------------------------------------------------------------------------------------
 
     def next_will(self) -> Publish:
-        """Before every CONNECT: bdSeq + 1 (wrapping 255 -> 0) and the NDEATH to register as the Will."""
-        self.bdseq = (self.bdseq + 1) % 256
+        """Before every CONNECT attempt: the NDEATH to register as the Will, with bdSeq + 1 (wrapping 255 -> 0) if
+        the last one was sent in a CONNECT, else the same bdSeq again."""
+        if not self._will_pending:
+            self.bdseq = (self.bdseq + 1) % 256
+            self._will_pending = True
         self.connected = self.born = False
         return self.ndeath()
+
+    def connect_sent(self) -> None:
+        """The CONNECT carrying the Will of :meth:`next_will` went out: the next connection takes a new bdSeq."""
+        self._will_pending = False
 
     def ndeath(self) -> Publish:
         return Publish(self.topic("NDEATH"), encode_ndeath(self.bdseq), qos=1)
 
     def on_connected(self, now: float) -> list[Action]:
         """The subscriptions are acknowledged: births now, or after the primary host says it is online."""
+        self.connect_sent()
         self.connected = True
         self.host_online_ts = None
-        if self.options.primary_host:
-            return []
-        return self._births(now)
+        self._connected_at = now
+        return self._births(now) if self._may_birth(now) else []
+
+    def _may_birth(self, now: float) -> bool:
+        """Connected, not born, the primary host (if any) online, and every device polled once (or waited long)."""
+        if not self.connected or self.born or (self.options.primary_host and self.host_online_ts is None):
+            return False
+        waited = self._connected_at is not None and now - self._connected_at >= self.options.first_round_wait
+        return waited or all(dev.seen for dev in self.devices.values())
 
     def on_disconnected(self) -> None:
+        self._connected_at = None
         self.connected = self.born = False
         for dev in self.devices.values():
             dev.born = False
@@ -188,6 +232,8 @@ class EdgeSession:
             NODE_DEVICES_ONLINE: self.online,
             NODE_DROPPED: self.dropped,
             NODE_REFUSED: self.refused,
+            NODE_LAST_COMMAND: self.node_last_command,
+            NODE_COMMAND_COUNT: self.node_commands,
         }
 
     @property
@@ -212,16 +258,22 @@ class EdgeSession:
             out.append(HistoryReady())
         return out
 
-    def _dbirth(self, dev: _Device, now: float) -> Publish:
+    def _dbirth(self, dev: DeviceState, now: float) -> Publish:
         entries: list[Entry] = []
         for d in dev.metrics.defs:
             value, ts = dev.current.get(d.name, (None, 0))
             entries.append((d, value, ts or _ms(now)))
         dev.born = True
         dev.reported = {d.name: dev.current.get(d.name, (None, 0))[0] for d in dev.metrics.defs}
+        dev.quality = {d.name: self._quality(dev, d) for d in dev.metrics.defs if d.polled}
         dev.last_full = now
-        payload = encode(entries, timestamp=_ms(now), seq=self._next_seq(), birth=True)
+        payload = encode(entries, timestamp=_ms(now), seq=self._next_seq(), birth=True, quality=dev.quality)
         return Publish(self.topic("DBIRTH", dev.name), payload)
+
+    @staticmethod
+    def _quality(dev: DeviceState, d: MetricDef) -> int:
+        """Good when read in the device's last good poll; bad when not read then (null, or an older value)."""
+        return GOOD if d.name in dev.fresh else BAD
 
     def history(self, now: float, limit: int = 200) -> tuple[list[Publish], list[int]]:
         """The next buffered DDATA of born devices, oldest first, as historical DDATA with the next seqs, and the
@@ -261,6 +313,7 @@ class EdgeSession:
         if dev is None:
             return []
         out: list[Action] = []
+        dev.seen = True
         if dev.online != sample.online:
             self.online += 1 if sample.online else -1
         dev.online = sample.online
@@ -269,9 +322,11 @@ class EdgeSession:
                 dev.born = False
                 payload = encode([], timestamp=_ms(now), seq=self._next_seq(), birth=False)
                 out.append(Publish(self.topic("DDEATH", dev.name), payload))
-            return out + self._node_data(now)
+            return out + self._node_data(now) + self._births_due(now)
         ts = _ms(sample.time)
-        for name, value in sample_values(sample, dev.metrics).items():
+        values = sample_values(sample, dev.metrics)
+        dev.fresh = {name for name, value in values.items() if value is not None}
+        for name, value in values.items():
             dev.current[name] = (value, ts)
         if self.born and not dev.born:
             out.append(self._dbirth(dev, now))
@@ -280,17 +335,32 @@ class EdgeSession:
         else:
             full = self.options.refresh > 0 and now - dev.last_full >= self.options.refresh
             out += self._device_data(dev, now, full=full)
-        return out + self._node_data(now)
+        return out + self._node_data(now) + self._births_due(now)
 
-    def _device_data(self, dev: _Device, now: float, *, full: bool = False) -> list[Action]:
+    def _births_due(self, now: float) -> list[Action]:
+        return self._births(now) if self._may_birth(now) else []
+
+    def _device_data(
+        self, dev: DeviceState, now: float, *, full: bool = False, always: frozenset[str] = frozenset()
+    ) -> list[Action]:
+        """DDATA of what changed (``full``: everything; ``always``: these metrics whether changed or not)."""
         entries: list[Entry] = []
+        quality: dict[str, int] = {}
         for d in dev.metrics.defs:
             if d.name not in dev.current:
                 continue
             value, ts = dev.current[d.name]
-            if full or d.name not in dev.reported or changed(d, dev.reported[d.name], value):
+            q = self._quality(dev, d) if d.polled else GOOD
+            q_changed = d.polled and dev.quality.get(d.name) != q
+            if full or d.name in always or d.name not in dev.reported or changed(d, dev.reported[d.name], value):
                 entries.append((d, value, ts or _ms(now)))
                 dev.reported[d.name] = value
+            elif q_changed:
+                entries.append((d, value, ts or _ms(now)))
+            else:
+                continue
+            if d.polled and (q_changed or q != GOOD):  # Quality is needed only when not good, or good again
+                quality[d.name] = dev.quality[d.name] = q
         if full:
             dev.last_full = now
         if not entries:
@@ -299,11 +369,12 @@ class EdgeSession:
             return [
                 Publish(
                     self.topic("DDATA", dev.name),
-                    encode(entries, timestamp=_ms(now), seq=self._next_seq(), birth=False),
+                    encode(entries, timestamp=_ms(now), seq=self._next_seq(), birth=False, quality=quality),
                 )
             ]
-        if not self.born:
-            self.store.append(dev.name, [(d.name, value, ts) for d, value, ts in entries], _ms(now))
+        polled = [(d.name, value, ts) for d, value, ts in entries if d.polled]  # history is of the device's values
+        if not self.born and polled:
+            self.store.append(dev.name, polled, _ms(now))
         return []
 
     def _node_data(self, now: float) -> list[Action]:
@@ -321,85 +392,23 @@ class EdgeSession:
         return [Publish(self.topic("NDATA"), encode(entries, timestamp=_ms(now), seq=self._next_seq(), birth=False))]
 
     def on_tick(self, now: float) -> list[Action]:
-        """Called about once a second: drop buffered data past its age."""
+        """Called about once a second: drop buffered data past its age; the births once the first round waited long."""
         self.store.expire(_ms(now))
-        return self._node_data(now)
+        return self._node_data(now) + self._births_due(now)
 
     # -- commands -----------------------------------------------------------------------------------------
 
-    def on_message(self, topic: str, data: bytes, now: float, actor: str = "") -> list[Action]:
+    def on_message(self, topic: str, data: bytes, now: float) -> list[Action]:
         parts = topic.split("/")
         if len(parts) == 3 and parts[:2] == [NAMESPACE, "STATE"]:
             return self._on_state(parts[2], data, now)
         if parts[:2] != [NAMESPACE, self.options.group] or len(parts) < 4 or parts[3] != self.options.node:
             return []
-        try:
-            payload = decode_command(data)
-        except BadCommandPayload:
-            return []  # logged by the driver; nothing to answer (the spec defines no acknowledgement)
         if parts[2] == "NCMD" and len(parts) == 4:
-            for m in payload.metrics:
-                if (m.name == REBIRTH) and m.field == "boolean_value" and m.raw is True and self.born:
-                    return self._births(now)  # stops DATA at once: everything after is new
-            return []
+            return self._on_ncmd(topic, data, now)
         if parts[2] == "DCMD" and len(parts) == 5:
-            return self._on_dcmd(parts[4], payload.timestamp, payload.metrics, now)
+            return self._on_dcmd(parts[4], topic, data, now)
         return []
-
-    def _on_dcmd(self, name: str, ts: int | None, metrics: Sequence[CommandMetric], now: float) -> list[Action]:
-        dev = self.devices.get(name)
-        if dev is None or not dev.born:
-            return []  # commands for dead or unborn devices are ignored (commands-dcmd-*)
-        command: Command | None = None
-        writes: dict[str, float | int | str] = {}
-        try:
-            for m in metrics:
-                defn = (
-                    dev.metrics.by_alias.get(m.alias) if m.alias is not None else dev.metrics.by_name.get(m.name or "")
-                )
-                if defn is None:
-                    continue  # unknown names are ignored (commands-dcmd-metric-name)
-                if not self.commands_allowed:
-                    raise PermissionError("commands are refused on a plaintext connection (--allow-plaintext-commands)")
-                stamp = m.timestamp if m.timestamp is not None else ts
-                if stamp is not None and _ms(now) - stamp > self.options.command_max_age * 1000:
-                    age = (_ms(now) - stamp) / 1000
-                    raise PermissionError(
-                        f"{defn.name}: command is {age:.1f} s old (limit {self.options.command_max_age:g} s)"
-                    )
-                value = command_value(defn, m)
-                if defn.command is not None:
-                    if value is True:
-                        if command is not None and command is not defn.command:
-                            raise PermissionError("one command per DCMD")
-                        command = defn.command
-                elif defn.writable and defn.point is not None:
-                    if isinstance(value, bool):
-                        raise ValueError(f"{defn.name}: a boolean is not a parameter value")
-                    writes[defn.point.key] = value
-                else:
-                    raise PermissionError(f"{defn.name} is not writable")
-        except (PermissionError, ValueError) as exc:
-            return self.refuse(name, str(exc), now)
-        if command is not None and writes:
-            return self.refuse(name, "a DCMD carries either a command or parameter writes, not both", now)
-        if command is None and not writes:
-            return []
-        return [CommandRequest(name, command, writes)]
-
-    def refuse(self, name: str, reason: str, now: float, *, failed: bool = False) -> list[Action]:
-        """Report a refused (nothing sent) or failed (sent, not as asked) command in the device's DDATA."""
-        dev = self.devices[name]
-        dev.refused += 1
-        self.refused += 1
-        return self.command_done(name, f"{'failed' if failed else 'refused'}: {reason}", now, count=True)
-
-    def command_done(self, name: str, text: str, now: float, *, count: bool = False) -> list[Action]:
-        dev = self.devices[name]
-        dev.current[LAST_COMMAND] = (text, _ms(now))
-        if count:
-            dev.current[REFUSED] = (dev.refused, _ms(now))
-        return self._device_data(dev, now) + self._node_data(now)
 
     # -- primary host ---------------------------------------------------------------------------------------
 

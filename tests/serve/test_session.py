@@ -13,11 +13,19 @@ from tahutils.tahu import sparkplug_b_pb2 as tahu
 
 from starterbus.core.model import Value
 from starterbus.core.registry import get_profile
-from starterbus.core.status import decode_status_word
-from starterbus.fleet.config import DeviceConfig
+from starterbus.core.status import Command, decode_status_word
+from starterbus.fleet.config import DeviceConfig, RemotePolicy
 from starterbus.fleet.poller import Sample
 from starterbus.serve.metrics import Aliases, device_metrics, node_metrics
-from starterbus.serve.session import CommandRequest, EdgeSession, HistoryReady, Publish, Reconnect, SessionOptions
+from starterbus.serve.session import (
+    CommandAudit,
+    CommandRequest,
+    EdgeSession,
+    HistoryReady,
+    Publish,
+    Reconnect,
+    SessionOptions,
+)
 
 PROFILE = get_profile("jjr5000")
 T0 = 1_800_000_000.0
@@ -26,7 +34,8 @@ T0 = 1_800_000_000.0
 def session(**options: Any) -> EdgeSession:
     aliases = Aliases()
     node = node_metrics(aliases)
-    config = DeviceConfig("pump", "l1", "jjr5000", "x", 2, 1.0, ("phase_a_current",), ("ramp_time",))
+    remote = RemotePolicy(frozenset({Command.START}), frozenset({"ramp_time"}))
+    config = DeviceConfig("pump", "l1", "jjr5000", "x", 2, 1.0, ("phase_a_current",), ("ramp_time",), remote)
     devices = {"pump": device_metrics(config, PROFILE, aliases, options.pop("deadband", 1.0))}
     return EdgeSession(SessionOptions("g", "n", **options), node, devices, bdseq=options.pop("bdseq", -1))
 
@@ -63,6 +72,10 @@ def test_will_carries_the_next_bdseq_and_wraps() -> None:
     assert (will.topic, will.qos) == ("spBv1.0/g/NDEATH/n", 1)
     (metric,) = decode(will).metrics
     assert (metric.name, metric.datatype, metric.long_value) == ("bdSeq", 4, 0) and not decode(will).HasField("seq")
+    assert decode(s.next_will()).metrics[0].long_value == 0  # that CONNECT was never sent: the same bdSeq
+    s.connect_sent()
+    assert decode(s.next_will()).metrics[0].long_value == 1
+    s.connect_sent()
     s.bdseq = 255
     assert decode(s.next_will()).metrics[0].long_value == 0
 
@@ -184,7 +197,7 @@ def test_commands_checked_before_the_guarded_path() -> None:
     ms = int(now * 1000)
     start = [("Device Control/Start", 11, "boolean_value", True)]
     assert s.on_message(topic, dcmd(start, ms), now) == [
-        CommandRequest("pump", s.devices["pump"].metrics.by_name["Device Control/Start"].command)
+        CommandRequest("pump", Command.START, {}, topic, "Device Control/Start=True")
     ]
     assert "old" in last_command(s.on_message(topic, dcmd(start, ms - 6000), now), s)
     assert "expected boolean" in last_command(
@@ -193,11 +206,14 @@ def test_commands_checked_before_the_guarded_path() -> None:
     assert "not writable" in last_command(
         s.on_message(topic, dcmd([("Measurements/phase_a_current", 10, "double_value", 1.0)], ms), now), s
     )
-    assert s.on_message(topic, dcmd([("Parameters/ramp_time", 3, "int_value", 20)], None), now) == [
-        CommandRequest("pump", None, {"ramp_time": 20})
+    assert s.on_message(topic, dcmd([("Parameters/ramp_time", 3, "int_value", 20)], ms), now) == [
+        CommandRequest("pump", None, {"ramp_time": 20}, topic, "Parameters/ramp_time=20")
     ]
-    assert s.on_message(topic, dcmd([("No Such Metric", 11, "boolean_value", True)], ms), now) == []
-    assert s.on_message("spBv1.0/g/DCMD/n/ghost", dcmd(start, ms), now) == []
+    assert "ignored: no metric" in last_command(
+        s.on_message(topic, dcmd([("No Such Metric", 11, "boolean_value", True)], ms), now), s
+    )
+    (audit,) = s.on_message("spBv1.0/g/DCMD/n/ghost", dcmd(start, ms), now)  # no DATA for an unknown device
+    assert audit == CommandAudit(None, "spBv1.0/g/DCMD/n/ghost", "?", "ignored: no such device")
     s.commands_allowed = False
     assert "plaintext" in last_command(s.on_message(topic, dcmd(start, ms), now), s)
     assert s.refused == 4
