@@ -121,6 +121,10 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
         "starterbus opcua plant.toml --endpoint opc.tcp://0.0.0.0:4840/starterbus --users users.toml "
         "--pki /var/lib/starterbus/pki",
     ),
+    "opcua-trust": (
+        "starterbus opcua-trust --pki /var/lib/starterbus/pki     # the refused client certificates, and the trusted",
+        "starterbus opcua-trust --pki /var/lib/starterbus/pki UaExpert_3F2A9C0D1E4B5A6F7081920A1B2C3D4E5F607182.der",
+    ),
     "opcua-user": (
         "starterbus opcua-user users.toml alice --role operator     # asks for the password twice",
         "starterbus opcua-user users.toml scada --role read-only",

@@ -235,6 +235,7 @@ _EXTENSIONS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser],
         {
             "opcua": "serve a fleet over OPC UA (methods and writes through the guarded path)",
             "opcua-user": "add or change a user of the OPC UA server (password from a prompt or stdin)",
+            "opcua-trust": "list the OPC UA client certificates refused (PKI/rejected), or trust one",
         },
     ),
 ]

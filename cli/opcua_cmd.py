@@ -19,6 +19,7 @@ from starterbus.core.outfiles import write_atomically
 from starterbus.core.registry import get_profile
 from starterbus.core.status import Command
 from starterbus.core.supervision import Supervisor
+from starterbus.core.timestamps import iso_time
 from starterbus.fleet.config import FleetConfig, RemotePolicy, load_fleet
 
 
@@ -39,7 +40,19 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p.add_argument(
         "--trust-clients",
         metavar="DIR",
-        help="accept only client certificates in this directory (default: any client certificate; users by password)",
+        help="the trusted client certificates are in DIR (default: PKI/trusted; unknown ones go to PKI/rejected)",
+    )
+    p.add_argument(
+        "--trust-any-client",
+        action="store_true",
+        help="accept any client certificate (trials only; default: only those in the trusted folder)",
+    )
+    p.add_argument(
+        "--cert-ip",
+        action="append",
+        default=[],
+        metavar="IP",
+        help="an IP address a generated server certificate names (repeatable; the endpoint's is named already)",
     )
     p.add_argument("--anonymous", action="store_true", help="let anonymous clients read and subscribe (never write)")
     p.add_argument(
@@ -59,6 +72,12 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     )
     p.add_argument("--json", action="store_true", help="one JSON line when the server is up (endpoint, devices...)")
     p.set_defaults(handler=cmd_opcua)
+
+    p = sub.add_parser("opcua-trust", help="list the refused OPC UA client certificates, or trust one")
+    p.add_argument("--pki", metavar="DIR", default="opcua-pki", help="the server's PKI directory (default %(default)s)")
+    p.add_argument("name", nargs="?", metavar="NAME", help="a file of PKI/rejected (or its thumbprint's start)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(handler=cmd_opcua_trust)
 
     p = sub.add_parser("opcua-user", help="add or change a user of the OPC UA server (password asked, stored hashed)")
     p.add_argument("users", metavar="USERS.toml", help="users file (created if missing)")
@@ -112,6 +131,8 @@ def cmd_opcua(args: argparse.Namespace) -> int:
         certificate=args.cert,
         private_key=args.key,
         trusted_clients=args.trust_clients,
+        trust_any_client=args.trust_any_client,
+        certificate_addresses=tuple(args.cert_ip),
         application_uri=args.application_uri,
         locale=args.locale,
     )
@@ -126,7 +147,7 @@ def cmd_opcua(args: argparse.Namespace) -> int:
 
 async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace) -> int:
     from starterbus.aio import AsyncFleet
-    from starterbus.opcua.server import OpcUaServer, OpcUaSettings
+    from starterbus.opcua.server import OpcUaServer, OpcUaSettings, security_names
 
     assert isinstance(settings, OpcUaSettings)
     stop = asyncio.Event()
@@ -134,11 +155,7 @@ async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace
     interrupted = until_signalled(stop, args.duration, supervisor)
     async with AsyncFleet(config, supervisor=supervisor) as fleet, OpcUaServer(fleet, settings) as server:
         metrics = _start_health(fleet.poller, args.metrics, server)
-        policies = [
-            "Basic256Sha256 Sign",
-            "Basic256Sha256 SignAndEncrypt",
-            *(["None"] if settings.allow_insecure else []),
-        ]
+        policies = security_names(settings.allow_insecure)
         if args.json:
             emit_json_line(
                 {
@@ -154,7 +171,10 @@ async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace
         else:
             count = len(settings.users)
             users = f"{count} user{'' if count == 1 else 's'}" + (", anonymous read-only" if settings.anonymous else "")
-            security = "Basic256Sha256 Sign, SignAndEncrypt" + (", None" if settings.allow_insecure else "")
+            security = "Basic256Sha256, Aes256_Sha256_RsaPss, Aes128_Sha256_RsaOaep: Sign, SignAndEncrypt"
+            security += ", None" if settings.allow_insecure else ""
+            clients = "any client certificate" if settings.trust_any_client else f"clients: {settings.trusted_folder()}"
+            security += f"; {clients}"
             print(f"OPC UA: {len(config.devices)} devices on {server.endpoint_url} ({security}; {users})", flush=True)
             if metrics:
                 print(f"  Prometheus metrics: {metrics}", flush=True)
@@ -182,6 +202,43 @@ def _start_health(poller: object, address: str | None, server: object) -> str | 
         address, collector, ServiceCollector(poller.supervisor), LoginCollector(lambda: server.logins)
     )
     return f"http://{host}:{port}/metrics"
+
+
+def cmd_opcua_trust(args: argparse.Namespace) -> int:
+    """Without a name: the rejected and the trusted client certificates. With one: move it to trusted/."""
+    _need_asyncua()
+    from starterbus.opcua.trust import REJECTED, TRUSTED, certificates, describe, trust
+
+    pki = Path(args.pki)
+    if not pki.is_dir():
+        raise ConfigurationError(f"{pki}: no such PKI directory (the server's --pki)")
+    if args.name:
+        target = trust(pki, args.name)
+        if args.json:
+            emit_json({"trusted": str(target)})
+        else:
+            print(f"trusted {target} (the server reads it at the next session)")
+        return 0
+    listing = {folder: [describe(p) for p in certificates(pki / folder)] for folder in (REJECTED, TRUSTED)}
+    if args.json:
+        emit_json(
+            {
+                folder: [
+                    {"file": c.file, "subject": c.subject, "uri": c.uri, "thumbprint": c.thumbprint,
+                     "not_after": iso_time(c.not_after.timestamp())}
+                    for c in infos
+                ]
+                for folder, infos in listing.items()
+            }
+        )  # fmt: skip
+        return 0
+    for folder, infos in listing.items():
+        print(f"{pki / folder}: {len(infos)} certificate{'' if len(infos) == 1 else 's'}")
+        for c in infos:
+            print(f"  {c.file}  {c.subject!r}  {c.uri}  valid until {c.not_after:%Y-%m-%d}")
+    if listing[REJECTED]:
+        print(f"trust one: starterbus opcua-trust --pki {pki} NAME")
+    return 0
 
 
 def cmd_opcua_user(args: argparse.Namespace) -> int:

@@ -35,11 +35,12 @@ from starterbus.aio import AsyncFleet
 from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.status import Command
 from starterbus.opcua.address_space import DeviceNodes, FleetNodes, PointNode, build_fleet
-from starterbus.opcua.certs import client_validator, ensure_certificate
+from starterbus.opcua.certs import ensure_certificate
 from starterbus.opcua.endpoint import listening, parse_endpoint
 from starterbus.opcua.logins import LoginGuard, LoginPolicy
 from starterbus.opcua.processor import GuardedServer
 from starterbus.opcua.refusals import code_name, status_code
+from starterbus.opcua.trust import REJECTED, TRUSTED, ClientTrust
 from starterbus.opcua.users import Role, RoleRuleset, UserEntry, UserManager
 from starterbus.opcua.values import initial_updates, point_updates, sample_updates, timestamp_now
 
@@ -51,16 +52,33 @@ _ADMIN = User(role=UserRole.Admin)  # asyncua's default for its own internal wri
 _ANONYMOUS = User(role=UserRole.Anonymous)
 _CALLER: contextvars.ContextVar[User | None] = contextvars.ContextVar("starterbus_opcua_caller", default=None)
 
+#: the secure endpoints offered, strongest first (policy None only with allow_insecure)
+SECURITY_POLICIES: tuple[tuple[str, str, ua.SecurityPolicyType], ...] = tuple(
+    (name, mode, getattr(ua.SecurityPolicyType, f"{attr}_{mode}"))
+    for name, attr in (
+        ("Basic256Sha256", "Basic256Sha256"),
+        ("Aes256_Sha256_RsaPss", "Aes256Sha256RsaPss"),
+        ("Aes128_Sha256_RsaOaep", "Aes128Sha256RsaOaep"),
+    )
+    for mode in ("SignAndEncrypt", "Sign")
+)
+
+
+def security_names(allow_insecure: bool) -> list[str]:
+    """The endpoints' security as clients see them: ``Basic256Sha256 SignAndEncrypt``, ..., ``None``."""
+    return [f"{name} {mode}" for name, mode, _ in SECURITY_POLICIES] + (["None"] if allow_insecure else [])
+
 
 @dataclass(frozen=True)
 class OpcUaSettings:
     """How the server listens and whom it lets in.
 
     ``pki_dir`` holds the server certificate (generated there on first run unless ``certificate`` and
-    ``private_key`` are given). Only Basic256Sha256 Sign and SignAndEncrypt are offered unless
-    ``allow_insecure``; anonymous sessions are refused unless ``anonymous`` (then they are read-only).
-    With ``trusted_clients`` a directory of client certificates (DER or PEM), only those clients may open a
-    secure channel; without it any client certificate is accepted and users are told apart by password.
+    ``private_key`` are given; its names: this host's and ``certificate_addresses``), ``trusted/`` (the client
+    certificates trusted) and ``rejected/`` (the unknown ones refused, saved there). ``trusted_clients`` names
+    another trusted folder; ``trust_any_client`` accepts every client certificate (trials only). Basic256Sha256,
+    Aes256_Sha256_RsaPss and Aes128_Sha256_RsaOaep, Sign and SignAndEncrypt, are offered; None only with
+    ``allow_insecure``. Anonymous sessions are refused unless ``anonymous`` (then they are read-only).
     """
 
     endpoint: str = "opc.tcp://0.0.0.0:4840/starterbus"
@@ -70,7 +88,9 @@ class OpcUaSettings:
     allow_insecure: bool = False
     certificate: Path | str | None = None
     private_key: Path | str | None = None
-    trusted_clients: Path | str | None = None  # directory of trusted client certificates; None: any client cert
+    trusted_clients: Path | str | None = None  # the trusted client certificates; None: PKI_DIR/trusted
+    trust_any_client: bool = False  # accept any client certificate (trials only; logged)
+    certificate_addresses: tuple[str, ...] = ()  # IP addresses (or names) a generated certificate names too
     application_uri: str = ""  # default urn:starterbus:HOSTNAME:opcua
     locale: str = "en"  # "en": English display names, Chinese descriptions; "zh": the other way round
     server_name: str = "starterbus OPC UA server"
@@ -90,6 +110,12 @@ class OpcUaSettings:
 
     def uri(self) -> str:
         return self.application_uri or f"urn:starterbus:{socket.gethostname()}:opcua"
+
+    def trusted_folder(self) -> Path:
+        return Path(self.trusted_clients) if self.trusted_clients is not None else Path(self.pki_dir) / TRUSTED
+
+    def rejected_folder(self) -> Path:
+        return Path(self.pki_dir) / REJECTED
 
 
 class _Session(InternalSession):
@@ -172,12 +198,13 @@ class OpcUaServer:
         server.application_type = ua.ApplicationType.Server
         await server.set_application_uri(settings.uri())
         await self._load_certificate()
-        if settings.trusted_clients is not None:
-            server.set_certificate_validator(await client_validator(Path(settings.trusted_clients)))
-        policies = [
-            ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
-            ua.SecurityPolicyType.Basic256Sha256_Sign,
-        ]
+        if settings.trust_any_client:
+            log.warning("OPC UA: any client certificate is accepted (trust any client): for trials only")
+        else:
+            trust = ClientTrust(settings.trusted_folder(), settings.rejected_folder())
+            trust.prepare()
+            server.set_certificate_validator(trust)
+        policies = [policy for _, _, policy in SECURITY_POLICIES]
         if settings.allow_insecure:
             policies.append(ua.SecurityPolicyType.NoSecurity)
         server.set_security_policy(policies, permission_ruleset=RoleRuleset(self.users))
@@ -223,7 +250,10 @@ class OpcUaServer:
         if settings.certificate is not None and settings.private_key is not None:
             cert, key = Path(settings.certificate), Path(settings.private_key)
         else:
-            cert, key = ensure_certificate(settings.pki_dir, settings.uri())
+            host = parse_endpoint(settings.endpoint)[0]
+            cert, key = ensure_certificate(
+                settings.pki_dir, settings.uri(), addresses=(host, *settings.certificate_addresses)
+            )
         try:
             await self.server.load_certificate(str(cert))
             await self.server.load_private_key(str(key))

@@ -173,7 +173,11 @@ def test_opcua_json_says_when_it_is_up_and_ctrl_c_exits_130(
     endpoint = urlsplit(str(doc["endpoint"]))
     assert doc["event"] == "ready" and endpoint.hostname == "127.0.0.1" and endpoint.port != 0
     assert doc["devices"] == DEMO_DEVICES and doc["anonymous"] is True and doc["users"] == 0
-    assert doc["security"] == ["Basic256Sha256 Sign", "Basic256Sha256 SignAndEncrypt"]
+    assert doc["security"] == [
+        f"{policy} {mode}"
+        for policy in ("Basic256Sha256", "Aes256_Sha256_RsaPss", "Aes128_Sha256_RsaOaep")
+        for mode in ("SignAndEncrypt", "Sign")
+    ]
     socket.create_connection(("127.0.0.1", endpoint.port or 0), timeout=10).close()  # it listens there
     code, out, err = interrupt(proc)
     assert (code, out) == (130, "") and "Traceback" not in err

@@ -78,6 +78,8 @@ def test_logins_are_checked_off_the_loop_throttled_and_locked_out(
     )
     users = {"op": UserEntry("op", Role.OPERATOR, hash_password("op-secret", iterations=1234))}
     cert, key = ensure_certificate(tmp_path / "client", CLIENT_URI)
+    (tmp_path / "pki" / "trusted").mkdir(parents=True)
+    (tmp_path / "pki" / "trusted" / "client.der").write_bytes(cert.read_bytes())
     clock = Clock()
     policy = LoginPolicy(ThrottlePolicy(backoff_base=1, lockout_after=3, lockout_seconds=600), refusal_delay=0)
     settings = OpcUaSettings("opc.tcp://127.0.0.1:0/sb", pki_dir=tmp_path / "pki", users=users, logins=policy)

@@ -55,8 +55,9 @@ def test_defaults_offer_only_signed_endpoints_and_refuse_anonymous(tmp_path: Pat
             endpoints = await Client(url).connect_and_get_server_endpoints()
             offered = {(e.SecurityPolicyUri.rsplit("#", 1)[1], e.SecurityMode) for e in endpoints}
             assert offered == {
-                ("Basic256Sha256", ua.MessageSecurityMode.Sign),
-                ("Basic256Sha256", ua.MessageSecurityMode.SignAndEncrypt),
+                (policy, mode)
+                for policy in ("Basic256Sha256", "Aes256_Sha256_RsaPss", "Aes128_Sha256_RsaOaep")
+                for mode in (ua.MessageSecurityMode.Sign, ua.MessageSecurityMode.SignAndEncrypt)
             }
             tokens = {t.TokenType for e in endpoints for t in e.UserIdentityTokens}
             assert tokens == {ua.UserTokenType.UserName}

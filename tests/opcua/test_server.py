@@ -128,6 +128,9 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
         settings = OpcUaSettings(
             "opc.tcp://127.0.0.1:0/starterbus", pki_dir=tmp / "pki", users=USERS, anonymous=True, allow_insecure=True
         )
+        cert, _key = ensure_certificate(tmp / "pki" / "client", CLIENT_URI)  # the tests' client, trusted
+        (tmp / "pki" / "trusted").mkdir()
+        (tmp / "pki" / "trusted" / "client.der").write_bytes(cert.read_bytes())
 
         async def serve() -> None:
             try:
