@@ -5,8 +5,9 @@ processor (:mod:`starterbus.opcua.processor`) therefore calls :meth:`LoginGuard.
 user token and verifies the password in a worker thread (one at a time: one core at most, whatever the flood) and
 leaves the verdict in a context variable; asyncua's synchronous path then only reads it (:meth:`LoginGuard.decide`,
 from the user manager). An unknown user name costs the same PBKDF2 (a dummy hash with the users' iterations), so
-timing tells nothing. Failures are throttled per source address and per user name (:mod:`.throttle`); a refused
-login is answered no sooner than ``refusal_delay`` after it arrived (costs no CPU, slows a client that loops).
+timing tells nothing. Failures are throttled per source address and per user name
+(:mod:`starterbus.ops.throttle`); a refused login is answered no sooner than ``refusal_delay`` after it arrived
+(costs no CPU, slows a client that loops).
 Security events go to the ``starterbus.opcua.security`` logger; counts to :class:`LoginCollector`.
 """
 
@@ -25,8 +26,8 @@ from asyncua.crypto.permission_rules import User, UserRole
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 
-from starterbus.opcua.throttle import Throttle, ThrottlePolicy
 from starterbus.opcua.users import DEFAULT_ITERATIONS, UserEntry, hash_password, verify_password
+from starterbus.ops.throttle import Throttle, ThrottlePolicy
 
 security_log = logging.getLogger("starterbus.opcua.security")
 

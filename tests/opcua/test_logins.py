@@ -20,8 +20,8 @@ from starterbus.opcua import logins
 from starterbus.opcua.certs import ensure_certificate
 from starterbus.opcua.logins import LoginCollector, LoginPolicy
 from starterbus.opcua.server import OpcUaServer, OpcUaSettings
-from starterbus.opcua.throttle import Throttle, ThrottlePolicy
 from starterbus.opcua.users import Role, UserEntry, hash_password
+from starterbus.ops.throttle import Throttle, ThrottlePolicy
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 
 CLIENT_URI = "urn:starterbus:test-client"
