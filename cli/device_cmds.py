@@ -18,6 +18,7 @@ from starterbus.cli.output import emit_json, table
 from starterbus.core.audit import AuditLog
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import UnsupportedOperationError, ValidationError
+from starterbus.core.fault_codes import value_text
 from starterbus.core.guarded import (
     Confirm,
     ConfirmationRefused,
@@ -28,7 +29,6 @@ from starterbus.core.guarded import (
 )
 from starterbus.core.model import PointDef, Value
 from starterbus.core.status import Command, Status
-from starterbus.ops.faults import value_text
 
 
 def _device(args: argparse.Namespace) -> Device:

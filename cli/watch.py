@@ -11,10 +11,10 @@ from typing import TextIO
 from starterbus.cli.output import emit_json_line, paint, table, use_colour
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
+from starterbus.core.fault_codes import value_text
 from starterbus.core.status import MotorState, Status
 from starterbus.core.timestamps import iso_time
 from starterbus.core.transport import Capability
-from starterbus.ops.faults import value_text
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: str) -> None:

@@ -17,13 +17,13 @@ from pathlib import Path
 from typing import TextIO
 
 from starterbus.core.errors import ConfigurationError, StarterbusError
+from starterbus.core.fault_codes import value_text
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.status import Status
 from starterbus.core.timestamps import iso_time
 from starterbus.fleet.config import FleetConfig
 from starterbus.fleet.poller import DeviceRuntime, Sample
-from starterbus.ops.faults import value_text
 
 TABLE_HEADERS = ["device", "model", "bus", "state", "ready", "fault", "I A/B/C (A)", "points", "bus ctl", "age",
                  "errors", "communication"]  # fmt: skip

@@ -21,6 +21,7 @@ from typing import Any
 
 from starterbus.core.device import Device
 from starterbus.core.errors import ConfigurationError, UnsupportedOperationError, ValidationError
+from starterbus.core.fault_codes import is_fault_code, value_text
 from starterbus.core.model import Kind, PointDef, Value
 from starterbus.core.outfiles import write_atomically
 from starterbus.core.profile import Profile
@@ -28,7 +29,6 @@ from starterbus.core.registry import get_profile
 from starterbus.core.textinput import read_text_file
 from starterbus.core.timestamps import iso_time
 from starterbus.core.transport import Capability
-from starterbus.ops.faults import is_fault_code, value_text
 
 if sys.version_info >= (3, 11):
     import tomllib

@@ -17,11 +17,11 @@ from pathlib import Path
 
 from starterbus.core.device import open_device
 from starterbus.core.errors import ConfigurationError
+from starterbus.core.fault_codes import value_text
 from starterbus.core.model import Value
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.ops import backup as backups
-from starterbus.ops.faults import value_text
 
 
 @dataclass(frozen=True, slots=True)

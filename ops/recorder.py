@@ -31,6 +31,7 @@ from typing import Any
 
 from starterbus.core.audit import AuditLog
 from starterbus.core.errors import ConfigurationError, StarterbusError
+from starterbus.core.fault_codes import value_text
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.supervision import Supervisor
@@ -38,7 +39,6 @@ from starterbus.core.timestamps import parse_iso_time
 from starterbus.core.url import DeviceUrl
 from starterbus.fleet.config import FleetConfig
 from starterbus.fleet.poller import Sample
-from starterbus.ops.faults import value_text
 from starterbus.ops.history import Retention
 from starterbus.ops.history_writer import DEFAULT_BACKLOG, DEFAULT_RETRY, HistoryWriter
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 
 from starterbus.cli.main import main
+from starterbus.core.fault_codes import fault_text, is_fault_code, value_text
 from starterbus.core.model import Value
 from starterbus.core.registry import get_profile
-from starterbus.ops.faults import fault_text, is_fault_code, value_text
 
 from .conftest import Line
 
