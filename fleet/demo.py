@@ -18,13 +18,10 @@ The simulators are the gateways' peers only through loopback and pseudo-terminal
 from __future__ import annotations
 
 import os
-import sys
 import threading
-import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import TextIO
 from urllib.parse import parse_qsl, urlencode
 
 from starterbus.core.device import Device
@@ -33,7 +30,7 @@ from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.status import Command
 from starterbus.core.transport import RunningSimulator
 from starterbus.fleet.config import FleetConfig, parse_fleet
-from starterbus.fleet.poller import FleetPoller, Sample
+from starterbus.fleet.poller import FleetPoller
 
 #: fast ramps so a 20 s demo shows whole start/stop cycles (raw values of the profiles' role parameters)
 DEMO_TIMES = {"ramp_time": 3, "stop_time": 2}
@@ -234,55 +231,3 @@ def scenario(duration: float) -> list[Step]:
         (15.0 * k, "soft stop mill", _command("mill", Command.SOFT_STOP)),
     ]
     return sorted(steps, key=lambda s: s[0])
-
-
-def run_demo(duration: float = 20.0, json_out: bool = False, out: TextIO | None = None) -> int:
-    """Start the demo fleet, poll it with the live table while the scenario runs, then print a summary."""
-    from starterbus.cli.poll import run_fleet
-    from starterbus.fleet.output import display_state
-
-    stream = out if out is not None else sys.stdout
-    events: list[str] = []
-    seen: dict[str, list[str]] = {}
-
-    def track(sample: Sample) -> None:
-        state = "offline" if not sample.online else (display_state(sample.status) if sample.status else "error")
-        states = seen.setdefault(sample.device, [])
-        if not states or states[-1] != state:
-            states.append(state)
-
-    with demo_fleet() as fleet:
-        start = time.monotonic()
-
-        def script(poller: FleetPoller) -> None:
-            def run() -> None:
-                for at, what, action in scenario(duration):
-                    if poller.stopping.wait(max(0.0, start + at - time.monotonic())):
-                        return
-                    action(poller, fleet)
-                    events.append(f"{time.monotonic() - start:5.1f}s  {what}")
-
-            threading.Thread(target=run, name="demo-scenario", daemon=True).start()
-
-        code = run_fleet(
-            fleet.config,
-            once=False,
-            json_out=json_out,
-            csv_path=None,
-            duration=duration,
-            out=stream,
-            during=script,
-            sinks=[track],
-            banner=lambda: f"last event: {events[-1].strip()}" if events else "",
-        )
-    print_summary(sys.stderr if json_out else stream, events, seen)  # --json: stdout carries JSON only
-    return code
-
-
-def print_summary(out: TextIO, events: list[str], seen: dict[str, list[str]]) -> None:
-    out.write("\nscenario:\n")
-    for line in events:
-        out.write(f"  {line}\n")
-    out.write("states seen per device:\n")
-    for device, states in seen.items():
-        out.write(f"  {device:9} {' -> '.join(states)}\n")
