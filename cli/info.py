@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Mapping
 from typing import Any
 
 from starterbus.cli.output import emit_json, table
+from starterbus.core.address_space import speakers
 from starterbus.core.model import PRINTED, Certainty, PointDef
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile, profiles, transports
@@ -20,7 +22,9 @@ def cmd_models(args: argparse.Namespace) -> int:
                 "name": entry.name,
                 "display_name": prof.display_name if prof else None,
                 "vendor": prof.vendor if prof else None,
-                "transports": sorted(prof.transports) if prof else [],
+                "transports": _speakers(prof) if prof else [],
+                "address_spaces": sorted(prof.spaces) if prof else [],
+                "overlays": list(prof.overlays) if prof else [],
                 "parameters": len(prof.parameters) if prof else 0,
                 "measurements": len(prof.measurements) if prof else 0,
                 "source": ", ".join(entry.distributions),
@@ -46,6 +50,11 @@ def cmd_models(args: argparse.Namespace) -> int:
             ],
         )
     return 0
+
+
+def _speakers(profile: Profile) -> list[str]:
+    """The installed transports that serve the model: those speaking one of its address spaces."""
+    return sorted(name for space in profile.spaces for name in speakers(space))
 
 
 def point_json(point: PointDef) -> dict[str, object]:
@@ -166,7 +175,8 @@ def profile_json(profile: Profile) -> dict[str, object]:
         "model": profile.name,
         "display_name": profile.display_name,
         "vendor": profile.vendor,
-        "transports": {k: _jsonable(v) for k, v in profile.transports.items()},
+        "transports": {k: _jsonable(v) for k, v in profile.spaces.items()},
+        "served_by": _speakers(profile),
         "faults": {
             str(k): {"en": v.en, "zh": v.zh, **profile.fault_sources.get(k, PRINTED).as_json()}
             for k, v in sorted(profile.faults.labels.items())
@@ -178,7 +188,7 @@ def profile_json(profile: Profile) -> dict[str, object]:
 
 
 def _jsonable(value: object) -> object:
-    if isinstance(value, dict):
+    if isinstance(value, Mapping):
         return {str(k): _jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [_jsonable(v) for v in value]

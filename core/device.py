@@ -237,7 +237,5 @@ def open_device(
     profile = model if isinstance(model, Profile) else get_profile(model)
     plugin = get_transport(parsed.transport)
     if not profile.supports(plugin.name):
-        raise UnsupportedOperationError(
-            f"{profile.display_name} has no {plugin.name} interface (it speaks: {', '.join(profile.transports)})"
-        )
+        raise UnsupportedOperationError(profile.no_interface(plugin.name))
     return Device(plugin.open(parsed, profile), profile, audit=audit, actor=actor, confirm=confirm)

@@ -13,8 +13,10 @@ import math
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any
 
+from starterbus.core.address_space import space_of
 from starterbus.core.entry import alternative_reading, convert_unit, split_quantity
 from starterbus.core.errors import ValidationError
 
@@ -104,6 +106,31 @@ class EnumTable:
         return ", ".join(f"{k} = {v.both()}" for k, v in sorted(self.labels.items()) if lo <= k <= hi)
 
 
+class AddressTable(dict[str, Any]):
+    """A point's addresses: address space -> address. Also looked up by the name of a transport that speaks the
+    space (``addresses["modbus-rtu"]`` is the ``modbus`` address), as code written before address spaces does."""
+
+    __slots__ = ()
+
+    def __init__(self, items: Mapping[str, Any] = MappingProxyType({})) -> None:
+        super().__init__((space_of(name), address) for name, address in items.items())
+
+    def __missing__(self, name: str) -> Any:
+        space = space_of(name)
+        if space != name and dict.__contains__(self, space):
+            return dict.__getitem__(self, space)
+        raise KeyError(name)
+
+    def get(self, name: str, default: Any = None) -> Any:
+        if dict.__contains__(self, name):
+            return dict.__getitem__(self, name)
+        space = space_of(name)
+        return dict.get(self, space, default) if space != name else default
+
+    def __contains__(self, name: object) -> bool:
+        return dict.__contains__(self, name) or (isinstance(name, str) and dict.__contains__(self, space_of(name)))
+
+
 @dataclass(frozen=True, slots=True)
 class PointDef:
     """One parameter or measurement of a device model."""
@@ -121,8 +148,8 @@ class PointDef:
     access: Access = Access.READ
     default: int | None = None
     bits: bool = False
-    #: transport plugin name -> this point's address on it, in the shape that plugin parsed
-    addresses: Mapping[str, Any] = field(default_factory=dict)
+    #: address space (``starterbus.core.address_space``) -> this point's address in it, as its parser made it
+    addresses: Mapping[str, Any] = field(default_factory=AddressTable)
     note: str = ""
     scale_source: Provenance = PRINTED
     default_source: Provenance = Provenance(Certainty.ASSUMED)
@@ -139,8 +166,13 @@ class PointDef:
     def scale_assumed(self) -> bool:
         return not self.scale_source.printed
 
+    def __post_init__(self) -> None:
+        if type(self.addresses) is not AddressTable:
+            object.__setattr__(self, "addresses", AddressTable(self.addresses))
+
     def address_for(self, transport: str) -> Any:
-        """This point's address on a transport (the plugin's name), or None."""
+        """This point's address in an address space (its name, or the name of a transport that speaks it), or
+        None."""
         return self.addresses.get(transport)
 
     def uncertainty(self, raw: int) -> str | None:

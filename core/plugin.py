@@ -69,6 +69,10 @@ class TransportPlugin(ABC):
     def open(self, url: DeviceUrl, profile: Profile) -> Transport:
         """Build a transport (not yet opened) for one device. Validate the URL here: bad URL, clear error."""
 
+    #: the address space this transport speaks (``starterbus.address_spaces``, e.g. ``"modbus"``): it serves
+    #: every model that has that space. "" (the default): a space of the plugin's own name, whose table and
+    #: point addresses this plugin parses (:meth:`parse_settings`, :meth:`parse_address`)
+    address_space: str = ""
     #: True when a profile naming this transport must give some of its points an address on it
     requires_point_addresses: bool = False
     #: the URL query parameter a fleet file's ``address`` of a device on this transport fills (None: it takes none)

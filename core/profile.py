@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
+from starterbus.core.address_space import parser_of, space_of
 from starterbus.core.entry import nearest
 from starterbus.core.errors import ConfigurationError, ProfileError, StarterbusError, UnknownPointError
 from starterbus.core.model import Certainty, EnumTable, Kind, PointDef, Provenance
@@ -29,7 +30,7 @@ from starterbus.core.profile_points import (
     text,
     text_list,
 )
-from starterbus.core.profile_transports import address_fields, parse_transports, plugin_named
+from starterbus.core.profile_transports import address_fields, parse_transports
 from starterbus.core.status import FaultTable
 from starterbus.core.textinput import read_text_file
 
@@ -89,13 +90,17 @@ class Profile:
     faults: FaultTable
     control: ControlTraits
     roles: Mapping[str, Any]  # role -> key (phase_currents -> list of keys)
-    transports: Mapping[str, Mapping[str, Any]]  # transport name -> its settings table, as written
+    #: address space -> its ``[transports.NAME]`` table, read-only, ``exceptions`` / ``errors`` parsed into
+    #: code -> Label (typed settings: :meth:`settings_for`)
+    spaces: Mapping[str, Mapping[str, Any]]
     manuals: tuple[str, ...] = ()
     notes: tuple[str, ...] = ()
     source: str = ""
     fault_sources: Mapping[int, Provenance] = field(default_factory=dict)  # fault code -> where it comes from
+    #: the overlays (``starterbus.overlays`` entry points) that added address spaces to the model as shipped
+    overlays: tuple[str, ...] = ()
     _by_address: Mapping[tuple[Kind | None, str], str] = field(default_factory=dict, repr=False)
-    #: transport name -> the typed object its plugin's ``parse_settings`` made of the table (opaque to the core)
+    #: address space -> the typed object its parser's ``parse_settings`` made of the table (opaque to the core)
     _settings: dict[str, object] = field(default_factory=dict, repr=False, compare=False)
 
     # -- lookup ---------------------------------------------------------------------------------------------
@@ -138,38 +143,58 @@ class Profile:
     def phase_currents(self) -> list[PointDef]:
         return [self.points[k] for k in self.roles.get("phase_currents", [])]
 
+    @property
+    def transports(self) -> Mapping[str, Mapping[str, Any]]:
+        """Deprecated name of :attr:`spaces` (its keys are address spaces, not transport names)."""
+        return self.spaces
+
     def supports(self, transport: str) -> bool:
-        return transport in self.transports
+        """True when the model has the address space ``transport`` (a space or a transport plugin's name) speaks."""
+        return space_of(transport) in self.spaces
 
     def transport_settings(self, transport: str) -> Mapping[str, Any]:
-        """The ``[transports.NAME]`` table as written (for display); a transport reads :meth:`settings_for`."""
-        return self.transports.get(transport, {})
+        """The table of the address space ``transport`` (a space or a transport's name) names: read-only, as the
+        file writes it except ``exceptions`` / ``errors``, whose keys are parsed to integers and entries to
+        :class:`Label`. For display; a transport reads its typed settings with :meth:`settings_for`."""
+        return self.spaces.get(space_of(transport), {})
 
     def settings_for(self, transport: str, kind: type[S]) -> S:
-        """The typed settings object the plugin ``transport`` parsed from its table when the profile loaded
-        (``TransportPlugin.parse_settings``; parsed now for a profile built in code or loaded before the plugin
-        was installed). ``kind`` is the plugin's own class: anything else is a ConfigurationError."""
-        value = self._settings.get(transport)
+        """The typed settings object the parser of the address space ``transport`` names (the space, or a
+        transport that speaks it) made of its table when the profile loaded (``AddressSpace.parse_settings``, or
+        the plugin's for a plugin that is its own space; parsed now for a profile loaded before the parser was
+        installed). ``kind`` is the parser's own class: anything else is a ConfigurationError."""
+        space = space_of(transport)
+        value = self._settings.get(space)
         if value is None:
-            plugin = plugin_named(transport)
-            if plugin is None:
-                raise ConfigurationError(f"{self.name}: no transport plugin {transport!r} is installed")
+            parser = parser_of(space)
+            if parser is None:
+                raise ConfigurationError(f"{self.name}: nothing installed parses the {space} address space")
             try:
-                value = plugin.parse_settings(self.transport_settings(transport))
+                value = parser.parse_settings(self.transport_settings(space))
             except StarterbusError as exc:
-                raise ProfileError(self.source or self.name, f"transports.{key_text(transport)}", str(exc)) from None
-            self._settings[transport] = value
+                raise ProfileError(self.source or self.name, f"transports.{key_text(space)}", str(exc)) from None
+            self._settings[space] = value
         if not isinstance(value, kind):
             raise ConfigurationError(
-                f"{self.name}: the {transport} settings are a {type(value).__name__}, not a {kind.__name__}"
+                f"{self.name}: the {space} settings are a {type(value).__name__}, not a {kind.__name__}"
             )
         return value
 
     def by_protocol_address(self, transport: str, kind: Kind, address: object) -> PointDef | None:
+        space = space_of(transport)
         for point in self.points.values():
-            if point.kind is kind and point.addresses.get(transport) == address:
+            if point.kind is kind and point.addresses.get(space) == address:
                 return point
         return None
+
+    def no_interface(self, transport: str) -> str:
+        """Why ``transport`` cannot serve this model, for an error message."""
+        space = space_of(transport)
+        speaks = f" (it speaks the {space} address space)" if space != transport else ""
+        return (
+            f"{self.display_name} has no {transport} interface{speaks}; its address spaces: "
+            f"{', '.join(sorted(self.spaces))}"
+        )
 
 
 def normalise_address(text: str, style: str) -> tuple[Kind | None, str] | None:
@@ -253,7 +278,7 @@ def build_profile(data: Mapping[str, Any], source: str) -> Profile:
         fault_sources=fault_table.sources,
         control=control,
         roles=roles,
-        transports=transports,
+        spaces=transports,
         manuals=text_list(model, "manuals", source, "model."),
         notes=text_list(model, "notes", source, "model."),
         source=source,
@@ -277,6 +302,8 @@ def _points(
     defaults: tuple[Provenance, Provenance],
     address_fields: Mapping[str, AddressParser],
 ) -> tuple[dict[str, PointDef], dict[tuple[Kind | None, str], str]]:
+    tables = data.get("transports")
+    written = [str(name) for name in tables] if isinstance(tables, Mapping) else []
     points: dict[str, PointDef] = {}
     used: dict[tuple[str, Kind, object], str] = {}
     by_address: dict[tuple[Kind | None, str], str] = {}
@@ -292,17 +319,19 @@ def _points(
             if not isinstance(key, str) or not _KEY_RE.fullmatch(key):
                 raise ProfileError(source, f"{where}.key", f"{shown(key)} is not a snake_case key")
             where = f"{section}.{key}"
-            unknown = set(entry) - POINT_FIELDS - set(address_fields)
+            fields = _address_fields(entry, source, where)
+            unknown = {name for name, space in fields.items() if space not in address_fields}
             if unknown:
                 raise ProfileError(
                     source,
                     where,
-                    f"unknown field(s) {sorted(unknown)} (addresses go in a field named after a transport "
-                    f"of [transports]: {', '.join(sorted(address_fields)) or 'none named'})",
+                    f"unknown field(s) {sorted(unknown)} (addresses go in a field named after an address space "
+                    f"of [transports], or a transport that speaks it: {', '.join(written) or 'none named'})",
                 )
             if key in points:
                 raise ProfileError(source, where, "duplicate key")
-            point = build_point(entry, kind, key, enums, source, where, defaults, address_fields)
+            parsers = {name: address_fields[space] for name, space in fields.items()}
+            point = build_point(entry, kind, key, enums, source, where, defaults, parsers)  # addresses by space
             for proto, addr in point.addresses.items():
                 slot = (proto, kind, addr)
                 try:
@@ -330,6 +359,22 @@ def _points(
             by_address[slot_key] = key
             points[key] = point
     return points, by_address
+
+
+def _address_fields(entry: Mapping[str, Any], source: str, where: str) -> dict[str, str]:
+    """The point's address fields as written -> their address spaces (``modbus-rtu = ...`` gives the ``modbus``
+    address its plugin speaks); two fields giving one space is an error."""
+    fields: dict[str, str] = {}
+    seen: dict[str, str] = {}
+    for name in entry:
+        if name in POINT_FIELDS:
+            continue
+        space = space_of(str(name))
+        if space in seen:
+            raise ProfileError(source, where, f"{seen[space]!r} and {name!r} both give the {space} address")
+        fields[str(name)] = space
+        seen[space] = str(name)
+    return fields
 
 
 def _control(data: Mapping[str, Any], points: Mapping[str, PointDef], source: str) -> ControlTraits:

@@ -4,7 +4,10 @@ Groups:
 
 - ``starterbus.transports``: a :class:`TransportPlugin` instance (or a class to instantiate without arguments);
 - ``starterbus.profiles``: a :class:`Profile`, a path / ``importlib.resources`` file of a profile TOML, or a
-  callable returning either.
+  callable returning either;
+- ``starterbus.address_spaces``: an :class:`~starterbus.core.address_space.AddressSpace` (or a class);
+- ``starterbus.overlays``: named ``MODEL.NAME``, an overlay adding address spaces to the model ``MODEL``
+  (a path / resource of its TOML, its parsed mapping, or a callable returning one: ``core/profile_overlay.py``).
 
 Built-ins are registered in ``pyproject.toml`` exactly like a third-party distribution would register its own.
 A plugin that fails to import is reported with its error and does not affect the others; two entry points
@@ -13,15 +16,18 @@ with one name in one group is an error, never a silent override.
 
 from __future__ import annotations
 
+import logging
+import sys
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Generic, TypeVar
 
-from starterbus.core.errors import PluginError, StarterbusError
-from starterbus.core.profile import Profile, load_profile_file, load_profile_text
-from starterbus.core.textinput import decode_text
+from starterbus.core.address_space import AddressSpace, forget
+from starterbus.core.errors import PluginError, ProfileError, StarterbusError
+from starterbus.core.profile import Profile, build_profile, load_profile_file
+from starterbus.core.textinput import decode_text, read_text_file
 from starterbus.core.transport import TransportPlugin
 
 if TYPE_CHECKING:
@@ -29,8 +35,16 @@ if TYPE_CHECKING:
 
 TRANSPORT_GROUP = "starterbus.transports"
 PROFILE_GROUP = "starterbus.profiles"
+SPACE_GROUP = "starterbus.address_spaces"
+OVERLAY_GROUP = "starterbus.overlays"
 
 T = TypeVar("T")
+_log = logging.getLogger("starterbus.registry")
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
 
 
 @dataclass
@@ -130,6 +144,7 @@ class Registry(Generic[T]):
         """Forget what was scanned (after installing a distribution at run time)."""
         with self._lock:
             self._entries = None
+        forget()
 
 
 def _to_transport(name: str, obj: object) -> TransportPlugin:
@@ -147,28 +162,73 @@ def _is_resource(obj: object) -> bool:
     return hasattr(obj, "read_text") and hasattr(obj, "is_file")
 
 
-def _to_profile(name: str, obj: object) -> Profile:
+def _to_space(name: str, obj: object) -> AddressSpace:
+    if isinstance(obj, type) and issubclass(obj, AddressSpace):
+        obj = obj()
+    if not isinstance(obj, AddressSpace):
+        raise PluginError(f"entry point {name!r} gives {obj!r}, not an AddressSpace")
+    if obj.name != name:
+        raise PluginError(f"entry point {name!r} gives an address space that calls itself {obj.name!r}")
+    return obj
+
+
+def _read_toml(name: str, obj: object) -> tuple[object, str]:
+    """A profile or overlay entry point's object: a Profile or mapping as is, a file read and parsed as TOML."""
     if callable(obj) and not isinstance(obj, (Profile, Path)) and not _is_resource(obj):
         obj = obj()
-    profile: Profile
-    if isinstance(obj, Profile):
-        profile = obj
-    elif isinstance(obj, Path):
-        profile = load_profile_file(obj)
+    if isinstance(obj, (Profile, Mapping)):
+        return obj, name
+    if isinstance(obj, (Path, str)):
+        source = str(obj)
+        text = read_text_file(obj, "profile", error=lambda where, detail: ProfileError(where, "(file)", detail))
     elif _is_resource(obj):
-        data: bytes = obj.read_bytes()  # type: ignore[attr-defined]
-        profile = load_profile_text(decode_text(data, str(obj), "profile"), str(obj))
-    elif isinstance(obj, str):
-        profile = load_profile_file(obj)
+        source = str(obj)
+        text = decode_text(obj.read_bytes(), source, "profile")  # type: ignore[attr-defined]
     else:
         raise PluginError(f"entry point {name!r} gives {obj!r}, not a profile or a path to one")
+    try:
+        return tomllib.loads(text), source
+    except tomllib.TOMLDecodeError as exc:
+        raise ProfileError(source, "(toml)", str(exc)) from exc
+
+
+def _to_profile(name: str, obj: object) -> Profile:
+    data, source = _read_toml(name, obj)
+    profile = data if isinstance(data, Profile) else build_profile(data, source)  # type: ignore[arg-type]
     if profile.name != name:
         raise PluginError(f"profile entry point {name!r} loads a profile named {profile.name!r}")
-    return profile
+    return _with_overlays(profile)
+
+
+def _identity(name: str, obj: object) -> object:
+    return obj
 
 
 transports: Registry[TransportPlugin] = Registry(TRANSPORT_GROUP, _to_transport)
 profiles: Registry[Profile] = Registry(PROFILE_GROUP, _to_profile)
+address_spaces: Registry[AddressSpace] = Registry(SPACE_GROUP, _to_space)
+overlays: Registry[object] = Registry(OVERLAY_GROUP, _identity)
+#: overlay entry name -> why it was left out of its model (the model loads without it)
+overlay_errors: dict[str, str] = {}
+
+
+def _with_overlays(profile: Profile) -> Profile:
+    """The model with every overlay registered for it (``MODEL.NAME``); a broken overlay is left out, logged and
+    kept in :data:`overlay_errors`: one plugin's mistake does not take the model from everyone."""
+    from starterbus.core.profile_overlay import apply_overlay
+
+    for entry_name in overlays.names():
+        if entry_name.partition(".")[0] != profile.name:
+            continue
+        try:
+            data, source = _read_toml(entry_name, overlays.get(entry_name))
+            if not isinstance(data, Mapping):
+                raise PluginError(f"overlay {entry_name!r} gives {data!r}, not an overlay table")
+            profile = apply_overlay(profile, data, f"overlay {entry_name} ({source})")
+        except Exception as exc:
+            overlay_errors[entry_name] = f"{type(exc).__name__}: {exc}"
+            _log.warning("overlay %s left out of %s: %s", entry_name, profile.name, exc)
+    return profile
 
 
 def get_transport(name: str) -> TransportPlugin:
@@ -183,11 +243,14 @@ def get_profile(name_or_path: str) -> Profile:
 
 
 __all__ = [
+    "OVERLAY_GROUP",
     "PROFILE_GROUP",
+    "SPACE_GROUP",
     "TRANSPORT_GROUP",
     "PluginEntry",
     "Registry",
     "StarterbusError",
+    "address_spaces",
     "get_profile",
     "get_transport",
     "profiles",

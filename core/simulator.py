@@ -31,6 +31,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
+from starterbus.core.address_space import space_of
 from starterbus.core.control_log import ControlLog, ControlWrite, counts
 from starterbus.core.errors import Refusal, SimulatorRefusal
 from starterbus.core.model import Kind, PointDef
@@ -148,8 +149,10 @@ class SimulatedStarter:
     # -- addressing ---------------------------------------------------------------------------------------
 
     def point_at(self, transport: str, kind: Kind, address: object) -> PointDef:
-        """The point at ``address`` on a transport (the plugin's name, as in the profile's address fields)."""
+        """The point at ``address`` in an address space (its name, or a transport's that speaks it)."""
         point = self._addr.get((transport, kind, address))
+        if point is None:
+            point = self._addr.get((space_of(transport), kind, address))
         if point is None:
             shown = f"{address:#06x}" if isinstance(address, int) else repr(address)
             raise SimulatorRefusal(Refusal.NOT_AVAILABLE, f"no {kind.value} at {transport} address {shown}")

@@ -228,7 +228,7 @@ def build_fleet(data: Mapping[str, Any], source: str = "<fleet>", lines: _Lines 
             except StarterbusError as exc:
                 raise fail(f"{dwhere}.model", str(exc)) from None
             if not profile.supports(url.transport):
-                raise fail(f"{dwhere}.model", f"{profile.display_name} has no {url.transport} interface")
+                raise fail(f"{dwhere}.model", profile.no_interface(url.transport))
             address = dev.get("address")
             if address is not None and (not isinstance(address, int) or isinstance(address, bool)):
                 raise fail(f"{dwhere}.address", f"{address!r} is not an integer")

@@ -20,8 +20,10 @@ def test_models(capsys: pytest.CaptureFixture[str]) -> None:
     names = {m["name"]: m for m in models}
     assert {"jjr5000", "ssd1", "jjr8000"} <= set(names)
     assert all(names[n]["error"] is None for n in ("jjr5000", "ssd1", "jjr8000"))
-    assert set(names["jjr8000"]["transports"]) == {"modbus-rtu", "profibus-pkw", "devicenet"}
-    assert names["ssd1"]["transports"] == ["modbus-rtu"]
+    # the installed transports that serve each model: every one that speaks one of its address spaces
+    assert set(names["jjr8000"]["transports"]) == {"modbus-rtu", "modbus-tcp", "profibus-pkw", "devicenet"}
+    assert names["ssd1"]["transports"] == ["modbus-rtu", "modbus-tcp"]
+    assert names["ssd1"]["address_spaces"] == ["modbus"]
 
 
 def test_transports(capsys: pytest.CaptureFixture[str]) -> None:
@@ -47,7 +49,7 @@ def test_params_jjr5000_current_limit(capsys: pytest.CaptureFixture[str]) -> Non
     limit = _point(run_json(capsys, "params", "jjr5000"), "0x0103")
     assert (limit["key"], limit["min"], limit["max"], limit["unit"]) == ("current_limit", 150, 500, "%")
     assert limit["name_zh"]
-    assert limit["addresses"] == {"modbus-rtu": "0x0103", "profibus-pkw": "0x0003"}
+    assert limit["addresses"] == {"modbus": "0x0103", "profibus-pkw": "0x0003"}
 
 
 def test_params_jjr8000_p7_scaling(capsys: pytest.CaptureFixture[str]) -> None:
@@ -58,7 +60,7 @@ def test_params_jjr8000_p7_scaling(capsys: pytest.CaptureFixture[str]) -> None:
     assert p7["max"] == pytest.approx(5.0)
     addresses = p7["addresses"]
     assert isinstance(addresses, dict)
-    assert addresses["modbus-rtu"] == "0x0107"
+    assert addresses["modbus"] == "0x0107"
     assert addresses["profibus-pkw"] == "0x0007"
 
 

@@ -61,14 +61,14 @@ def _mutated(model: str, path: list[object], value: object) -> dict[str, Any]:
     [
         ("jjr5000", ["parameters", 4, "enum"], [1], "parameters.start_mode.enum", "[1]"),
         ("jjr5000", ["roles", "rated_current"], {"a": 1}, "roles.rated_current", "{'a': 1}"),
-        ("jjr5000", ["transports", "modbus-rtu"], 5, "transports.modbus-rtu", "5"),
-        ("jjr5000", ["transports", "modbus-rtu", "unit_ids"], 5, "transports.modbus-rtu", "unit_ids: 5"),
-        ("jjr5000", ["transports", "modbus-rtu", "baudrates"], ["r"], "transports.modbus-rtu", "baudrates: ['r']"),
-        ("jjr5000", ["transports", "modbus-rtu", "max_read_registers"], "x", "transports.modbus-rtu", "'x'"),
+        ("jjr5000", ["transports", "modbus"], 5, "transports.modbus", "5"),
+        ("jjr5000", ["transports", "modbus", "unit_ids"], 5, "transports.modbus", "unit_ids: 5"),
+        ("jjr5000", ["transports", "modbus", "baudrates"], ["r"], "transports.modbus", "baudrates: ['r']"),
+        ("jjr5000", ["transports", "modbus", "max_read_registers"], "x", "transports.modbus", "'x'"),
         ("jjr5000", ["transports", "profibus-pkw", "stations"], [5], "transports.profibus-pkw", "stations: [5]"),
         ("jjr8000", ["transports", "devicenet", "mac_ids"], [1, 99], "transports.devicenet", "mac_ids: [1, 99]"),
         ("jjr8000", ["transports", "devicenet", "identity"], 3, "transports.devicenet", "identity: 3"),
-        ("jjr5000", ["transports", "modbus-rtu", "exceptions"], [1], "transports.modbus-rtu.exceptions", "[1]"),
+        ("jjr5000", ["transports", "modbus", "exceptions"], [1], "transports.modbus.exceptions", "[1]"),
         ("jjr5000", ["control", "locked_while_running"], [{}], "control.locked_while_running", "[{}]"),
         ("jjr5000", ["model", "notes"], 5, "model.notes", "5"),
         ("jjr5000", ["parameters", 0, "scale"], float("nan"), "parameters.motor_rated_current.scale", "nan"),
@@ -89,7 +89,7 @@ def test_issue_crash_inputs_are_profile_errors(
 
 def test_transport_settings_are_checked_when_the_profile_loads() -> None:
     text = profile_text("jjr5000").replace("\nunit_ids = [0, 247]\n", "\nunit_ids = 5\n")
-    with pytest.raises(ProfileError, match=r"^bad.toml: transports.modbus-rtu: unit_ids: 5 is not \[first, last\]"):
+    with pytest.raises(ProfileError, match=r"^bad.toml: transports.modbus: unit_ids: 5 is not \[first, last\]"):
         load_profile_text(text, "bad.toml")
     text = profile_text("jjr5000").replace("\nstations = [0, 126]\n", "\nstations = [5]\n")
     with pytest.raises(ProfileError, match=r"transports.profibus-pkw: stations: \[5\]"):

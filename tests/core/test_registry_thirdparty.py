@@ -121,11 +121,12 @@ def test_two_plugins_with_one_name_is_an_error_not_an_override(tmp_path: Path, t
 
 
 def test_plugins_load_lazily() -> None:
-    """Loading a profile loads only the plugins of the transports it names (to check their settings)."""
+    """Loading a profile loads only the parsers of the address spaces it names (to check their settings): the
+    Modbus register space, no transport at all."""
     code = (
         "import sys; from starterbus.core.registry import get_profile; get_profile('ssd1');"
         "print(sorted({m.split('.')[2] for m in sys.modules if m.startswith('starterbus.transports.')}),"
-        " 'can' in sys.modules)"
+        " 'starterbus.spaces.modbus' in sys.modules, 'can' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60)
-    assert out.stdout.strip() == "['modbus'] False"
+    assert out.stdout.strip() == "[] True False"

@@ -40,7 +40,7 @@ def test_the_profile_keeps_each_plugin_s_frozen_object() -> None:
     assert jjr8000.settings_for("profibus-pkw", ProfibusSettings).stations == (1, 127)
     devicenet = jjr8000.settings_for("devicenet", DeviceNetSettings)
     assert devicenet.input_assemblies == (1, 101) and devicenet.identity.vendor_id == 819
-    with pytest.raises(ConfigurationError, match="the modbus-rtu settings are a ModbusSettings, not a Profibus"):
+    with pytest.raises(ConfigurationError, match="the modbus settings are a ModbusSettings, not a Profibus"):
         jjr8000.settings_for("modbus-rtu", ProfibusSettings)
 
 
@@ -59,7 +59,11 @@ def test_each_key_has_one_default() -> None:
 @pytest.mark.parametrize(
     ("old", "new", "error"),
     [
-        ("\nmax_read_registers = 4\n", "\nmax_read_registers = 4\nmax_reads = 2\n", r"modbus-rtu: max_reads: unknown"),
+        (
+            "\nmax_read_registers = 4\n",
+            "\nmax_read_registers = 4\nmax_reads = 2\n",
+            r"transports.modbus: max_reads: unknown",
+        ),
         ("\nmax_read_registers = 4\n", '\nmax_read_registers = "4"\n', r"max_read_registers: '4' is not an integer"),
         ("\nbaudrates = [2400, 4800, 9600, 19200]\n", "\nbaudrates = [true]\n", r"baudrates: \[True\] is not a list"),
         ("\nppo = [1, 3]\n", "\nppo = [1, 3]\nppos = 1\n", r"profibus-pkw: ppos: unknown setting"),

@@ -50,10 +50,8 @@ def parse_hex(tokens: Sequence[str]) -> bytes:
 
 def exception_meaning(profile: Profile | None, code: int) -> str:
     if profile is not None:
-        label = modbus_settings(profile).exceptions.get(code)
-        if label is not None:
-            return str(label)
-        return f"unknown exception code {code} for {profile.display_name}"
+        text = modbus_settings(profile).exception_text(code)
+        return f"{text} for {profile.display_name}" if text.startswith("unknown") else text
     return STANDARD_EXCEPTION_TEXTS.get(code, f"unknown exception code {code}")
 
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import ClassVar
 
 from starterbus.core.errors import DecodeError, EncodeError
+from starterbus.spaces.modbus import STANDARD_EXCEPTION_TEXTS as _STANDARD_TEXTS
 from starterbus.transports.modbus.crc import CRC_LENGTH, append_crc, strip_crc
 
 
@@ -31,17 +32,7 @@ class ExceptionCode(enum.IntEnum):
 
 
 #: standard texts, used only when a profile does not name an exception code
-STANDARD_EXCEPTION_TEXTS: dict[int, str] = {
-    0x01: "illegal function",
-    0x02: "illegal data address",
-    0x03: "illegal data value",
-    0x04: "server device failure",
-    0x05: "acknowledge",
-    0x06: "server device busy",
-    0x08: "memory parity error",
-    0x0A: "gateway path unavailable",
-    0x0B: "gateway target device failed to respond",
-}
+STANDARD_EXCEPTION_TEXTS = dict(_STANDARD_TEXTS)
 
 EXCEPTION_BIT = 0x80
 BROADCAST = 0

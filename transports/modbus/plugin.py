@@ -12,6 +12,7 @@ from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.textinput import parse_hex, parse_host_port
 from starterbus.core.transport import ALL_CAPABILITIES, Annotation, RunningSimulator, Transport, TransportPlugin
 from starterbus.core.url import DeviceUrl
+from starterbus.spaces.modbus import SPACE_NAME
 from starterbus.transports.modbus.annotate import annotate
 from starterbus.transports.modbus.client import ModbusRtuTransport
 from starterbus.transports.modbus.config import ModbusRtuConfig
@@ -21,6 +22,7 @@ from starterbus.transports.modbus.slave import TRANSPORT, ModbusSettings, modbus
 
 class ModbusRtuPlugin(TransportPlugin):
     name = TRANSPORT
+    address_space = SPACE_NAME
     requires_point_addresses = True
     address_parameter = "unit"
     summary = "Modbus RTU (FC03/FC06) on a serial port, or RTU frames over TCP through a serial device server"
@@ -37,7 +39,7 @@ class ModbusRtuPlugin(TransportPlugin):
         return ModbusRtuTransport(url, profile, ModbusRtuConfig.from_url(url, profile))
 
     def parse_settings(self, settings: Mapping[str, Any]) -> ModbusSettings:
-        """``[transports.modbus-rtu]`` (``exceptions`` is parsed by the loader)."""
+        """The ``modbus`` address space's table (``starterbus.spaces.modbus`` parses it when a profile loads)."""
         return ModbusSettings.parse(settings)
 
     def check_settings(self, settings: Mapping[str, Any]) -> None:
@@ -77,7 +79,7 @@ class ModbusRtuPlugin(TransportPlugin):
         for unit, starter in starters.items():
             profile = starter.profile
             if not profile.supports(TRANSPORT):
-                raise ConfigurationError(f"{profile.display_name} has no Modbus RTU interface")
+                raise ConfigurationError(profile.no_interface(TRANSPORT))
             settings = modbus_settings(profile)
             lo, hi = settings.unit_ids
             if not max(1, lo) <= unit <= hi:

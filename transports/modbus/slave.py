@@ -17,17 +17,14 @@ The rules follow the manuals (docs/manuals.md#2-modbus-rtu) and are written down
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
-from typing import Any
 
-from starterbus.core import settings_check as check
 from starterbus.core.errors import Refusal, SimulatorRefusal
-from starterbus.core.model import Kind, Label, PointDef
+from starterbus.core.model import Kind, PointDef
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
+from starterbus.spaces.modbus import SPACE_NAME, ModbusSettings
 from starterbus.transports.modbus.frames import (
     BROADCAST,
-    MAX_READ_REGISTERS,
     AnyRequest,
     ExceptionCode,
     ExceptionResponse,
@@ -39,33 +36,15 @@ from starterbus.transports.modbus.frames import (
     WriteResponse,
 )
 
+__all__ = ["PROTOCOL", "TRANSPORT", "ModbusSettings", "SlaveLogic", "max_read_registers", "modbus_settings"]
+
 TRANSPORT = "modbus-rtu"
-PROTOCOL = TRANSPORT  # the profile field of a point's register: ``modbus-rtu = 0x0103``
-
-
-@dataclass(frozen=True, slots=True)
-class ModbusSettings:
-    """What a model says about its Modbus RTU slave (each key's one default here)."""
-
-    max_read_registers: int = MAX_READ_REGISTERS  # registers one FC03 may read
-    unit_ids: tuple[int, int] = (1, 247)  # slave addresses (0, broadcast, is always accepted by a client)
-    baudrates: tuple[int, ...] = ()  # the speeds the device offers (empty: any)
-    default_baudrate: int = 9600
-    exceptions: Mapping[int, Label] = field(default_factory=check.no_table)  # code -> the manual's text
-
-    @classmethod
-    def parse(cls, settings: Mapping[str, Any]) -> ModbusSettings:
-        """Unknown keys and wrong values: ConfigurationError naming them (``exceptions`` the loader parsed)."""
-        check.int_value(settings, "max_read_registers", 1, 125)
-        check.int_range(settings, "unit_ids", 0, 247)
-        check.int_list(settings, "baudrates", 1, 10_000_000)
-        check.int_value(settings, "default_baudrate", 1, 10_000_000)
-        return check.build(cls, settings)
+PROTOCOL = SPACE_NAME  # the address space of a point's register: ``modbus = 0x0103`` (``modbus-rtu = `` too)
 
 
 def modbus_settings(profile: Profile | None) -> ModbusSettings:
     """The model's settings (no model: the defaults)."""
-    return profile.settings_for(TRANSPORT, ModbusSettings) if profile is not None else ModbusSettings()
+    return ModbusSettings.of(profile)
 
 
 def max_read_registers(profile: Profile) -> int:
