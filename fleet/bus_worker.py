@@ -26,7 +26,6 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
@@ -38,11 +37,9 @@ from starterbus.fleet.config import BusConfig, DeviceConfig
 from starterbus.fleet.jobs import Job, JobQueue
 from starterbus.fleet.line_stats import LineStats
 from starterbus.fleet.plan import poll_points
+from starterbus.fleet.poll_context import PollContext
 from starterbus.fleet.probing import ProbeBudget, backoff
 from starterbus.fleet.sample import Sample
-
-if TYPE_CHECKING:
-    from starterbus.fleet.poller import FleetPoller
 
 _PR_SET_TIMERSLACK = 29
 
@@ -94,7 +91,7 @@ class Attempt:
 class BusWorker:
     """One bus: the devices' schedule (a queue of due times), their polls and jobs, the line's counts."""
 
-    def __init__(self, bus: BusConfig, poller: FleetPoller) -> None:
+    def __init__(self, bus: BusConfig, poller: PollContext) -> None:
         self.bus = bus
         self.poller = poller
         self.devices = [DeviceRuntime(d, slot=i) for i, d in enumerate(bus.devices)]
@@ -404,7 +401,7 @@ class BusWorker:
             probe=probe,
         )
         runtime.last_sample = sample
-        poller._emit(sample)
+        poller.emit(sample)
 
 
 __all__ = ["BusWorker", "DeviceRuntime"]

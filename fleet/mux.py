@@ -18,14 +18,11 @@ import os
 import select
 import threading
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 from starterbus.core.errors import StarterbusError, TransportError
 from starterbus.core.polling import PollResult, PollTask
 from starterbus.fleet.bus_worker import Attempt, BusWorker, DeviceRuntime, precise_timers
-
-if TYPE_CHECKING:
-    from starterbus.fleet.poller import FleetPoller
+from starterbus.fleet.poll_context import PollContext
 
 #: longest sleep when nothing is due (a stop or a job wakes the thread at once anyway)
 IDLE = 1.0
@@ -89,7 +86,7 @@ class _Bus:
 class Multiplexer:
     """Polls the given buses from one thread (:meth:`start`); stops with the poller."""
 
-    def __init__(self, poller: FleetPoller, workers: list[BusWorker]) -> None:
+    def __init__(self, poller: PollContext, workers: list[BusWorker]) -> None:
         self.poller = poller
         self.buses = [_Bus(w) for w in workers]
         self.thread = poller.supervisor.thread("bus-mux", self._run)  # fatal: the loop itself failing stops all

@@ -92,7 +92,8 @@ class FleetPoller:
         """What stopped the poller against its will (None while it runs, and after a requested stop)."""
         return self.supervisor.failure
 
-    def _emit(self, sample: Sample) -> None:
+    def emit(self, sample: Sample) -> None:
+        """Hand a sample to ``on_sample``, one at a time (called by the bus workers)."""
         if self.on_sample is not None:
             with self._emit_lock:
                 self.on_sample(sample)
