@@ -14,7 +14,7 @@ from typing import Any
 from starterbus.core.errors import ConfigurationError, StarterbusError, UnsupportedOperationError
 from starterbus.core.registry import get_profile
 from starterbus.ops.history import HistoryStore
-from starterbus.ops.record import PHASES, Point, Recording, limit_in_amps
+from starterbus.ops.recording import PHASES, Point, Recording, limit_in_amps
 
 STATE_COLOURS = {
     "starting": "#f5c242",

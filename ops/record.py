@@ -17,47 +17,20 @@ import sqlite3
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from starterbus.core.command_rules import check_command
 from starterbus.core.device import Device
 from starterbus.core.errors import ConfigurationError, StarterbusError, StateRuleError, UnsupportedOperationError
-from starterbus.core.model import PointDef
 from starterbus.core.status import Command, MotorState, Status
 from starterbus.core.timestamps import iso_time
 from starterbus.core.transport import Capability
 from starterbus.ops.history import HistoryStore
+from starterbus.ops.plot import plot_recording
+from starterbus.ops.recording import PHASES, Point, Recording, limit_in_amps
 
 _ACTIVE = frozenset({MotorState.STARTING, MotorState.RUNNING})
-PHASES = ("a", "b", "c")
-
-
-@dataclass(frozen=True, slots=True)
-class Point:
-    """One status read: seconds since the start, wall time, state, fault code and the phase currents (A)."""
-
-    t: float
-    time: float
-    state: str
-    fault_code: int | None
-    currents: dict[str, float]
-
-
-@dataclass(slots=True)
-class Recording:
-    device: str
-    model: str
-    started: float  # wall time of the start (command sent, or first seen)
-    points: list[Point] = field(default_factory=list)
-    limit_a: float | None = None  # the current limit in A, when the parameters could be read
-    rated_a: float | None = None
-    commanded: bool = False
-    ended: str = ""  # why the recording stopped
-    failed: bool = False  # sampling ended on an error or Ctrl-C (``ended`` says which), not on the motor's state
-
-    def state_at_end(self) -> str:
-        return self.points[-1].state if self.points else "unknown"
 
 
 def current_limit_amps(device: Device) -> tuple[float | None, float | None]:
@@ -67,12 +40,6 @@ def current_limit_amps(device: Device) -> tuple[float | None, float | None]:
         return None, None
     values = device.read(limit, rated)
     return limit_in_amps(limit, float(values[limit.key].value), float(values[rated.key].value))
-
-
-def limit_in_amps(limit: PointDef, limit_value: float, rated_a: float) -> tuple[float, float]:
-    """A current limit is a multiple of the rated current: in % (JJR5000, SSD1) or x In (JJR8000)."""
-    factor = limit_value / 100.0 if limit.unit.strip() == "%" else limit_value
-    return factor * rated_a, rated_a
 
 
 def record_start(
@@ -297,8 +264,6 @@ def write_all(rec: Recording, directory: str | Path, *, plot: bool = True) -> Sa
             elif kind == "db":
                 write_db(rec, path)
             else:
-                from starterbus.ops.plot import plot_recording
-
                 plot_recording(rec, path)
             saved.files[kind] = path
         except (OSError, StarterbusError, sqlite3.Error, ImportError) as exc:  # ImportError: no matplotlib

@@ -17,8 +17,9 @@ from starterbus.core.status import Status
 from starterbus.core.timestamps import iso_time, parse_iso_time
 from starterbus.fleet.output import CsvLog
 from starterbus.fleet.sample import Sample
-from starterbus.ops.record import Point, Recording, write_csv
+from starterbus.ops.record import write_csv
 from starterbus.ops.recorder import _audit_time
+from starterbus.ops.recording import Point, Recording
 
 if sys.version_info >= (3, 11):
     import tomllib

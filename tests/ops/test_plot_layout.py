@@ -12,7 +12,7 @@ from matplotlib.text import Annotation
 
 from starterbus.ops.history import HistoryStore
 from starterbus.ops.plot import event_figure, figure, plot_event
-from starterbus.ops.record import Point
+from starterbus.ops.recording import Point
 
 from .test_record import check_png
 

@@ -20,6 +20,7 @@ from starterbus.core.errors import TimeoutError
 from starterbus.core.simulator import Phase
 from starterbus.ops import record
 from starterbus.ops.history import HistoryStore
+from starterbus.ops.recording import Recording
 
 from .conftest import Line
 
@@ -147,7 +148,7 @@ def test_a_line_error_after_the_start_saves_what_was_sampled(
 
 
 def test_record_never_overwrites_a_recording(line: Line, tmp_path: Path) -> None:
-    rec = record.Recording("m1", "jjr5000", started=1_800_000_000.0)
+    rec = Recording("m1", "jjr5000", started=1_800_000_000.0)
     first = record.write_all(rec, tmp_path, plot=False)
     second = record.write_all(rec, tmp_path, plot=False)  # the same second: another name
     assert first.files["csv"].name == "start-20270115-080000.csv"
