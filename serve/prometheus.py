@@ -2,10 +2,13 @@
 and the supervisor's probes ``/healthz`` and ``/readyz`` on the same port.
 
 Per device: online, state (one series per state, 1 for the current one), fault code, every polled value and the
-age of its last good poll. Per line: transactions and offline devices from the poller; requests, retries,
-timeouts, errors and utilisation when the poller counts them (``FleetPoller.line_stats()``: each line's ``wire``
-counters and ``utilisation``; else same-named attributes of the bus workers). A poller without them: those series
-are absent. Also ``starterbus_build_info`` and the client library's process and platform collectors.
+age of its last good poll. Polled values go to one family per unit, in Prometheus's base units
+(:data:`UNIT_FAMILIES`: ``starterbus_device_value_amperes``, ``..._percent``, ``..._seconds`` with minutes and
+hours converted, ...; ``starterbus_device_value`` for values without a unit), so no family mixes units. Per line:
+transactions and offline devices from the poller; requests, retries, timeouts, errors and
+``starterbus_line_utilisation_ratio`` when the poller counts them (``FleetPoller.line_stats()``: each line's
+``wire`` counters and ``utilisation``; else same-named attributes of the bus workers). A poller without them:
+those series are absent. Also ``starterbus_build_info`` and the client library's process and platform collectors.
 """
 
 from __future__ import annotations
@@ -13,6 +16,7 @@ from __future__ import annotations
 import json
 import math
 import platform
+import re
 import socket
 import threading
 from collections.abc import Callable, Iterable, Iterator
@@ -39,6 +43,39 @@ _LINE_COUNTERS = (
     ("timeouts", "transactions without an answer"),
     ("errors", "transactions that failed"),
 )
+
+
+#: a profile's unit -> the suffix of its family and the factor to that base unit (Prometheus: base units, and
+#: one unit per family); another unit gets a family of its own, named after it (``kW`` -> ``_kw``)
+UNIT_FAMILIES: dict[str, tuple[str, float]] = {
+    "": ("", 1.0),  # codes (enums), counts, settings without a unit
+    "A": ("amperes", 1.0),
+    "%": ("percent", 1.0),  # as the device shows it: 350 is 350 % (of the rated current, of the thermal capacity)
+    "x In": ("ratio", 1.0),  # a multiple of the motor's rated current In: 3.5 is 3.5 x In
+    "s": ("seconds", 1.0),
+    "min": ("seconds", 60.0),
+    "h": ("seconds", 3600.0),
+    "°C": ("celsius", 1.0),
+    "cycles": ("cycles", 1.0),
+}
+
+
+def value_family(unit: str) -> tuple[str, float]:
+    """The family name of a polled value in ``unit`` and the factor that converts it to the family's unit."""
+    known = UNIT_FAMILIES.get(unit)
+    if known is None:
+        suffix = re.sub(r"[^a-z0-9]+", "_", unit.casefold()).strip("_") or "unit_" + unit.encode().hex()
+        known = (suffix, 1.0)
+    suffix, factor = known
+    return ("starterbus_device_value_" + suffix if suffix else "starterbus_device_value"), factor
+
+
+def _value_help(name: str, unit: str) -> str:
+    if name == "starterbus_device_value":
+        return "polled values without a unit (enum codes, counts), by point key"
+    units = sorted(u for u in UNIT_FAMILIES if value_family(u)[0] == name) or [unit]
+    base = name.removeprefix("starterbus_device_value_")
+    return f"polled values in {base} (the profile's {', '.join(repr(u) for u in units)}), by point key"
 
 
 class FleetCollector(Collector):
@@ -69,9 +106,7 @@ class FleetCollector(Collector):
             "starterbus_device_state", "1 for the device's current motor state", labels=["device", "state"]
         )
         fault = GaugeMetricFamily("starterbus_device_fault_code", "fault code (0: no fault)", labels=["device"])
-        value = GaugeMetricFamily(
-            "starterbus_device_value", "polled value in engineering units", labels=["device", "key", "unit"]
-        )
+        values: dict[str, GaugeMetricFamily] = {}
         for s in samples:
             online.add_metric([s.device, s.bus, s.model], 1.0 if s.online else 0.0)
             if s.online and s.status is not None:
@@ -80,8 +115,13 @@ class FleetCollector(Collector):
                     state.add_metric([s.device, st.value], 1.0 if st is current else 0.0)
                 fault.add_metric([s.device], float(s.status.fault_code or 0))
             for key, v in s.values.items():
-                value.add_metric([s.device, key, v.unit], float(v.value))
-        yield from (online, state, fault, value)
+                name, factor = value_family(v.unit)
+                family = values.get(name)
+                if family is None:
+                    family = values[name] = GaugeMetricFamily(name, _value_help(name, v.unit), labels=["device", "key"])
+                family.add_metric([s.device, key], float(v.value) * factor)
+        yield from (online, state, fault)
+        yield from (values[name] for name in sorted(values))
         yield from self._ages()
         yield from self._lines(samples)
         yield from self._node()
@@ -110,7 +150,9 @@ class FleetCollector(Collector):
             return
         transactions = CounterMetricFamily("starterbus_line_transactions", "transactions on the line", labels=["line"])
         offline = GaugeMetricFamily("starterbus_line_offline_devices", "devices not answering", labels=["line"])
-        util = GaugeMetricFamily("starterbus_line_utilisation", "busy fraction of the line (0..1)", labels=["line"])
+        util = GaugeMetricFamily(
+            "starterbus_line_utilisation_ratio", "fraction of the time the line was busy (0..1)", labels=["line"]
+        )
         counters = {n: CounterMetricFamily(f"starterbus_line_{n}", h, labels=["line"]) for n, h in _LINE_COUNTERS}
         line_stats = getattr(poller, "line_stats", None)
         stats = line_stats() if callable(line_stats) else {}

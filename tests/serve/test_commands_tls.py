@@ -4,6 +4,8 @@ and the Prometheus endpoint read with prometheus-client's own parser."""
 
 from __future__ import annotations
 
+import shutil
+import subprocess
 import time
 import urllib.request
 from collections.abc import Callable
@@ -102,12 +104,19 @@ def test_guarded_commands_rebirth_ddeath_and_prometheus_over_tls(
         s.labels["state"]: s.value for s in families["starterbus_device_state"].samples if s.labels["device"] == "pump"
     }
     assert states["starting"] + states["running"] == 1.0
-    assert any(s.labels["key"] == "phase_a_current" for s in families["starterbus_device_value"].samples)
+    currents = families["starterbus_device_value_amperes"].samples
+    assert any(s.labels == {"device": "pump", "key": "phase_a_current"} for s in currents)
     assert families["starterbus_line_transactions"].samples[0].value > 0
     if "starterbus_line_requests" in families:  # a poller that counts its wire (FleetPoller.line_stats)
         assert (
             families["starterbus_line_requests"].samples[0].value
             >= families["starterbus_line_transactions"].samples[0].value
         )
-        assert 0 < families["starterbus_line_utilisation"].samples[0].value <= 1
+        assert 0 < families["starterbus_line_utilisation_ratio"].samples[0].value <= 1
     assert families["starterbus_serve_commands_refused"].samples[0].value == 2
+    promtool = shutil.which("promtool")  # Prometheus's own check, where installed (tests/serve/test_promtool.py)
+    if promtool is not None:
+        checked = subprocess.run(
+            [promtool, "check", "metrics"], check=False, input=text, capture_output=True, text=True
+        )
+        assert (checked.returncode, checked.stdout + checked.stderr) == (0, "")

@@ -38,10 +38,10 @@ def test_line_series_from_line_stats() -> None:
     assert families["starterbus_line_offline_devices"] == {"l1": 1.0}
     assert (families["starterbus_line_requests"], families["starterbus_line_retries"]) == ({"l1": 9.0}, {"l1": 2.0})
     assert (families["starterbus_line_timeouts"], families["starterbus_line_errors"]) == ({"l1": 1.0}, {"l1": 1.0})
-    assert families["starterbus_line_utilisation"] == {"l1": 0.25}
+    assert families["starterbus_line_utilisation_ratio"] == {"l1": 0.25}
 
 
 def test_line_series_absent_without_counts() -> None:
     families = scrape(SimpleNamespace(workers=[worker("l2", [True])]))
     assert families["starterbus_line_transactions"] == {"l2": 7.0}
-    assert not {"starterbus_line_requests", "starterbus_line_utilisation"} & set(families)
+    assert not {"starterbus_line_requests", "starterbus_line_utilisation_ratio"} & set(families)
