@@ -35,6 +35,7 @@ from starterbus.aio import AsyncFleet
 from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.status import Command
 from starterbus.opcua.address_space import DeviceNodes, FleetNodes, PointNode, build_fleet
+from starterbus.opcua.alarms import Alarms
 from starterbus.opcua.certs import ensure_certificate
 from starterbus.opcua.endpoint import listening, parse_endpoint
 from starterbus.opcua.logins import LoginGuard, LoginPolicy
@@ -163,6 +164,8 @@ class OpcUaServer:
         self.logins = LoginGuard(settings.users, settings.logins)
         self.users = UserManager(settings.users, anonymous=settings.anonymous, guard=self.logins)
         self.server = GuardedServer(self.logins, user_manager=self.users)
+        self.server.iserver.bind_condition_methods = True  # ConditionRefresh replays the retained alarms
+        self.alarms: Alarms | None = None
         self.nodes: FleetNodes | None = None
         self._pump: asyncio.Task[None] | None = None
         self.samples_served = 0
@@ -217,6 +220,8 @@ class OpcUaServer:
         setattr(iserver, "create_session", self._create_session)  # noqa: B010  (see _Session)
         idx = await server.register_namespace(NAMESPACE)
         self.nodes = await build_fleet(server, idx, self.fleet.config, self.call_method, locale=settings.locale)
+        self.alarms = Alarms(server, idx, lambda: self._operator(_CALLER.get()), settings.locale)
+        await self.alarms.build(self.nodes.devices)
         now = time.time()
         for device in self.nodes.devices.values():
             await self._apply(initial_updates(device, now))
@@ -270,6 +275,8 @@ class OpcUaServer:
                 continue
             try:
                 await self._apply(sample_updates(device, sample, self.settings.locale))
+                if self.alarms is not None:
+                    await self.alarms.on_sample(device, sample)
             except Exception:  # one bad sample must not freeze every value at its last Good state
                 log.exception("%s: cannot publish a poll", sample.device)
             self.samples_served += 1
