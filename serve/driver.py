@@ -28,19 +28,13 @@ from typing import Any
 import paho.mqtt.client as mqtt
 from paho.mqtt.enums import CallbackAPIVersion
 
-from starterbus.aio import AsyncFleet, RemoteNotAllowed
+from starterbus.aio import AsyncFleet
 from starterbus.core.audit import AuditLog
-from starterbus.core.errors import (
-    ConfigurationError,
-    StateRuleError,
-    UnknownPointError,
-    UnsupportedOperationError,
-    ValidationError,
-)
-from starterbus.core.guarded import ConfirmationRefused, GuardedOperationError, Outcome
+from starterbus.core.errors import ConfigurationError
 from starterbus.core.supervision import Supervisor
 from starterbus.fleet.poller import Sample
 from starterbus.serve.broker import BrokerOptions
+from starterbus.serve.command_run import run_request
 from starterbus.serve.session import (
     Action,
     CommandAudit,
@@ -53,18 +47,6 @@ from starterbus.serve.session import (
 from starterbus.serve.state import save_bdseq
 
 log = logging.getLogger("starterbus.serve")
-
-
-def describe_outcomes(outcomes: list[Outcome]) -> str:
-    parts = []
-    for o in outcomes:
-        if o.key is not None:
-            shown = o.read_back.text() if o.read_back is not None else "?"
-            parts.append(f"{o.key}: {o.result} (read back {shown})")
-        else:
-            reached = o.reached.state.value if o.reached is not None else "unknown"
-            parts.append(f"{o.action}: {o.result} (reached {reached})")
-    return "; ".join(parts)
 
 
 class EdgeNodeDriver:
@@ -261,34 +243,14 @@ class EdgeNodeDriver:
             log.error("audit log %s: %s (%s %s: %s)", self.audit.path, exc, kind, device or "", result)
 
     async def _execute(self, req: CommandRequest) -> None:
-        audited = True  # by the guarded path; False: refused before it, audited here
-        try:
-            if req.command is not None:
-                outcome = await self.fleet.remote_command(req.device, req.command, actor=self.actor)
-                text = describe_outcomes([outcome])
-                ok = outcome.ok
-            else:
-                outcomes = await self.fleet.remote_write(req.device, req.writes, actor=self.actor)
-                text, ok = describe_outcomes(outcomes), all(o.ok for o in outcomes)
-            failed = not ok
-        except (
-            RemoteNotAllowed, ValidationError, ConfirmationRefused, UnknownPointError, UnsupportedOperationError
-        ) as exc:  # fmt: skip
-            text, ok, failed = str(exc), False, False  # nothing was sent
-            audited = isinstance(exc, ConfirmationRefused) or (
-                req.command is not None and isinstance(exc, StateRuleError)
-            )
-        except GuardedOperationError as exc:  # sent, but not as asked (not reached, read-back mismatch)
-            text, ok, failed = f"{exc} [{describe_outcomes(exc.outcomes)}]", False, True
-        except Exception as exc:  # transport errors and anything unforeseen: reported, never silent
-            text, ok, failed, audited = f"{type(exc).__name__}: {exc}", False, True, False
-        log.info("DCMD %s %s: %s", req.device, req.command.value if req.command else req.writes, text)
+        result = await run_request(self.fleet, req, self.actor)
+        log.info("DCMD %s %s: %s", req.device, req.command.value if req.command else req.writes, result.text)
         now = time.time()
-        if ok:
-            self._apply(self.session.command_done(req.device, text, now))
+        if result.ok:
+            self._apply(self.session.command_done(req.device, result.text, now))
             return
-        audit = None if audited else (req.topic, req.asked)
-        self._apply(self.session.refuse(req.device, text, now, failed=failed, audit=audit))
+        audit = None if result.audited else (req.topic, req.asked)
+        self._apply(self.session.refuse(req.device, result.text, now, failed=result.failed, audit=audit))
 
     # -- tasks ---------------------------------------------------------------------------------------------
 

@@ -25,7 +25,6 @@ Decisions (SPARKPLUG.md):
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -63,9 +62,7 @@ from starterbus.serve.metrics import (
     sample_values,
 )
 from starterbus.serve.payloads import Entry, encode, encode_ndeath
-from starterbus.serve.session_commands import SessionCommands
-
-NAMESPACE = "spBv1.0"
+from starterbus.serve.session_commands import NAMESPACE, SessionCommands
 
 __all__ = [
     "Action",
@@ -396,42 +393,4 @@ class EdgeSession(SessionCommands):
         self.store.expire(_ms(now))
         return self._node_data(now) + self._births_due(now)
 
-    # -- commands -----------------------------------------------------------------------------------------
-
-    def on_message(self, topic: str, data: bytes, now: float) -> list[Action]:
-        parts = topic.split("/")
-        if len(parts) == 3 and parts[:2] == [NAMESPACE, "STATE"]:
-            return self._on_state(parts[2], data, now)
-        if parts[:2] != [NAMESPACE, self.options.group] or len(parts) < 4 or parts[3] != self.options.node:
-            return []
-        if parts[2] == "NCMD" and len(parts) == 4:
-            return self._on_ncmd(topic, data, now)
-        if parts[2] == "DCMD" and len(parts) == 5:
-            return self._on_dcmd(parts[4], topic, data, now)
-        return []
-
-    # -- primary host ---------------------------------------------------------------------------------------
-
-    def _on_state(self, host: str, data: bytes, now: float) -> list[Action]:
-        if host != self.options.primary_host:
-            return []
-        try:
-            state = json.loads(data.decode("utf-8"))
-            online, ts = bool(state["online"]), int(state["timestamp"])
-        except (ValueError, KeyError, TypeError, UnicodeDecodeError):
-            return []
-        if self.last_state_ts is not None and ts < self.last_state_ts:
-            return []  # an older STATE is ignored (host-offline-timestamp)
-        self.last_state_ts = ts
-        if online:
-            self.host_online_ts = ts
-            if self.connected and not self.born:
-                return self._births(now)
-            return []
-        if self.born:
-            self.on_disconnected()
-            return [self.ndeath(), Reconnect()]
-        if self.connected and self.options.servers > 1:
-            self.on_disconnected()
-            return [Reconnect()]  # offline on this server: walk to the next (primary-application-...-walk)
-        return []
+    # -- messages from the host (NCMD, DCMD, STATE): session_commands.SessionCommands -------------------------

@@ -1,18 +1,21 @@
-"""NCMD and DCMD handling of :class:`~starterbus.serve.session.EdgeSession`, a mixin over the session's state:
-checked by :mod:`starterbus.serve.commands`, every outcome published (``Last Command`` and ``Command Count`` + 1,
-even when the text repeats), every refusal and ignored command handed to the driver for the audit log."""
+"""Messages from the host for :class:`~starterbus.serve.session.EdgeSession`, a mixin over the session's state:
+NCMD and DCMD checked by :mod:`starterbus.serve.commands`, every outcome published (``Last Command`` and
+``Command Count`` + 1, even when the text repeats), every refusal and ignored command handed to the driver for
+the audit log; the primary host's STATE (SPARKPLUG.md section 7)."""
 
 from __future__ import annotations
 
+import json
 from typing import TYPE_CHECKING
 
-from starterbus.serve.actions import Action, CommandAudit, CommandRequest, SessionOptions
+from starterbus.serve.actions import Action, CommandAudit, CommandRequest, Publish, Reconnect, SessionOptions
 from starterbus.serve.commands import CommandRefused, check_dcmd, describe, parse
 from starterbus.serve.metrics import COMMAND_COUNT, LAST_COMMAND, REBIRTH, REFUSED, MetricSet
 
 if TYPE_CHECKING:
     from starterbus.serve.session import DeviceState
 
+NAMESPACE = "spBv1.0"
 _OUTCOME = frozenset({LAST_COMMAND, COMMAND_COUNT})  # published with every outcome, changed or not
 
 
@@ -25,6 +28,9 @@ class SessionCommands:
     node: MetricSet
     devices: dict[str, DeviceState]
     born: bool
+    connected: bool
+    last_state_ts: int | None
+    host_online_ts: int | None
     refused: int
     commands_allowed: bool
     node_commands: int
@@ -37,10 +43,53 @@ class SessionCommands:
     def _node_data(self, now: float) -> list[Action]:
         raise NotImplementedError
 
+    def _may_birth(self, now: float) -> bool:
+        raise NotImplementedError
+
+    def ndeath(self) -> Publish:
+        raise NotImplementedError
+
+    def on_disconnected(self) -> None:
+        raise NotImplementedError
+
     def _device_data(
         self, dev: DeviceState, now: float, *, full: bool = False, always: frozenset[str] = frozenset()
     ) -> list[Action]:
         raise NotImplementedError
+
+    def on_message(self, topic: str, data: bytes, now: float) -> list[Action]:
+        parts = topic.split("/")
+        if len(parts) == 3 and parts[:2] == [NAMESPACE, "STATE"]:
+            return self._on_state(parts[2], data, now)
+        if parts[:2] != [NAMESPACE, self.options.group] or len(parts) < 4 or parts[3] != self.options.node:
+            return []
+        if parts[2] == "NCMD" and len(parts) == 4:
+            return self._on_ncmd(topic, data, now)
+        if parts[2] == "DCMD" and len(parts) == 5:
+            return self._on_dcmd(parts[4], topic, data, now)
+        return []
+
+    def _on_state(self, host: str, data: bytes, now: float) -> list[Action]:
+        if host != self.options.primary_host:
+            return []
+        try:
+            state = json.loads(data.decode("utf-8"))
+            online, ts = bool(state["online"]), int(state["timestamp"])
+        except (ValueError, KeyError, TypeError, UnicodeDecodeError):
+            return []
+        if self.last_state_ts is not None and ts < self.last_state_ts:
+            return []  # an older STATE is ignored (host-offline-timestamp)
+        self.last_state_ts = ts
+        if online:
+            self.host_online_ts = ts
+            return self._births(now) if self._may_birth(now) else []
+        if self.born:
+            self.on_disconnected()
+            return [self.ndeath(), Reconnect()]
+        if self.connected and self.options.servers > 1:
+            self.on_disconnected()
+            return [Reconnect()]  # offline on this server: walk to the next (primary-application-...-walk)
+        return []
 
     def _on_ncmd(self, topic: str, data: bytes, now: float) -> list[Action]:
         try:

@@ -235,3 +235,13 @@ def test_enum_labels_quality_and_writable_from_the_fleet_file() -> None:
     (ramp,) = [m for m in ddata.metrics if m.alias == alias]
     assert properties(ramp)["Quality"].int_value == 192 and ramp.int_value == 10
     assert not any(properties(m) for m in ddata.metrics if m.alias != alias)  # good stays implicit
+
+
+def test_with_a_primary_host_the_births_wait_for_its_state_and_the_first_round() -> None:
+    s = session(primary_host="scada")
+    s.next_will()
+    s.on_connected(T0)
+    s.on_sample(sample("pump", T0), T0)
+    online = b'{"online": true, "timestamp": 5}'
+    assert s.on_message("spBv1.0/STATE/scada", online, T0) == []  # the fan not polled yet
+    assert kinds(s.on_sample(sample("fan", T0 + 1), T0 + 1))[:3] == ["NBIRTH", "DBIRTH", "DBIRTH"]
