@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from starterbus.cli import serve_web
 from starterbus.cli.lifetime import exit_code, until_signalled
 from starterbus.cli.output import emit_json_line
 from starterbus.core.errors import ConfigurationError
@@ -82,6 +83,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
         action="store_true",
         help="accept any OPC UA client certificate (trials only; default: those in OPCUA_PKI/trusted)",
     )
+    serve_web.add_arguments(p)
     p.add_argument("--reconnect-delay", type=float, default=2.0, help="wait between connection attempts, s")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("-v", "--verbose", action="store_true", help="log every connection event")
@@ -165,12 +167,17 @@ async def _serve(args: argparse.Namespace) -> int:
         from starterbus.core.textinput import parse_host_port
 
         parse_host_port(args.metrics, option="--metrics")
+    web = serve_web.settings(args)  # --http: its address, users file and TLS files, checked first too
     try:
         if args.demo:
             from starterbus.fleet.demo import start_demo_fleet
 
             demo = await asyncio.to_thread(start_demo_fleet, 1.0)
             config = demo.config
+            if web is not None:  # the web pages of the demo may act (MQTT still refuses plaintext DCMDs)
+                from starterbus.cli.opcua_cmd import demo_remote
+
+                config = demo_remote(config)
         else:
             config = await asyncio.to_thread(load_fleet, args.fleet)
         if args.record:  # checked (and refused, one line) before the broker or the poller starts
@@ -242,12 +249,17 @@ async def _serve(args: argparse.Namespace) -> int:
                 metrics = f"http://{mhost}:{mport}/metrics"
             if demo is not None:
                 _run_demo_scenario(fleet.poller, demo, stop, asyncio.get_running_loop())
-            async with _opcua_server(args, fleet) as opcua:  # the banner once every listener is up
+            async with (
+                _opcua_server(args, fleet) as opcua,
+                serve_web.running(web, fleet) as http,
+            ):  # the banner once every listener is up
                 opcua_box.append(opcua)
                 if not args.json:
                     _print_banner(session, node, broker, broker_proc is not None, options.commands_allowed)
                     if metrics:
                         print(f"  Prometheus metrics: {metrics}", flush=True)
+                    if http is not None:
+                        print(f"  web dashboard: {http.url}", flush=True)
                 if args.json:
                     emit_json_line(
                         {
@@ -263,6 +275,7 @@ async def _serve(args: argparse.Namespace) -> int:
                             "commands": options.commands_allowed,
                             "metrics": metrics,
                             "opcua": getattr(opcua, "endpoint_url", None),
+                            "http": http.url if http is not None else None,
                         }
                     )
                 elif args.opcua:

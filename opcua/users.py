@@ -1,4 +1,4 @@
-"""OPC UA users: a TOML users file with PBKDF2 password hashes, the user manager and the role rules.
+"""OPC UA users: the user manager and the role rules over the users file (:mod:`starterbus.ops.users`).
 
 ```toml
 # starterbus OPC UA users (add or change one with `starterbus opcua-user USERS.toml NAME --role ROLE`)
@@ -18,125 +18,26 @@ the server's :class:`~starterbus.opcua.logins.LoginGuard` has verified the passw
 
 from __future__ import annotations
 
-import base64
-import enum
-import hashlib
-import hmac
-import os
-import sys
 from collections.abc import Mapping
-from dataclasses import dataclass
-from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from asyncua import ua
 from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User, UserRole
 
-from starterbus.core.errors import ConfigurationError
-from starterbus.core.textinput import read_text_file
+from starterbus.ops.users import (
+    DEFAULT_ITERATIONS,
+    SCHEME,
+    Role,
+    UserEntry,
+    dump_users,
+    hash_password,
+    load_users,
+    parse_users,
+    verify_password,
+)
 
 if TYPE_CHECKING:
     from starterbus.opcua.logins import LoginGuard
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
-
-SCHEME = "pbkdf2-sha256"
-DEFAULT_ITERATIONS = 600_000  # OWASP 2023 for PBKDF2-HMAC-SHA256
-
-
-class Role(str, enum.Enum):
-    READ_ONLY = "read-only"
-    OPERATOR = "operator"
-
-
-@dataclass(frozen=True, slots=True)
-class UserEntry:
-    name: str
-    role: Role
-    password_hash: str
-
-
-def hash_password(password: str, *, iterations: int = DEFAULT_ITERATIONS, salt: bytes | None = None) -> str:
-    """``pbkdf2-sha256$ITERATIONS$SALT$HASH`` (base64, no padding) for a users file."""
-    salt = os.urandom(16) if salt is None else salt
-    digest = hashlib.pbkdf2_hmac("sha256", password.encode("utf-8"), salt, iterations)
-    return f"{SCHEME}${iterations}${_b64(salt)}${_b64(digest)}"
-
-
-def verify_password(password: str, encoded: str) -> bool:
-    try:
-        scheme, iterations, salt, digest = encoded.split("$")
-        if scheme != SCHEME:
-            return False
-        expected = base64.b64decode(_pad(digest))
-        actual = hashlib.pbkdf2_hmac("sha256", password.encode("utf-8"), base64.b64decode(_pad(salt)), int(iterations))
-    except ValueError:
-        return False
-    return hmac.compare_digest(actual, expected)
-
-
-def _b64(data: bytes) -> str:
-    return base64.b64encode(data).decode("ascii").rstrip("=")
-
-
-def _pad(text: str) -> str:
-    return text + "=" * (-len(text) % 4)
-
-
-def load_users(path: str | Path) -> dict[str, UserEntry]:
-    """Read a users file; errors name the file and the user."""
-    path = Path(path)
-    try:
-        data = tomllib.loads(read_text_file(path, "users file"))
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigurationError(f"{path}: {exc}") from exc
-    return parse_users(data, str(path))
-
-
-def parse_users(data: Mapping[str, Any], source: str) -> dict[str, UserEntry]:
-    unknown = set(data) - {"users"}
-    if unknown:
-        raise ConfigurationError(f"{source}: unknown setting {sorted(unknown)[0]!r} (only [users.NAME] tables)")
-    table = data.get("users", {})
-    if not isinstance(table, Mapping):
-        raise ConfigurationError(f"{source}: users must be tables [users.NAME]")
-    users: dict[str, UserEntry] = {}
-    roles = ", ".join(r.value for r in Role)
-    for name, entry in table.items():
-        where = f"{source}: users.{name}"
-        if not isinstance(entry, Mapping):
-            raise ConfigurationError(f"{where}: must be a table with role and password")
-        for key in sorted(set(entry) - {"role", "password"}):
-            raise ConfigurationError(f"{where}.{key}: unknown setting (known: password, role)")
-        try:
-            role = Role(entry.get("role"))
-        except ValueError:
-            raise ConfigurationError(f"{where}.role: {entry.get('role')!r} is not one of {roles}") from None
-        encoded = entry.get("password")
-        if not isinstance(encoded, str) or not encoded.startswith(SCHEME + "$") or encoded.count("$") != 3:
-            raise ConfigurationError(
-                f"{where}.password: not a {SCHEME} hash (set it with `starterbus opcua-user FILE {name}`; "
-                "clear-text passwords are not accepted)"
-            )
-        users[name] = UserEntry(name, role, encoded)
-    return users
-
-
-def dump_users(users: Mapping[str, UserEntry]) -> str:
-    lines = ["# starterbus OPC UA users (`starterbus opcua-user FILE NAME --role ROLE` adds or changes one)"]
-    for entry in users.values():
-        lines += ["", f"[users.{_toml_key(entry.name)}]", f'role = "{entry.role.value}"']
-        lines.append(f'password = "{entry.password_hash}"')
-    return "\n".join(lines) + "\n"
-
-
-def _toml_key(name: str) -> str:
-    if name.replace("-", "").replace("_", "").isalnum() and name.isascii():
-        return name
-    return '"' + name.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
 class UserManager:
@@ -194,3 +95,18 @@ class RoleRuleset(PermissionRuleset):
         if user.role is UserRole.User and self.users.role(user) is Role.OPERATOR:
             return action_type_id in _OPERATOR_TYPES
         return action_type_id in _READ_TYPES
+
+
+__all__ = [
+    "DEFAULT_ITERATIONS",
+    "SCHEME",
+    "Role",
+    "RoleRuleset",
+    "UserEntry",
+    "UserManager",
+    "dump_users",
+    "hash_password",
+    "load_users",
+    "parse_users",
+    "verify_password",
+]

@@ -172,9 +172,13 @@ def save(backup: Backup, profile: Profile, path: str | Path, *, replace: bool = 
 
 def load(path: str | Path) -> tuple[Backup, Profile]:
     """Read and check a backup file against its model's profile; raises the typed errors naming file and key."""
-    source = str(path)
+    return loads(read_text_file(path, "backup"), str(path))
+
+
+def loads(text: str, source: str = "<backup>") -> tuple[Backup, Profile]:
+    """:func:`load` of a backup's text (an upload); ``source`` names it in errors."""
     try:
-        data = tomllib.loads(read_text_file(path, "backup"))
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ConfigurationError(f"{source}: not TOML: {exc}") from exc
     if data.get("format") != FORMAT:

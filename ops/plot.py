@@ -152,13 +152,24 @@ def plot_event(
 def event_figure(
     db: str | Path, device: str, event_id: int, *, after: float = 60.0, before_trip: float = 30.0
 ) -> tuple[Any, int]:
-    """The figure of history event ``event_id`` of ``device`` and the number of samples in it.
+    """The figure of history event ``event_id`` of ``device`` and the number of samples in it (the window:
+    :func:`event_window`). Each is labelled by what it is: a start, a trip, or the change of state."""
+    event, points, limit_a = event_window(db, device, event_id, after=after, before_trip=before_trip)
+    marker, since = event_marker(event["kind"], event["detail"])
+    fig = figure(points, limit_a=limit_a, title=f"{device}: event {event_id} ({event['text']})", marker=marker,
+                 since=since, peak_before=event["kind"] == "fault")  # fmt: skip
+    return fig, len(points)
+
+
+def event_window(
+    db: str | Path, device: str, event_id: int, *, after: float = 60.0, before_trip: float = 30.0
+) -> tuple[dict[str, Any], list[Point], float | None]:
+    """History event ``event_id`` of ``device``, its samples (t = 0 at the event) and the current limit in A.
 
     A ``start`` event (``record``) spans to its recorded end; a ``state`` event into ``starting`` (``poll
     --record``) spans to the next change of state after running was reached, another state change to the next
     change of state (and a second of the state it reached), each at most ``after`` seconds; a ``fault`` event
-    shows the ``before_trip`` seconds before the trip and a few after. Each is labelled by what it is: a start,
-    a trip, or the change of state (``running -> stopping``).
+    shows the ``before_trip`` seconds before the trip and a few after.
     """
     with HistoryStore(db, create=False) as store:
         event = store.event(event_id)
@@ -193,10 +204,7 @@ def event_figure(
     limit_a = detail.get("limit_a")
     if limit_a is None:
         limit_a = _limit_from_values(rows)
-    marker, since = event_marker(event["kind"], detail)
-    fig = figure(points, limit_a=limit_a, title=f"{device}: event {event_id} ({event['text']})", marker=marker,
-                 since=since, peak_before=event["kind"] == "fault")  # fmt: skip
-    return fig, len(points)
+    return event, points, limit_a
 
 
 def event_marker(kind: str, detail: Mapping[str, Any]) -> tuple[str, str]:

@@ -1,4 +1,4 @@
-"""Failed-login throttling per key (a source address, a user name): exponential backoff, then a lockout.
+"""Failed-login throttling per key (an address, a user name): exponential backoff, then a lockout (OPC UA, web).
 
 After the n-th failure in a row on a key, attempts on that key are refused unchecked for
 ``min(backoff_base * 2**(n-1), backoff_max)`` seconds; the ``lockout_after``-th failure locks the key for

@@ -1,0 +1,108 @@
+"""The demo fleet with the web server and the history, run in a thread of the test process.
+
+The tests reach the simulated starters directly (``demo.starters``), so an action through the page is checked
+where it lands; the audit log and the history database are files in a temporary folder.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from starterbus.aio import AsyncFleet
+from starterbus.cli.opcua_cmd import demo_remote
+from starterbus.core.audit import ENV_VAR, AuditLog
+from starterbus.fleet.demo import DemoFleet, start_demo_fleet
+from starterbus.ops.recorder import HistoryRecorder
+from starterbus.ops.throttle import Throttle
+from starterbus.ops.users import Role, UserEntry, hash_password
+from starterbus.web.server import WebServer, WebSettings
+
+PASSWORD = "operator-password"
+#: few iterations: the tests check who may log in, not PBKDF2's cost
+USERS = {
+    "olga": UserEntry("olga", Role.OPERATOR, hash_password(PASSWORD, iterations=1000)),
+    "rita": UserEntry("rita", Role.READ_ONLY, hash_password(PASSWORD, iterations=1000)),
+}
+
+
+@dataclass
+class WebDemo:
+    url: str
+    demo: DemoFleet
+    fleet: AsyncFleet
+    web: WebServer
+    audit: Path
+    history: Path
+    loop: asyncio.AbstractEventLoop
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def forget_failed_logins(self) -> None:
+        """Clear the login throttle (on the server's loop, where it lives)."""
+
+        async def clear() -> None:
+            self.web.auth.throttle = Throttle(self.web.auth.policy.throttle)
+
+        asyncio.run_coroutine_threadsafe(clear(), self.loop).result(10)
+
+    def audit_records(self) -> list[dict[str, object]]:
+        return AuditLog(self.audit).read()
+
+
+@contextmanager
+def web_demo(tmp: Path, *, period: float = 0.5, **settings: Any) -> Iterator[WebDemo]:
+    """The demo fleet polled every ``period`` s, recorded into ``tmp/history.db``, served on a free port."""
+    audit, history = tmp / "audit.jsonl", tmp / "history.db"
+    before = os.environ.get(ENV_VAR)
+    os.environ[ENV_VAR] = str(audit)  # the guarded path and the recorder's audit follower use this file
+    ready = threading.Event()
+    box: dict[str, Any] = {}
+    loop = asyncio.new_event_loop()
+    stop = asyncio.Event()
+
+    async def main() -> None:
+        demo = await asyncio.to_thread(start_demo_fleet, period)
+        try:
+            recorder = HistoryRecorder(history, audit=AuditLog(audit))
+            options = {"users": USERS, "history": history, "host": "127.0.0.1", "port": 0, **settings}
+            try:
+                async with (
+                    AsyncFleet(demo_remote(demo.config), sink=recorder) as fleet,
+                    WebServer(fleet, WebSettings(**options)) as web,
+                ):
+                    box["demo"] = WebDemo(web.url, demo, fleet, web, audit, history, loop)
+                    ready.set()
+                    await stop.wait()
+            finally:
+                recorder.close()
+        finally:
+            demo.close()
+
+    def run() -> None:
+        try:
+            loop.run_until_complete(main())
+        except BaseException as exc:  # reported by the waiting test
+            box["error"] = exc
+            ready.set()
+
+    thread = threading.Thread(target=run, name="web-demo", daemon=True)
+    thread.start()
+    try:
+        ready.wait(60)
+        if "error" in box:
+            raise box["error"]
+        yield box["demo"]
+    finally:
+        loop.call_soon_threadsafe(stop.set)
+        thread.join(30)
+        loop.close()
+        if before is None:
+            os.environ.pop(ENV_VAR, None)
+        else:
+            os.environ[ENV_VAR] = before

@@ -1,0 +1,203 @@
+"""The fleet as the pages see it: the last sample of every device, turned into small JSON rows.
+
+:class:`FleetView` consumes :meth:`AsyncFleet.samples` on the event loop, keeps the last sample of each device
+and which devices changed, and every ``interval`` encodes the changed rows once as a server-sent event that
+every connected page receives (one encoding, whatever the number of pages). A page that cannot keep up (its
+queue is full) is disconnected; its ``EventSource`` reconnects and starts again from a snapshot.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import time
+from collections.abc import AsyncIterator, Callable, Mapping
+from typing import Any
+
+from starterbus.core.errors import StarterbusError
+from starterbus.core.profile import Profile
+from starterbus.core.registry import get_profile
+from starterbus.fleet.config import FleetConfig
+from starterbus.fleet.line_stats import LineStats
+from starterbus.fleet.sample import Sample
+
+LineSource = Callable[[], Mapping[str, LineStats]]
+
+
+def _profile(model: str, cache: dict[str, Profile | None]) -> Profile | None:
+    if model not in cache:
+        try:
+            cache[model] = get_profile(model)
+        except StarterbusError:
+            cache[model] = None
+    return cache[model]
+
+
+def device_row(sample: Sample, profile: Profile | None, offline_since: float | None) -> dict[str, Any]:
+    """One device's row of the fleet page: state, fault (English and Chinese), currents, when it last answered."""
+    status = sample.status if sample.online else None
+    fault: dict[str, Any] | None = None
+    if status is not None and status.fault:
+        code = status.fault_code
+        label = profile.faults.label(code) if profile is not None and code is not None else None
+        fault = {
+            "code": code,
+            "en": label.en if label else (status.fault_text or ""),
+            "zh": label.zh if label else "",
+        }
+    currents = {k: v.value for k, v in status.currents.items()} if status is not None else {}
+    if status is not None and not currents and profile is not None:  # the fleet file polls them as measurements
+        for name, point in zip("abc", profile.phase_currents(), strict=False):
+            if point.key in sample.values:
+                currents[name] = sample.values[point.key].value
+    return {
+        "name": sample.device,
+        "line": sample.bus,
+        "model": sample.model,
+        "online": sample.online,
+        "state": status.state.value if status is not None else ("unknown" if sample.online else "offline"),
+        "fault": fault,
+        "currents": currents,
+        "time": round(sample.time, 3),
+        "offline_since": offline_since,
+        "error": sample.error,
+    }
+
+
+class FleetView:
+    """The last sample per device, and the server-sent events that carry its changes to the pages."""
+
+    def __init__(
+        self,
+        config: FleetConfig,
+        lines: LineSource | None = None,
+        *,
+        interval: float = 0.5,
+        queue_size: int = 64,
+        clock: Callable[[], float] = time.time,
+    ) -> None:
+        self.config = config
+        self.lines = lines
+        self.interval = interval
+        self.queue_size = queue_size
+        self.clock = clock
+        self.samples: dict[str, Sample] = {}
+        self.rows: dict[str, dict[str, Any]] = {}
+        self._offline_since: dict[str, float | None] = {}
+        self._dirty: set[str] = set()
+        self._profiles: dict[str, Profile | None] = {}
+        self._clients: set[asyncio.Queue[bytes | None]] = set()
+        self.events_sent = 0
+        self.clients_dropped = 0
+        for device in config.devices:  # every configured device is on the page before its first poll
+            self.rows[device.name] = {
+                "name": device.name,
+                "line": device.bus,
+                "model": device.model,
+                "online": None,
+                "state": "unknown",
+                "fault": None,
+                "currents": {},
+                "time": None,
+                "offline_since": None,
+                "error": None,
+            }
+
+    # -- in ------------------------------------------------------------------------------------------------
+
+    def observe(self, sample: Sample) -> None:
+        """Take one sample (on the event loop); cheap: the row is made once per flush, not per sample."""
+        name = sample.device
+        if not sample.online:
+            if self._offline_since.get(name) is None:
+                self._offline_since[name] = sample.time
+        else:
+            self._offline_since[name] = None
+        self.samples[name] = sample
+        self._dirty.add(name)
+
+    async def consume(self, samples: AsyncIterator[Sample]) -> None:
+        async for sample in samples:
+            self.observe(sample)
+
+    # -- out -----------------------------------------------------------------------------------------------
+
+    def _refresh(self) -> list[dict[str, Any]]:
+        changed = []
+        for name in self._dirty:
+            sample = self.samples[name]
+            row = device_row(sample, _profile(sample.model, self._profiles), self._offline_since.get(name))
+            self.rows[name] = row
+            changed.append(row)
+        self._dirty.clear()
+        return changed
+
+    def line_rows(self) -> list[dict[str, Any]]:
+        stats = self.lines() if self.lines is not None else {}
+        out = []
+        for bus in self.config.buses:
+            line = stats.get(bus.name)
+            out.append(
+                {
+                    "name": bus.name,
+                    "transport": bus.transport,
+                    "devices": len(bus.devices),
+                    "utilisation": round(line.utilisation, 4) if line is not None else None,
+                }
+            )
+        return out
+
+    def snapshot(self) -> dict[str, Any]:
+        self._refresh_into_rows()
+        return {"now": self.clock(), "devices": list(self.rows.values()), "lines": self.line_rows()}
+
+    def _refresh_into_rows(self) -> None:
+        if self._dirty:
+            self._broadcast(self._refresh())
+
+    def _broadcast(self, changed: list[dict[str, Any]]) -> None:
+        if not self._clients:
+            return
+        payload = {"now": self.clock(), "devices": changed, "lines": self.line_rows()}
+        message = sse("update", payload)
+        self.events_sent += 1
+        for queue in list(self._clients):
+            try:
+                queue.put_nowait(message)
+            except asyncio.QueueFull:
+                self.clients_dropped += 1
+                self._clients.discard(queue)
+                with contextlib.suppress(asyncio.QueueFull):
+                    queue.get_nowait()
+                    queue.put_nowait(None)  # tells the stream to end; the page reconnects with a snapshot
+
+    def flush(self) -> None:
+        """Send what changed since the last flush (the line utilisation at least, as a heartbeat)."""
+        self._broadcast(self._refresh())
+
+    async def run_flusher(self, stop: asyncio.Event) -> None:
+        while not stop.is_set():
+            with contextlib.suppress(asyncio.TimeoutError):
+                await asyncio.wait_for(stop.wait(), self.interval)
+            self.flush()
+
+    def subscribe(self) -> asyncio.Queue[bytes | None]:
+        """A new page: its queue starts with the snapshot."""
+        queue: asyncio.Queue[bytes | None] = asyncio.Queue(self.queue_size)
+        queue.put_nowait(sse("snapshot", self.snapshot()))
+        self._clients.add(queue)
+        return queue
+
+    def unsubscribe(self, queue: asyncio.Queue[bytes | None]) -> None:
+        self._clients.discard(queue)
+
+    @property
+    def clients(self) -> int:
+        return len(self._clients)
+
+
+def sse(event: str, payload: object) -> bytes:
+    """One server-sent event (``data`` is one line of compact JSON)."""
+    data = json.dumps(payload, ensure_ascii=False, separators=(",", ":"))
+    return f"event: {event}\ndata: {data}\n\n".encode()
