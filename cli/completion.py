@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import argparse
 
+from starterbus.cli.arguments import json_flag
+from starterbus.cli.parser import build_parser
+
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: str) -> None:
-    from starterbus.cli.main import _json_flag
-
     p = sub.add_parser(
         "completion",
         help="print a shell completion script (bash, zsh, fish)",
@@ -20,20 +21,16 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: 
         "(asked of `starterbus __complete` as you type); the examples install it.",
     )
     p.add_argument("shell", choices=["bash", "zsh", "fish"])
-    _json_flag(p)
+    json_flag(p)
     p.set_defaults(handler=cmd_completion)
 
 
 def command_names() -> list[str]:
-    from starterbus.cli.main import build_parser
-
     return sorted(_subparsers(build_parser([])))
 
 
 def command_parser(name: str) -> argparse.ArgumentParser | None:
     """The parser of command ``name`` with its options (built only for the command asked for), or None."""
-    from starterbus.cli.main import build_parser
-
     return _subparsers(build_parser([name])).get(name)
 
 

@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import argparse
 
+from starterbus.cli.arguments import device_args
 from starterbus.cli.output import emit_json, table
 from starterbus.core.device import open_device
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted: str) -> None:
-    from starterbus.cli.main import _device_args
-
     p = sub.add_parser("identify", help="read the device's identity (DeviceNet identity object)")
-    _device_args(p)
+    device_args(p)
     p.set_defaults(handler=cmd_identify)
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from starterbus.cli.arguments import device_args, fleet_arg
 from starterbus.cli.device_cmds import _show_outcomes, _user, prompt_hook, show_dry_run, write_previews
 from starterbus.cli.output import emit_json, table
 from starterbus.core.audit import AuditLog
@@ -20,10 +21,9 @@ from starterbus.ops.diff import compare, load_pair
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted: str) -> None:
     from starterbus.cli import ops_history_cmds
-    from starterbus.cli.main import _device_args, _fleet_arg
 
     p = sub.add_parser("backup", help="save every readable parameter of a device to an editable TOML file")
-    _device_args(p)
+    device_args(p)
     p.add_argument("-o", "--output", required=True, metavar="FILE", help="the backup file to write (TOML); - = stdout")
     p.add_argument("--force", action="store_true", help="replace FILE if it exists (default: refuse)")
     p.set_defaults(handler=cmd_backup)
@@ -36,13 +36,13 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p.add_argument("a", metavar="A", help="backup file, URL@MODEL (or URL with --model), device NAME, defaults[@MODEL]")
     p.add_argument("b", metavar="B")
     p.add_argument("--model", help="the model of a side given as a bare URL")
-    _fleet_arg(p)
+    fleet_arg(p)
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(handler=cmd_diff)
 
     p = sub.add_parser("restore", help="write a backup's differing parameters into a device (guarded, read back)")
     p.add_argument("file", metavar="FILE", help="a backup written by `starterbus backup`")
-    _device_args(p)
+    device_args(p)
     p.add_argument("--accept-uncertain", action="store_true", help="acknowledge codes or scales the manual lacks")
     p.add_argument("--yes", "-y", action="store_true", help="do it without asking (required without a terminal)")
     p.add_argument("--dry-run", action="store_true", help="show the diff and the exact frames; send nothing")

@@ -12,6 +12,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+from starterbus.cli.arguments import device_args, fleet_arg, json_flag
 from starterbus.cli.device_cmds import _user, prompt_hook
 from starterbus.cli.output import emit_json, table
 from starterbus.cli.target import recorded_name
@@ -28,12 +29,10 @@ _DEVICE_HELP = "{}: its name in the database (a fleet file's device name), or a 
 
 
 def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted: str) -> None:
-    from starterbus.cli.main import _device_args, _fleet_arg, _json_flag
-
     p = sub.add_parser("history", help="query a history database written by `poll --record` or `record`")
     p.add_argument("db", metavar="DB")
     p.add_argument("--device", metavar="NAME|URL", help=_DEVICE_HELP.format("only this device"))
-    _fleet_arg(p)
+    fleet_arg(p)
     p.add_argument("--since", metavar="T", help="from T: 2026-11-23T08:00 (local time) or an age: 90s, 10m, 2h, 1d")
     p.add_argument("--until", metavar="T", help="up to T (same forms)")
     p.add_argument("--events", action="store_true", help="the events (state changes, faults, writes...), not samples")
@@ -45,7 +44,7 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted
     p.set_defaults(handler=cmd_history)
 
     p = sub.add_parser("record", help="record a start (status and currents) to CSV, SQLite and a PNG plot")
-    _device_args(p)
+    device_args(p)
     p.add_argument("--start", action="store_true", help="send the start command (guarded); else wait for a start")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="directory for the CSV, starts.db and PNG")
     p.add_argument("--limit", type=float, default=60.0, metavar="S", help="stop after S seconds (default 60)")
@@ -60,12 +59,12 @@ def add_parsers(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted
     p = sub.add_parser("plot", help="draw a start from a history database as a PNG")
     p.add_argument("db", metavar="DB")
     p.add_argument("--device", required=True, metavar="NAME|URL", help=_DEVICE_HELP.format("the event's device"))
-    _fleet_arg(p)
+    fleet_arg(p)
     p.add_argument(
         "--event", required=True, type=int, metavar="N", help="a start or state event id (`history --events`)"
     )
     p.add_argument("-o", "--output", metavar="FILE", help="the PNG to write (default DB-DEVICE-event-N.png)")
-    _json_flag(p)
+    json_flag(p)
     p.set_defaults(handler=cmd_plot)
 
 

@@ -8,6 +8,7 @@ import threading
 import time
 from typing import TextIO
 
+from starterbus.cli.arguments import device_args
 from starterbus.cli.output import emit_json_line, paint, table, use_colour
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
@@ -18,15 +19,13 @@ from starterbus.core.transport import Capability
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wants: str) -> None:
-    from starterbus.cli.main import _device_args
-
     p = sub.add_parser(
         "watch",
         help="watch one device: status and chosen points, refreshed in place",
         description="Poll one device and show its status and points, refreshed in place on a terminal "
         "(one block per poll on a pipe, one JSON line per poll with --json).",
     )
-    _device_args(p)
+    device_args(p)
     p.add_argument("keys", nargs="*", metavar="KEY", help="points to show besides the status (default: measurements)")
     p.add_argument("--interval", type=float, default=1.0, metavar="S", help="seconds between polls (default 1)")
     p.add_argument("--once", action="store_true", help="poll once, print, exit")

@@ -9,7 +9,7 @@ import shlex
 import pytest
 
 from starterbus.cli.examples import EXAMPLES
-from starterbus.cli.main import build_parser, parse_arguments
+from starterbus.cli.parser import build_parser, parse_arguments
 from starterbus.tests.cli.test_habits import run
 
 SHELL_OPERATORS = {"|", "||", "&", "&&", ";", ">", ">>", "<", "2>"}

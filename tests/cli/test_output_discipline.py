@@ -20,7 +20,7 @@ from urllib.parse import urlsplit
 
 import pytest
 
-from starterbus.cli.main import build_parser, parse_arguments
+from starterbus.cli.parser import build_parser, parse_arguments
 from starterbus.opcua.users import Role, load_users
 from starterbus.serve.embedded import mosquitto_binary
 from starterbus.tests.cli.test_habits import EXE, run, spawn
