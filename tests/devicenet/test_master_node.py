@@ -13,7 +13,6 @@ from hypothesis import strategies as st
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.transports.devicenet.frames import CanFrame, parse_candump
-from starterbus.transports.devicenet.identity import Identity
 from starterbus.transports.devicenet.ids import poll_command_id, poll_response_id
 from starterbus.transports.devicenet.master_link import (
     CommunicationFaultError,
@@ -27,6 +26,7 @@ from starterbus.transports.devicenet.master_link import (
 )
 from starterbus.transports.devicenet.master_node import RESET_BACKOFF, MasterNode
 from starterbus.transports.devicenet.master_polling import CLEAR_POLLS
+from starterbus.transports.devicenet.settings import profile_identity
 from starterbus.transports.devicenet.simulator import StarterApplication
 from starterbus.transports.devicenet.slave_node import NodeState, SlaveNode
 from starterbus.transports.devicenet.transcript import Wire, expected, parse_transcript, replay
@@ -193,7 +193,7 @@ def test_no_auto_reset_stays_faulted() -> None:
 def slave(profile: Profile, mac: int = 5) -> tuple[SlaveNode, SimulatedStarter]:
     starter = SimulatedStarter(profile, ManualClock(0.0))
     app = StarterApplication(starter, io_refresh=0.0)
-    node = SlaveNode(mac, app, Identity.from_profile(profile, serial_number=mac), dup_mac_wait=0.1)
+    node = SlaveNode(mac, app, profile_identity(profile, serial_number=mac), dup_mac_wait=0.1)
     return node, starter
 
 

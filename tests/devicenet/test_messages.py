@@ -12,6 +12,7 @@ from starterbus.transports.devicenet.cip import FrameTooLongError, FrameTooShort
 from starterbus.transports.devicenet.dupmac import DuplicateMacCheck, decode_duplicate_mac, is_duplicate_mac
 from starterbus.transports.devicenet.frames import CanFrame, parse_candump
 from starterbus.transports.devicenet.identity import Identity, decode_attribute, decode_identity
+from starterbus.transports.devicenet.settings import profile_identity
 
 
 def test_jjr8000_duplicate_mac_vector() -> None:
@@ -43,7 +44,7 @@ def test_duplicate_mac_round_trip(mac: int, response: bool, vendor: int, serial:
 
 
 def test_identity_attributes_as_the_manual_says(jjr8000: Profile) -> None:
-    identity = Identity.from_profile(jjr8000, serial_number=0x01020304)
+    identity = profile_identity(jjr8000, serial_number=0x01020304)
     assert identity.attribute(1) == bytes.fromhex("33 03")  # vendor 819
     assert identity.attribute(2) == bytes.fromhex("2D 00")  # device type 45 (0x2D)
     assert identity.attribute(7) == b"\x07JJR8000"  # SHORT_STRING
@@ -52,7 +53,7 @@ def test_identity_attributes_as_the_manual_says(jjr8000: Profile) -> None:
     raw = {n: identity.attribute(n) or b"" for n in range(1, 8)}
     assert decode_identity(raw) == identity
     assert identity.attributes_all() == b"".join(raw[n] for n in range(1, 8))
-    assert Identity.from_profile(jjr8000, product_name="JJR8000-X").product_name == "JJR8000-X"
+    assert profile_identity(jjr8000, product_name="JJR8000-X").product_name == "JJR8000-X"
 
 
 @pytest.mark.parametrize(

@@ -11,7 +11,7 @@ from starterbus.core.errors import ConfigurationError
 from starterbus.core.profile import Profile, load_profile_text
 from starterbus.core.simulator import ManualClock, SimulatedStarter
 from starterbus.transports.devicenet.assemblies import AssemblySet
-from starterbus.transports.devicenet.identity import Identity
+from starterbus.transports.devicenet.settings import profile_identity
 from starterbus.transports.devicenet.simulator import DeviceNetSlaveSimulator
 
 JJR8000 = Path(__file__).parents[2] / "core" / "profiles" / "jjr8000.toml"
@@ -34,8 +34,8 @@ def toy() -> Profile:
 
 def test_the_identity_names_the_profile_s_product() -> None:
     profile = toy()
-    assert Identity.from_profile(profile).product_name == "Toy 8000"
-    assert Identity.from_profile(profile, product_name="X").product_name == "X"
+    assert profile_identity(profile).product_name == "Toy 8000"
+    assert profile_identity(profile, product_name="X").product_name == "X"
 
 
 @pytest.mark.parametrize(("assemblies", "numbers"), [(AssemblySet.BASIC, (11, 12)), (AssemblySet.EXTENDED, (150, 160))])

@@ -9,7 +9,7 @@ from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.transports.devicenet.connection import ConnectionState
 from starterbus.transports.devicenet.frames import CanFrame, parse_candump
-from starterbus.transports.devicenet.identity import Identity
+from starterbus.transports.devicenet.settings import profile_identity
 from starterbus.transports.devicenet.simulator import StarterApplication
 from starterbus.transports.devicenet.slave_node import NodeState, SlaveNode
 from starterbus.transports.devicenet.transcript import expected, parse_transcript, replay
@@ -65,7 +65,7 @@ def make_node(profile: Profile, **kwargs: object) -> tuple[SlaveNode, SimulatedS
     clock = ManualClock(0.0)
     starter = SimulatedStarter(profile, clock)
     app = StarterApplication(starter, io_refresh=0.0)
-    node = SlaveNode(5, app, Identity.from_profile(profile, serial_number=SERIAL), **kwargs)  # type: ignore[arg-type]
+    node = SlaveNode(5, app, profile_identity(profile, serial_number=SERIAL), **kwargs)  # type: ignore[arg-type]
     return node, starter, clock
 
 

@@ -10,10 +10,8 @@ from __future__ import annotations
 import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from typing import Any
 
-from starterbus.core.errors import ConfigurationError, EncodeError
-from starterbus.core.profile import Profile
+from starterbus.core.errors import EncodeError
 from starterbus.transports.devicenet.cip import FrameTooLongError, FrameTooShortError
 
 ATTRIBUTE_NAMES: dict[int, str] = {
@@ -40,7 +38,7 @@ class Identity:
     revision: tuple[int, int] = (1, 1)
     status: int = 0
     serial_number: int = 0x20110100
-    product_name: str = ""  # from_profile: the profile's, else its display name
+    product_name: str = ""  # settings.profile_identity: the profile's, else its display name
 
     def __post_init__(self) -> None:
         for name, value, hi in (
@@ -57,20 +55,6 @@ class Identity:
         encoded = self.product_name.encode("ascii", errors="replace")
         if len(encoded) > 32:
             raise EncodeError("product name longer than 32 characters", encoded, "identity.product_name")
-
-    @classmethod
-    def from_profile(cls, profile: Profile, **overrides: Any) -> Identity:
-        """The identity in the profile's ``[transports.devicenet] identity`` table (the product name: the
-        model's display name if the table gives none), with overrides."""
-        from starterbus.transports.devicenet.settings import devicenet_settings  # late: it imports this module
-
-        base = devicenet_settings(profile).identity
-        if not base.product_name:
-            base = replace(base, product_name=profile.display_name)
-        try:
-            return replace(base, **overrides)
-        except (TypeError, EncodeError) as exc:
-            raise ConfigurationError(f"{profile.name}: invalid DeviceNet identity: {exc}") from exc
 
     def with_status(self, status: int) -> Identity:
         return replace(self, status=status)

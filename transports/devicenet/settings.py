@@ -9,7 +9,7 @@ gives them are the profile's.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from starterbus.core import settings_check as check
@@ -75,6 +75,18 @@ def parse_identity(table: Mapping[str, Any]) -> Identity:
         return Identity(**values, revision=(revision[0], revision[1]))
     except EncodeError as exc:
         raise ConfigurationError(f"identity: {exc}") from None
+
+
+def profile_identity(profile: Profile, **overrides: Any) -> Identity:
+    """The identity in the profile's ``[transports.devicenet] identity`` table (the product name: the model's
+    display name if the table gives none), with overrides."""
+    base = devicenet_settings(profile).identity
+    if not base.product_name:
+        base = replace(base, product_name=profile.display_name)
+    try:
+        return replace(base, **overrides)
+    except (TypeError, EncodeError) as exc:
+        raise ConfigurationError(f"{profile.name}: invalid DeviceNet identity: {exc}") from exc
 
 
 def devicenet_settings(profile: Profile) -> DeviceNetSettings:

@@ -44,7 +44,7 @@ from starterbus.transports.devicenet.dupmac import DEFAULT_WAIT
 from starterbus.transports.devicenet.frames import CanFrame
 from starterbus.transports.devicenet.identity import Identity
 from starterbus.transports.devicenet.ids import MAX_MAC, poll_command_id, poll_response_id
-from starterbus.transports.devicenet.settings import devicenet_settings
+from starterbus.transports.devicenet.settings import devicenet_settings, profile_identity
 from starterbus.transports.devicenet.slave_node import NodeState, SlaveNode
 
 log = logging.getLogger(__name__)
@@ -223,7 +223,7 @@ class DeviceNetSimulator(RunningSimulator):
         if not 0 <= mac <= MAX_MAC:
             raise ConfigurationError(f"DeviceNet MAC id {mac} is outside 0..63 ({starter.profile.display_name}: 1..63)")
         if identity is None:
-            identity = Identity.from_profile(starter.profile, serial_number=0x20110100 + mac)
+            identity = profile_identity(starter.profile, serial_number=0x20110100 + mac)
         app = StarterApplication(starter, assemblies)
         node = SlaveNode(mac, app, identity, dup_mac_wait=self.dup_mac_wait, tick_ms=self.tick_ms, bitrate=self.bitrate)
         if explicit_epr_ms is not None:
