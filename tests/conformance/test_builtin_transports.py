@@ -62,3 +62,21 @@ class TestDeviceNet(TransportConformance):
         with DeviceNetSimulator(("virtual", channel), dup_mac_wait=0.05) as sim:
             sim.add_node(starter, 5)
             yield f"devicenet://virtual/{channel}?mac=5&assemblies=extended&dup_mac_wait=0.05&timeout=1"
+
+
+class TestModbusTcp(TransportConformance):
+    """Modbus TCP through the simulated gateway (the kit's cross-check compares it with RTU on one starter)."""
+
+    transport = "modbus-tcp"
+    model = "jjr5000"
+
+    @contextlib.contextmanager
+    def serve(self, starter: SimulatedStarter) -> Iterator[str]:
+        from starterbus.transports.modbus.tcp_server import ModbusTcpSimulator
+
+        with ModbusTcpSimulator({2: starter}) as sim:
+            yield sim.url(2, timeout=0.5)
+
+
+class TestModbusTcpSsd1(TestModbusTcp):
+    model = "ssd1"

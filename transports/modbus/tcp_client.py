@@ -1,0 +1,152 @@
+"""The ``modbus-tcp`` client transport: the Modbus RTU transport's reads, writes, commands, poll plans and
+counters, over MBAP to a Modbus TCP gateway (or device) instead of a serial line.
+
+``modbus-tcp://HOST:PORT?unit=N&timeout=1&retries=2&outstanding=1``. Every device of the process that names one
+HOST:PORT shares one connection (:data:`GATEWAYS`); what differs from RTU is only how a request travels
+(:class:`~starterbus.transports.modbus.tcp_line.MbapConnection`). Every parameter is in ``docs/modbus.md``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from starterbus.core.errors import ConfigurationError, RemoteDeviceError, StarterbusError
+from starterbus.core.model import PointDef
+from starterbus.core.profile import Profile
+from starterbus.core.sharing import SharedPool
+from starterbus.core.transport import PollResult, PollTask
+from starterbus.core.url import DeviceUrl
+from starterbus.spaces.modbus import MAX_UNIT, ModbusSettings
+from starterbus.transports.modbus.annotate import exception_meaning
+from starterbus.transports.modbus.client import ModbusRtuTransport
+from starterbus.transports.modbus.config import DEFAULT_RETRIES, ModbusRtuConfig
+from starterbus.transports.modbus.exchange import TransactionPolicy
+from starterbus.transports.modbus.frames import ExceptionResponse, ReadRequest, ReadResponse, Request
+from starterbus.transports.modbus.link import SerialSettings
+from starterbus.transports.modbus.poll_plan import sort_out
+from starterbus.transports.modbus.tcp_line import MbapConnection
+from starterbus.transports.modbus.timing import silent_interval
+
+NAME = "modbus-tcp"
+DEFAULT_PORT = 502
+DEFAULT_TIMEOUT = 1.0  # a gateway adds its own serial timeout to the device's answer
+URL_PARAMETERS = ("unit", "timeout", "retries", "retry_writes", "outstanding", "baudrate")
+
+#: one connection per gateway (HOST:PORT) in this process, shared by every unit behind it
+GATEWAYS: SharedPool[MbapConnection] = SharedPool("modbus-tcp gateways")
+
+
+@dataclass(frozen=True, slots=True)
+class ModbusTcpConfig(ModbusRtuConfig):
+    """What a ``modbus-tcp`` URL says. ``serial`` describes the line behind the gateway (its baud rate prices a
+    poll plan's requests, as on RTU); ``outstanding``: transactions on the connection at once."""
+
+    outstanding: int = 1
+
+    @property
+    def line_key(self) -> tuple[str, str, int]:
+        return (NAME, self.host, self.port)
+
+    @property
+    def target(self) -> str:
+        return f"{self.host}:{self.port}"
+
+    @classmethod
+    def from_tcp_url(cls, url: DeviceUrl, profile: Profile) -> ModbusTcpConfig:
+        url.check_known(URL_PARAMETERS)
+        if url.variant:
+            raise ConfigurationError(f"{url.text}: {url.scheme} has no variants (write modbus-tcp://HOST:PORT?unit=N)")
+        if url.path not in ("", "/"):
+            raise ConfigurationError(f"{url.text}: a modbus-tcp URL has no path (got {url.path!r})")
+        host, port = url.host_port(DEFAULT_PORT)
+        if "unit" not in url.query:
+            raise ConfigurationError(f"{url.text}: unit: required URL parameter missing (the unit id, e.g. unit=2)")
+        unit = url.get_int("unit", None, 1, MAX_UNIT)
+        settings = ModbusSettings.of(profile)
+        lo, hi = settings.unit_ids
+        if not max(lo, 1) <= unit <= hi:
+            raise ConfigurationError(
+                f"{url.text}: unit: {unit} is not a {profile.display_name} slave address: "
+                f"{profile.display_name} slave addresses are {max(lo, 1)}..{hi}"
+            )
+        baudrate = url.get_int("baudrate", settings.default_baudrate, 1, 10_000_000)
+        timeout = url.get_float("timeout", DEFAULT_TIMEOUT, 0.001, 60.0)
+        policy = TransactionPolicy(
+            timeout=timeout,
+            retries=url.get_int("retries", DEFAULT_RETRIES, 0, 10),
+            retry_writes=url.get_bool("retry_writes", False),
+            turnaround=0.0,
+            quarantine=timeout,
+        )
+        return cls(
+            variant=NAME,
+            path="",
+            host=host,
+            port=port,
+            unit=unit,
+            serial=SerialSettings(baudrate, "N", 1, 8, silent_interval(baudrate), False),
+            policy=policy,
+            io="",
+            outstanding=url.get_int("outstanding", 1, 1, 64),
+        )
+
+
+class ModbusTcpTransport(ModbusRtuTransport):
+    name = NAME
+
+    def __init__(self, url: DeviceUrl, profile: Profile, config: ModbusTcpConfig | None = None) -> None:
+        self.tcp = config or ModbusTcpConfig.from_tcp_url(url, profile)
+        super().__init__(url, profile, self.tcp)
+        self._source = f"{NAME} {self._where}"
+        self._gateway: MbapConnection | None = None
+
+    def _open(self) -> None:
+        tcp = self.tcp
+        gateway = GATEWAYS.acquire(
+            tcp.line_key, lambda: MbapConnection(tcp.host, tcp.port, tcp.outstanding, max(tcp.policy.timeout, 1.0))
+        )
+        if gateway.outstanding != tcp.outstanding:
+            GATEWAYS.release(tcp.line_key)
+            raise ConfigurationError(
+                f"{self.url.text}: outstanding: {gateway.name} is already open in this process with "
+                f"outstanding={gateway.outstanding}: one connection has one setting"
+            )
+        self._gateway = gateway
+        self._line = gateway  # type: ignore[assignment]  # the RTU transport's transactions go through it
+
+    def _close(self) -> None:
+        if self._gateway is not None:
+            self._gateway = self._line = None
+            GATEWAYS.release(self.tcp.line_key)
+
+    def _remote_error(self, request: Request, response: ExceptionResponse) -> StarterbusError:
+        """The device's own refusal, in the words of its manual (the gateway's 0x0A / 0x0B never get here)."""
+        if isinstance(request, ReadRequest):
+            what = f"FC03 read {request.count} register(s) from 0x{request.address:04X}"
+        else:
+            what = f"FC06 write 0x{request.value:04X} to 0x{request.address:04X}"
+        return RemoteDeviceError(
+            NAME,
+            response.code,
+            exception_meaning(self.profile, response.code),
+            detail=f"{what} at {self.describe()}",
+            data=response.encode()[1:-2],
+        )
+
+    def _poll(self, points: Sequence[PointDef], status: bool) -> PollResult:
+        """The plan's requests all on the connection at once (up to ``outstanding``), answers sorted out as RTU."""
+        self._no_broadcast_reads()
+        if self._gateway is None:
+            raise self._not_open()
+        plan = self.poll_plans.get(points, status)
+        exchanges = [self._read_exchange(request) for request in plan.requests]
+        values: tuple[int, ...] = ()
+        for exchange, response in zip(exchanges, self._gateway.run_many(exchanges, self._counters), strict=True):
+            self._refuse_exceptions(exchange, response)
+            assert isinstance(response, ReadResponse)
+            values += response.values
+        return sort_out(plan, values, points, self.profile, self._source)
+
+    def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
+        return None  # the fleet polls from a thread of the bus; the connection's reader does the waiting
