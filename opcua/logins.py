@@ -26,8 +26,8 @@ from asyncua.crypto.permission_rules import User, UserRole
 from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metric
 from prometheus_client.registry import Collector
 
-from starterbus.opcua.users import DEFAULT_ITERATIONS, UserEntry, hash_password, verify_password
 from starterbus.ops.throttle import Throttle, ThrottlePolicy
+from starterbus.ops.users import DEFAULT_ITERATIONS, UserEntry, hash_password, verify_password
 
 security_log = logging.getLogger("starterbus.opcua.security")
 

@@ -26,7 +26,6 @@ Decisions (SPARKPLUG.md):
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 
 from starterbus.core.errors import ConfigurationError
 from starterbus.fleet.config import FleetConfig
@@ -40,6 +39,7 @@ from starterbus.serve.actions import (
     Reconnect,
     SessionOptions,
 )
+from starterbus.serve.device_state import DeviceState
 from starterbus.serve.history import Bounds, HistoryStore, MemoryStore
 from starterbus.serve.metrics import (
     BAD,
@@ -74,24 +74,6 @@ __all__ = [
     "Reconnect",
     "SessionOptions",
 ]
-
-
-@dataclass
-class DeviceState:
-    """What the session knows of one device: its metrics, last values and what it published of them."""
-
-    name: str
-    metrics: MetricSet
-    online: bool = False
-    born: bool = False
-    current: dict[str, tuple[Scalar | None, int]] = field(default_factory=dict)  # name -> (value, ms)
-    reported: dict[str, Scalar | None] = field(default_factory=dict)
-    last_full: float = 0.0
-    refused: int = 0
-    commands: int = 0  # outcomes published (Device Control/Command Count)
-    seen: bool = False  # polled at least once (answered or not)
-    fresh: set[str] = field(default_factory=set)  # polled metrics read in the last good poll
-    quality: dict[str, int] = field(default_factory=dict)  # the Quality last published per metric
 
 
 def _ms(t: float) -> int:

@@ -6,14 +6,11 @@ the audit log; the primary host's STATE (SPARKPLUG.md section 7)."""
 from __future__ import annotations
 
 import json
-from typing import TYPE_CHECKING
 
 from starterbus.serve.actions import Action, CommandAudit, CommandRequest, Publish, Reconnect, SessionOptions
 from starterbus.serve.commands import CommandRefused, check_dcmd, describe, parse
+from starterbus.serve.device_state import DeviceState
 from starterbus.serve.metrics import COMMAND_COUNT, LAST_COMMAND, REBIRTH, REFUSED, MetricSet
-
-if TYPE_CHECKING:
-    from starterbus.serve.session import DeviceState
 
 NAMESPACE = "spBv1.0"
 _OUTCOME = frozenset({LAST_COMMAND, COMMAND_COUNT})  # published with every outcome, changed or not
