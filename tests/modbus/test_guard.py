@@ -32,7 +32,7 @@ def test_a_delivered_answer_ends_the_quarantine_after_its_silence() -> None:
     guard.sent(1.6)
     assert guard.answer_complete(8, b"x" * 7, 1.61) is None
     assert guard.trail_until == pytest.approx(1.61 + SILENCE)
-    guard.delivered()
+    guard.delivered(b"x" * 7)
     assert not guard.quarantined and guard.send_wait(1.61 + SILENCE) == pytest.approx(0.0)
     guard.stray(b"\x00", 2.0, 0.2)  # noise on a healthy line: quarantined again
     assert guard.hold == 0.2 and guard.send_wait(2.0) == pytest.approx(0.2)
@@ -144,7 +144,7 @@ def test_send_now_only_right_after_a_silence_that_was_watched() -> None:
     assert not guard.send_now(1.0)  # nothing watched yet: the driver discards the input first
     guard.sent(1.0)
     assert guard.answer_complete(8, b"x" * 7, 1.01) is None
-    guard.delivered()
+    guard.delivered(b"x" * 7)
     assert not guard.send_now(1.01 + SILENCE / 2)  # the silence is not over
     assert guard.send_now(1.01 + SILENCE + 0.0004) and guard.started == 1.01 + SILENCE + 0.0004
     assert not guard.send_now(1.01 + SILENCE + 0.001)  # watched too long ago: discard first

@@ -18,16 +18,31 @@ the guard the times (monotonic seconds) and the bytes it saw:
    started than the wire time of request and answer at the configured baud rate (fewest bits a character
    can take, less 5 % for a fast UART clock): such bytes were on their way before the request, so they are
    dropped. A pty or a TCP connection carries no such timing, so there the rule is off.
+5. **A line seen repeating an answer is quarantined after answers too.** An answer already delivered, seen
+   again where none was asked for (in stray bytes after a success, in bytes trailing an answer, as a frame
+   dropped for beating the wire), or an answer followed by itself, shows a slave that repeats answers: a
+   repeat arriving while a later request gets no answer of its own would be taken for that answer. From then
+   on every delivered answer is followed by the quarantine (from its last byte; any byte restarts it, and a
+   repeat seen in it renews the rule), until :data:`CLEAN_ANSWERS` answers in a row came with no stray byte
+   and no failure.
 
 Nothing here reads a clock or does I/O; the tests drive it with explicit times.
 """
 
 from __future__ import annotations
 
+from collections import deque
+
 from starterbus.core.errors import DecodeError
 
 #: a slave's UART clock may run a few per cent fast: answers up to 5 % quicker than nominal are accepted
 WIRE_TOLERANCE = 0.95
+#: rule 5: how many of the last delivered answers a repeat is recognised among
+REMEMBERED_ANSWERS = 64
+#: rule 5: how many stray bytes (since the last request) a repeated answer is looked for in
+STRAY_MEMORY = 512
+#: rule 5: a line seen repeating an answer is quarantined after every answer until this many in a row were clean
+CLEAN_ANSWERS = 100
 
 
 def hex_bytes(data: bytes, limit: int = 16) -> str:
@@ -41,8 +56,9 @@ class LineGuard:
     :attr:`trail_until` for :meth:`trailing` bytes, and :meth:`delivered`; or :meth:`failed`."""
 
     __slots__ = (
-        "checked_at", "fresh", "hold", "last_stray", "min_char_time", "quarantines", "quiet_at", "silence", "started",
-        "stray_bytes", "trail_until",
+        "answers", "checked_at", "clean", "fresh", "healthy", "hold", "last_stray", "min_char_time", "quarantines",
+        "quiet_at", "repeat_hold", "repeated", "repeats", "silence", "started", "stray_bytes", "stray_seen",
+        "stray_tail", "trail_until",
     )  # fmt: skip
 
     def __init__(self, silence: float, min_char_time: float = 0.0, fresh: float = 0.0) -> None:
@@ -60,10 +76,24 @@ class LineGuard:
         self.stray_bytes = 0
         self.quarantines = 0
         self.last_stray = b""
+        # rule 5
+        self.answers: deque[bytes] = deque(maxlen=REMEMBERED_ANSWERS)  # the last answers delivered
+        self.healthy = False  # the last attempt delivered its answer (no answer is owed to anyone)
+        self.stray_tail = b""  # stray bytes since the last request, where a repeated answer is looked for
+        self.repeated = False  # the attempt failing now showed a repeated answer (see failed)
+        self.repeats = 0  # repeated answers seen
+        self.repeat_hold = 0.0  # the quarantine after every answer while the line is suspect (0: it is not)
+        self.clean = 0  # while suspect: answers in a row with no stray byte and no failure before them
+        self.stray_seen = False  # stray bytes or a failure since the last answer
 
     @property
     def quarantined(self) -> bool:
         return self.hold > 0.0
+
+    @property
+    def suspect(self) -> bool:
+        """A slave on the line was seen repeating an answer: every answer is followed by the quarantine."""
+        return self.repeat_hold > 0.0
 
     # -- before a request ----------------------------------------------------------------------------------------
 
@@ -95,12 +125,30 @@ class LineGuard:
         self.quiet_at = now + hold
         self.stray_bytes += len(data)
         self.last_stray = (self.last_stray + data)[-16:]
+        self.stray_seen = True
+        if self.healthy:  # no answer is owed after a success: an answer seen again is a repeat
+            tail = (self.stray_tail + data)[-STRAY_MEMORY:]
+            if self._holds_an_answer(tail):
+                self.repeat_seen(quarantine)
+                tail = b""
+            self.stray_tail = tail
+
+    def _holds_an_answer(self, data: bytes) -> bool:
+        return any(answer in data for answer in set(self.answers))
+
+    def repeat_seen(self, quarantine: float) -> None:
+        """A delivered answer was seen again: quarantine the line after every answer from now on (rule 5)."""
+        self.repeats += 1
+        self.repeat_hold = max(self.repeat_hold, quarantine)
+        self.clean = 0
+        self.stray_seen = False
 
     # -- one attempt ---------------------------------------------------------------------------------------------
 
     def sent(self, started: float) -> None:
         """The request is being written; ``started`` is no later than its first byte."""
         self.started = started
+        self.stray_tail = b""
 
     def broadcast_sent(self, written: float, wire: float, turnaround: float) -> None:
         """A broadcast gets no answer: the slaves get ``turnaround`` (at least the silence) once it is on the wire."""
@@ -113,6 +161,8 @@ class LineGuard:
             least = (request_length + len(answer)) * self.min_char_time
             took = at - self.started
             if took < least:
+                # on its way before the request: if it is an answer delivered before, it is a repeat
+                self.repeated = self.healthy and answer in self.answers
                 return DecodeError(
                     f"answer complete {took * 1000:.2f} ms after the request started, sooner than request and "
                     f"answer take on the wire ({least * 1000:.2f} ms): it was sent before the request, not "
@@ -125,16 +175,34 @@ class LineGuard:
 
     def trailing(self, answer: bytes, extra: bytes) -> DecodeError:
         """Bytes followed the answer within the silent interval: the error that drops it (then :meth:`failed`)."""
+        self.repeated = answer in extra or (self.healthy and self._holds_an_answer(extra))
         return DecodeError(
             f"answer followed by more bytes within the silent interval ({hex_bytes(extra)}): suspect, not delivered",
             answer + extra,
             "trailing",
         )
 
-    def delivered(self) -> None:
-        """The answer was followed by silence until :attr:`trail_until`: the line is healthy again."""
+    def delivered(self, answer: bytes) -> None:
+        """``answer`` was followed by silence until :attr:`trail_until`: the line is healthy again (or, while it
+        is suspect of repeating answers, quarantined from the answer's last byte: rule 5)."""
         self.quiet_at = self.checked_at = self.trail_until
         self.hold = 0.0
+        self.healthy = True
+        self.answers.append(answer)
+        if self.repeat_hold:
+            self._quarantine_after_answer()
+
+    def _quarantine_after_answer(self) -> None:
+        if self.stray_seen:
+            self.stray_seen = False
+            self.clean = 0
+        else:
+            self.clean += 1
+            if self.clean >= CLEAN_ANSWERS:  # clean long enough: a healthy line again
+                self.repeat_hold = 0.0
+                return
+        self.hold = self.repeat_hold
+        self.quiet_at = self.trail_until - self.silence + self.repeat_hold
 
     def failed(self, now: float, quarantine: float) -> None:
         """The attempt failed at ``now`` (timeout, bad frame, suspect answer): quarantine the line."""
@@ -142,3 +210,8 @@ class LineGuard:
         self.hold = hold
         self.quiet_at = max(self.quiet_at, now + hold)
         self.quarantines += 1
+        if self.repeated:
+            self.repeated = False
+            self.repeat_seen(quarantine)
+        self.stray_seen = True
+        self.healthy = False

@@ -186,7 +186,7 @@ class RtuLine:
                             extra = b""
                         if extra:
                             raise guard.trailing(data, extra)
-                        guard.delivered()
+                        guard.delivered(data)
                         if counters is not None and attempt == 1:  # count() for the usual case, written out
                             sent, received = exchange.frame_length, len(data)
                             counters.transactions += 1

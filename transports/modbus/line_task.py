@@ -277,7 +277,7 @@ class LineTask(PollTask):
         if now < line.guard.trail_until:
             self.wake_at = line.guard.trail_until
             return False
-        line.guard.delivered()
+        line.guard.delivered(frame)
         line.count(self._counters, exchange, self._attempt, len(frame), None)
         self._release()
         self._responses.append(response)
