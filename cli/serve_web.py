@@ -39,7 +39,7 @@ def settings(args: argparse.Namespace) -> Any:
         return None
     from starterbus.core.textinput import parse_host_port
     from starterbus.ops.users import load_users
-    from starterbus.web.server import WebSettings
+    from starterbus.web.settings import WebSettings
 
     host, port = parse_host_port(args.http, option="--http")
     users_file = args.http_users or args.opcua_users

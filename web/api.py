@@ -15,11 +15,11 @@ import json
 import time
 from collections.abc import Awaitable, Callable
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 from aiohttp import web
 
-from starterbus.aio import RemoteNotAllowed
+from starterbus.aio import AsyncFleet, RemoteNotAllowed
 from starterbus.core.device import Device
 from starterbus.core.errors import (
     ConfigurationError,
@@ -33,13 +33,27 @@ from starterbus.core.registry import get_profile
 from starterbus.ops import backup as backups
 from starterbus.web import devices
 from starterbus.web.actions import COMMANDS, restore_device
-from starterbus.web.auth import COOKIE, LoginRefused, Session
-
-if TYPE_CHECKING:
-    from starterbus.web.server import WebServer
+from starterbus.web.auth import COOKIE, Auth, LoginRefused, Session
+from starterbus.web.settings import WebSettings
+from starterbus.web.view import FleetView
 
 Handler = Callable[[web.Request], Awaitable[web.StreamResponse]]
-SERVER: web.AppKey[WebServer] = web.AppKey("server")
+
+
+class ServerView(Protocol):
+    """What the API's handlers use of the server that routes to them (:class:`~starterbus.web.server.WebServer`)."""
+
+    fleet: AsyncFleet
+    settings: WebSettings
+    view: FleetView
+    auth: Auth
+
+    def secure(self, request: web.Request) -> bool: ...
+
+    def actions_allowed(self, request: web.Request) -> bool: ...
+
+
+SERVER: web.AppKey[ServerView] = web.AppKey("server")
 
 
 def add_routes(app: web.Application) -> None:
@@ -60,7 +74,7 @@ def add_routes(app: web.Application) -> None:
     r.add_post("/api/devices/{name}/restore", device_restore)
 
 
-def _server(request: web.Request) -> WebServer:
+def _server(request: web.Request) -> ServerView:
     return request.app[SERVER]
 
 

@@ -22,7 +22,8 @@ from starterbus.fleet.demo import DemoFleet, start_demo_fleet
 from starterbus.ops.recorder import HistoryRecorder
 from starterbus.ops.throttle import Throttle
 from starterbus.ops.users import Role, UserEntry, hash_password
-from starterbus.web.server import WebServer, WebSettings
+from starterbus.web.server import WebServer
+from starterbus.web.settings import WebSettings
 
 PASSWORD = "operator-password"
 #: few iterations: the tests check who may log in, not PBKDF2's cost
