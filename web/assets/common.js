@@ -23,7 +23,7 @@ const SB = (() => {
       not_allowed: "not allowed by the fleet file", result: "Result", show: "Show", range_last: "Last",
       peak: "peak", limit: "current limit", phase: "phase", back: "← all devices", no_diff: "Same as the defaults.",
       sent: "sending…", offline: "offline", online: "online", since: "since", time: "Time", kind: "What",
-      who: "Who", polled_every: "polled every {p} s", reading: "reading…",
+      who: "Who", devices: "devices", polled_every: "polled every {p} s", reading: "reading…",
     },
     zh: {
       fleet_title: "软起动器", device_title: "设备", login: "登录", logout: "退出", user: "用户", password: "密码",
@@ -42,7 +42,7 @@ const SB = (() => {
       actions_login: "以操作员身份登录后才能操作。", actions_tls: "操作需要 TLS (https)。", actions_readonly: "您的角色为只读。",
       not_allowed: "设备清单未允许", result: "结果", show: "显示", range_last: "最近", peak: "峰值", limit: "限流值",
       phase: "相", back: "← 全部设备", no_diff: "与默认值相同。", sent: "发送中…", offline: "离线", online: "在线",
-      since: "自", time: "时间", kind: "类型", who: "操作者", polled_every: "每 {p} 秒轮询", reading: "读取中…",
+      since: "自", time: "时间", kind: "类型", who: "操作者", devices: "台设备", polled_every: "每 {p} 秒轮询", reading: "读取中…",
     },
   };
   const STATES = {

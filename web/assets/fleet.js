@@ -80,7 +80,7 @@
       const bar = SB.el("span", {});
       bar.style.width = Math.min(100, 100 * (u || 0)) + "%";
       meter.append(bar);
-      line.util.replaceChildren(SB.t("utilisation") + " " + pct + " ", meter, " · " + l.devices + " " + SB.t("device"));
+      line.util.replaceChildren(SB.t("utilisation") + " " + pct + " ", meter, " · " + l.devices + " " + SB.t("devices"));
     }
   }
 
