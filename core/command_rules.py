@@ -22,8 +22,8 @@ the audit record then notes. Taking and releasing bus control are the explicit h
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import TYPE_CHECKING
 
+from starterbus.core.device_access import DeviceAccess
 from starterbus.core.errors import (
     ControlSourceError,
     Refusal,
@@ -35,16 +35,13 @@ from starterbus.core.errors import (
 from starterbus.core.status import Command, MotorState, Status
 from starterbus.core.transport import Capability
 
-if TYPE_CHECKING:
-    from starterbus.core.device import Device
-
 #: the states in which a motor is being driven by whoever holds its control
 _MOVING = frozenset({MotorState.STARTING, MotorState.RUNNING, MotorState.STOPPING})
 _HAND_OVER = frozenset({Command.TAKE_BUS_CONTROL, Command.RELEASE_BUS_CONTROL})
 OVERRIDE_HINT = "override (CLI --force, API force=True; never from remote callers) only if that control lets go"
 
 
-def source_parameter(device: Device) -> str | None:
+def source_parameter(device: DeviceAccess) -> str | None:
     """Why the control-source parameter keeps the bus out (None: it lets the bus command, or cannot be read)."""
     traits = device.profile.control
     if not traits.source_key or Capability.READ_PARAMETERS not in device.capabilities:
@@ -77,7 +74,7 @@ def status_says_elsewhere(status: Status | None) -> str | None:
 
 
 def check_command(
-    device: Device, command: Command, status: Status | None, *, force: bool = False, read_source: bool = True
+    device: DeviceAccess, command: Command, status: Status | None, *, force: bool = False, read_source: bool = True
 ) -> str | None:
     """Raise unless ``command`` may go to ``device`` now (``status``: its present status, None if unknown).
 

@@ -13,17 +13,14 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 from starterbus.core.audit import AuditLog
 from starterbus.core.command_rules import check_command, reached
+from starterbus.core.device_access import DeviceAccess
 from starterbus.core.errors import StarterbusError, StateRuleError, ValidationError
 from starterbus.core.model import PointDef, Value
 from starterbus.core.status import Command, MotorState, Status
 from starterbus.core.transport import Capability
-
-if TYPE_CHECKING:
-    from starterbus.core.device import Device
 
 
 class ConfirmationRefused(StarterbusError):
@@ -141,7 +138,7 @@ class Guard:
 
     def __init__(
         self,
-        device: Device,
+        device: DeviceAccess,
         *,
         audit: AuditLog | None = None,
         actor: str | None = None,
