@@ -11,6 +11,7 @@ TYPE_CHECKING = False  # typing.TYPE_CHECKING without importing typing (mypy kno
 if TYPE_CHECKING:
     from typing import Any
 
+    from starterbus.core.address_space import AddressSpace
     from starterbus.core.audit import AuditLog
     from starterbus.core.canbridge import LoopbackBridge, parse_bridge_address
     from starterbus.core.canbus import check_peer, open_bus, parse_bus_spec
@@ -110,6 +111,7 @@ _LAZY = {
     "UncertainValueError": "starterbus.core.guarded",
     "AuditLog": "starterbus.core.audit",
     "Access": "starterbus.core.model",
+    "AddressSpace": "starterbus.core.address_space",
     "EnumTable": "starterbus.core.model",
     "Kind": "starterbus.core.model",
     "Label": "starterbus.core.model",
@@ -182,6 +184,7 @@ __all__ = [
     "ALL_CAPABILITIES",
     "PHASE_NAMES",
     "Access",
+    "AddressSpace",
     "Annotation",
     "AuditLog",
     "CanFrame",
