@@ -143,9 +143,10 @@ class PollPlans:
         ]
 
 
-def decode_status(profile: Profile, words: Sequence[int], source: str) -> Status:
-    """The status from the status word and the phase currents (``words``, in that order)."""
-    return status_with_currents(profile, words[0], words[1:], source=source, current_source=TRANSPORT)
+def decode_status(profile: Profile, words: Sequence[int], source: str, transport: str = TRANSPORT) -> Status:
+    """The status from the status word and the phase currents (``words``, in that order); ``transport`` tags
+    the currents."""
+    return status_with_currents(profile, words[0], words[1:], source=source, current_source=transport)
 
 
 def run(
@@ -163,8 +164,13 @@ def run(
 
 
 def sort_out(
-    plan: PollPlan, values: Sequence[int], points: Sequence[PointDef], profile: Profile, source: str
+    plan: PollPlan,
+    values: Sequence[int],
+    points: Sequence[PointDef],
+    profile: Profile,
+    source: str,
+    transport: str = TRANSPORT,
 ) -> PollResult:
     """The poll's result from the ``values`` of the plan's answers, one after another."""
-    status = decode_status(profile, [values[i] for i in plan.status_at], source) if plan.status_at else None
+    status = decode_status(profile, [values[i] for i in plan.status_at], source, transport) if plan.status_at else None
     return PollResult(status, [Reading(p, values[i]) for p, i in zip(points, plan.points_at, strict=True)])

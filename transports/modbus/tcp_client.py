@@ -15,6 +15,7 @@ from starterbus.core.errors import ConfigurationError, RemoteDeviceError, Starte
 from starterbus.core.model import PointDef
 from starterbus.core.profile import Profile
 from starterbus.core.sharing import SharedPool
+from starterbus.core.status import Status, status_with_currents
 from starterbus.core.transport import PollResult, PollTask
 from starterbus.core.url import DeviceUrl
 from starterbus.spaces.modbus import MAX_UNIT, ModbusSettings
@@ -100,6 +101,8 @@ class ModbusTcpTransport(ModbusRtuTransport):
         super().__init__(url, profile, self.tcp)
         self._source = f"{NAME} {self._where}"
         self._gateway: MbapConnection | None = None
+        status_word = profile.role("status_word")
+        self._status_key = status_word.key if status_word is not None else ""
 
     def _open(self) -> None:
         tcp = self.tcp
@@ -146,7 +149,17 @@ class ModbusTcpTransport(ModbusRtuTransport):
             self._refuse_exceptions(exchange, response)
             assert isinstance(response, ReadResponse)
             values += response.values
-        return sort_out(plan, values, points, self.profile, self._source)
+        return sort_out(plan, values, points, self.profile, self._source, NAME)
+
+    def _read_status(self) -> Status:
+        status = super()._read_status()  # the currents read as RTU reads them; tagged with this transport
+        return status_with_currents(
+            self.profile,
+            status.raw[self._status_key],
+            [c.raw for c in status.currents.values()],
+            source=self._source,
+            current_source=NAME,
+        )
 
     def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
         return None  # the fleet polls from a thread of the bus; the connection's reader does the waiting
