@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 import uuid
 from collections.abc import Callable, Iterator
 
@@ -10,6 +9,7 @@ import can
 import pytest
 from can.interfaces import virtual
 
+from starterbus.testing.conformance import wait_until
 from starterbus.transports.devicenet.canbus import from_message
 from starterbus.transports.devicenet.frames import CanFrame
 from starterbus.transports.devicenet.transport import SCANNERS
@@ -62,15 +62,6 @@ def sniffer(channel: str) -> Iterator[Sniffer]:
     sniff = Sniffer(channel)
     yield sniff
     sniff.close()
-
-
-def wait_until(predicate: Callable[[], bool], timeout: float = 3.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.005)
-    return predicate()
 
 
 @pytest.fixture
