@@ -41,7 +41,7 @@
 
   function build(snapshot) {
     const root = document.getElementById("lines");
-    root.replaceChildren();
+    const fragment = document.createDocumentFragment(); // built detached, attached once: one layout
     rows.clear(); lines.clear();
     for (const l of snapshot.lines) {
       const util = SB.el("span", { class: "util" });
@@ -53,7 +53,7 @@
       table.append(SB.el("thead", {}, head), SB.el("tbody", {}));
       const section = SB.el("section", { class: "line", "data-line": l.name, "aria-label": l.name },
         SB.el("h2", {}, SB.el("span", { text: l.name + " (" + l.transport + ")" }), util), SB.el("div", { class: "scroll" }, table));
-      root.append(section);
+      fragment.append(section);
       lines.set(l.name, { data: l, section, util, tbody: table.tBodies[0] });
     }
     for (const d of snapshot.devices) {
@@ -64,6 +64,7 @@
       paint(r);
     }
     paintLines(snapshot.lines);
+    root.replaceChildren(fragment);
     fillFilters();
     applyFilters();
     built = true;
