@@ -32,7 +32,8 @@ from starterbus.core.status import decode_status_word
 from starterbus.core.supervision import Supervisor
 from starterbus.fleet.config import BusConfig, DeviceConfig, FleetConfig
 from starterbus.fleet.sample import Sample
-from starterbus.web.server import WebServer, WebSettings
+from starterbus.web.server import WebServer
+from starterbus.web.settings import WebSettings
 
 PROFILE = get_profile("jjr5000")
 CURRENTS = PROFILE.phase_currents()

@@ -22,6 +22,7 @@ from starterbus.opcua.logins import LoginCollector, LoginPolicy
 from starterbus.opcua.server import OpcUaServer, OpcUaSettings
 from starterbus.opcua.users import Role, UserEntry, hash_password
 from starterbus.ops.throttle import Throttle, ThrottlePolicy
+from starterbus.ops.users import verify_password
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 
 CLIENT_URI = "urn:starterbus:test-client"
@@ -84,7 +85,7 @@ def test_logins_are_checked_off_the_loop_throttled_and_locked_out(
     policy = LoginPolicy(ThrottlePolicy(backoff_base=1, lockout_after=3, lockout_seconds=600), refusal_delay=0)
     settings = OpcUaSettings("opc.tcp://127.0.0.1:0/sb", pki_dir=tmp_path / "pki", users=users, logins=policy)
     verified: list[tuple[str, int]] = []  # (thread, iterations) of every PBKDF2 the server ran
-    real_verify = logins.verify_password
+    real_verify = verify_password  # the one logins.py calls, spied on below
 
     def spy(password: str, encoded: str) -> bool:
         verified.append((threading.current_thread().name, int(encoded.split("$")[1])))
