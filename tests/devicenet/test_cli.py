@@ -178,3 +178,17 @@ def test_bridge_from_another_process(capsys: pytest.CaptureFixture[str]) -> None
         child.terminate()
         child.wait(10)
     assert child.returncode == 0, child.stderr.read() if child.stderr else ""
+
+
+def test_identify_right_after_other_commands(
+    channel: str, simulated: SimulatedStarter, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Each command opens, monitors and releases its own connection set: the next one (here identify) finds
+    the slave free at once, never "no explicit connection" (seen once when reads allocated the I/O too)."""
+    url = f"devicenet://virtual/{channel}?mac=5&{FAST}&timeout=0.5"
+    for _ in range(5):
+        assert main(["status", url, "--model", "jjr8000", "--json"]) == 0
+        capsys.readouterr()
+        assert main(["identify", url, "--model", "jjr8000", "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["identity"]["product_name"] == "JJR8000"
+    assert simulated.control_writes == []
