@@ -4,6 +4,7 @@ never saw a poll command (output data) from the reading master."""
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterator
 
 import pytest
@@ -50,13 +51,12 @@ def test_every_read_over_devicenet_and_profibus_leaves_the_motor_running(
     starter, modbus, devicenet, profibus = running
     mark = starter.control_writes_total
     reads: dict[str, Callable[[], object]] = {}
+    phase_a = jjr8000.point("phase_a_current")
     for name, url in (("devicenet", devicenet), ("profibus", profibus)):
-        reads[f"{name} status"] = lambda url=url: _status(url, jjr8000)
-        reads[f"{name} read"] = lambda url=url: _with(url, jjr8000, lambda d: d.read("phase_a_current"))
-        reads[f"{name} backup"] = lambda url=url: _with(url, jjr8000, take_backup)
-        reads[f"{name} poll"] = lambda url=url: _with(
-            url, jjr8000, lambda d: d.transport.poll([jjr8000.point("phase_a_current")], True)
-        )
+        reads[f"{name} status"] = functools.partial(_status, url, jjr8000)
+        reads[f"{name} read"] = functools.partial(_with, url, jjr8000, lambda d: d.read(phase_a.key))
+        reads[f"{name} backup"] = functools.partial(_with, url, jjr8000, take_backup)
+        reads[f"{name} poll"] = functools.partial(_with, url, jjr8000, lambda d: d.transport.poll([phase_a], True))
     reads["devicenet identify"] = lambda: _with(devicenet, jjr8000, lambda d: d.transport.identify())
     reads["crosscheck"] = lambda: crosscheck([modbus, devicenet, profibus], jjr8000)
     for what, read in reads.items():
