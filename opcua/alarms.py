@@ -19,6 +19,7 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
+from typing import Any
 
 from asyncua import Server, ua
 from asyncua.server.event_generator import EventGenerator
@@ -52,11 +53,36 @@ class Condition:
         return self.active or not (self.acked and self.confirmed)
 
 
-def _two_state(event: object, name: str, value: bool, true: str, false: str) -> None:
+def two_state(event: object, name: str, value: bool, true: str, false: str) -> None:
     setattr(event, f"{name}/Id", value)
     setattr(event, name, ua.LocalizedText(true if value else false, "en"))
     setattr(event, f"{name}/TrueState", ua.LocalizedText(true, "en"))
     setattr(event, f"{name}/FalseState", ua.LocalizedText(false, "en"))
+
+
+def current_keys(device: DeviceNodes) -> list[str]:
+    """The device's measurements in amperes: the order of a fault's CurrentsBeforeTrip."""
+    return [k for k, p in device.points.items() if p.point.unit == "A"]
+
+
+def fault_text(device: DeviceNodes, code: int, locale: str) -> ua.LocalizedText:
+    """A fault alarm's FaultText: the profile's text of ``code`` in the server's language."""
+    label = device.profile.faults.label(code)
+    return texts(label.en, label.zh, locale)[0] if label is not None else ua.LocalizedText(f"fault {code}")
+
+
+def condition_fields(event: Any, device: DeviceNodes, name: str, node: ua.NodeId) -> None:
+    """The fields every event of the condition ``name`` (FaultAlarm, OfflineAlarm) of ``device`` carries (also
+    its historical events, :mod:`starterbus.opcua.history_events`)."""
+    event.NodeId = node
+    event.SourceNode = device.node
+    event.SourceName = device.config.name
+    event.ConditionName = name
+    event.BranchId = ua.NodeId()
+    two_state(event, "EnabledState", True, "Enabled", "Disabled")
+    event.Severity = event.LastSeverity = FAULT_SEVERITY if name == "FaultAlarm" else OFFLINE_SEVERITY
+    if name == "FaultAlarm":
+        event.CurrentKeys = ",".join(current_keys(device))
 
 
 class Alarms:
@@ -71,6 +97,7 @@ class Alarms:
         self.fault: dict[str, Condition] = {}
         self.offline: dict[str, Condition] = {}
         self._last_currents: dict[str, list[float]] = {}
+        self.fault_type = ua.NodeId()  # StarterFaultAlarmType, once built
 
     async def build(self, devices: dict[str, DeviceNodes]) -> None:
         fault_type = await self.server.create_custom_event_type(
@@ -84,6 +111,7 @@ class Alarms:
                 ("CurrentsBeforeTrip", ua.VariantType.Double),
             ],
         )
+        self.fault_type = fault_type.nodeid
         first = True
         for name, device in devices.items():
             for kind, etype, table in (
@@ -104,17 +132,7 @@ class Alarms:
         session.add_method_callback(CONFIRM, self.confirm)
 
     def _initial(self, c: Condition) -> None:
-        event = c.generator.event
-        event.NodeId = c.node
-        event.SourceNode = c.device.node
-        event.SourceName = c.device.config.name
-        event.ConditionName = c.name
-        event.BranchId = ua.NodeId()
-        _two_state(event, "EnabledState", True, "Enabled", "Disabled")
-        event.Severity = event.LastSeverity = FAULT_SEVERITY if c.name == "FaultAlarm" else OFFLINE_SEVERITY
-        if c.name == "FaultAlarm":
-            keys = [k for k, p in c.device.points.items() if p.point.unit == "A"]
-            event.CurrentKeys = ",".join(keys)
+        condition_fields(c.generator.event, c.device, c.name, c.node)
 
     # -- from the polls ---------------------------------------------------------------------------------------
 
@@ -129,7 +147,7 @@ class Alarms:
         if fault is None or status is None:
             return
         if not status.fault:
-            keys = [k for k, p in device.points.items() if p.point.unit == "A"]
+            keys = current_keys(device)
             self._last_currents[name] = [float(sample.values[k].value) for k in keys if k in sample.values]
             if fault.active:
                 await self._transition(fault, False, f"{name}: fault reset", sample.time)
@@ -137,8 +155,7 @@ class Alarms:
         if fault.active:
             return
         code = status.fault_code or 0
-        label = device.profile.faults.label(code)
-        text = texts(label.en, label.zh, self.locale)[0] if label is not None else ua.LocalizedText(f"fault {code}")
+        text = fault_text(device, code, self.locale)
         event = fault.generator.event
         event.FaultCode = code
         event.FaultText = text
@@ -153,9 +170,9 @@ class Alarms:
 
     async def _fire(self, c: Condition, message: str, at: datetime | None = None) -> None:
         event = c.generator.event
-        _two_state(event, "ActiveState", c.active, "Active", "Inactive")
-        _two_state(event, "AckedState", c.acked, "Acknowledged", "Unacknowledged")
-        _two_state(event, "ConfirmedState", c.confirmed, "Confirmed", "Unconfirmed")
+        two_state(event, "ActiveState", c.active, "Active", "Inactive")
+        two_state(event, "AckedState", c.acked, "Acknowledged", "Unacknowledged")
+        two_state(event, "ConfirmedState", c.confirmed, "Confirmed", "Unconfirmed")
         event.Retain = c.retained
         event.Quality = ua.StatusCode()
         await c.generator.trigger(time_attr=at, message=message)

@@ -34,6 +34,7 @@ from asyncua.server.internal_session import InternalSession
 from starterbus.aio import AsyncFleet
 from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.status import Command
+from starterbus.opcua import history
 from starterbus.opcua.address_space import DeviceNodes, FleetNodes, PointNode, build_fleet
 from starterbus.opcua.alarms import Alarms
 from starterbus.opcua.certs import ensure_certificate
@@ -79,7 +80,8 @@ class OpcUaSettings:
     certificates trusted) and ``rejected/`` (the unknown ones refused, saved there). ``trusted_clients`` names
     another trusted folder; ``trust_any_client`` accepts every client certificate (trials only). Basic256Sha256,
     Aes256_Sha256_RsaPss and Aes128_Sha256_RsaOaep, Sign and SignAndEncrypt, are offered; None only with
-    ``allow_insecure``. Anonymous sessions are refused unless ``anonymous`` (then they are read-only).
+    ``allow_insecure``. Anonymous sessions are refused unless ``anonymous`` (then they are read-only). ``history``:
+    the SQLite history the recorder writes (``--record``), served by HistoryRead (:mod:`starterbus.opcua.history`).
     """
 
     endpoint: str = "opc.tcp://0.0.0.0:4840/starterbus"
@@ -96,6 +98,7 @@ class OpcUaSettings:
     locale: str = "en"  # "en": English display names, Chinese descriptions; "zh": the other way round
     server_name: str = "starterbus OPC UA server"
     logins: LoginPolicy = field(default_factory=LoginPolicy)  # throttling and lockout of failed logins
+    history: Path | str | None = None  # the recorder's SQLite history (--record): served by HistoryRead
 
     def check(self) -> None:
         """Refuse settings under which nobody could connect, before anything starts."""
@@ -222,6 +225,10 @@ class OpcUaServer:
         self.nodes = await build_fleet(server, idx, self.fleet.config, self.call_method, locale=settings.locale)
         self.alarms = Alarms(server, idx, lambda: self._operator(_CALLER.get()), settings.locale)
         await self.alarms.build(self.nodes.devices)
+        storage = None
+        if settings.history is not None:
+            storage = await history.enable(server, self.nodes, self.alarms, settings.history, settings.locale)
+        await history.install(server, storage).init()  # without a history: every node BadHistoryOperationUnsupported
         now = time.time()
         for device in self.nodes.devices.values():
             await self._apply(initial_updates(device, now))

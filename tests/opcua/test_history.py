@@ -1,0 +1,300 @@
+"""HistoryRead over the recorder's SQLite history, with asyncua's client: the recorded samples of a range (raw, in
+order, with their source timestamps), long ranges in pages whose continuation points lose and repeat nothing,
+the recorded fault as an event with the alarm's fields, and Bad codes for nodes without history."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import Awaitable, Callable
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import pytest
+from asyncua import Client, Node, ua
+from asyncua.common.events import Event, get_filter_from_event_type
+
+from starterbus.aio import AsyncFleet
+from starterbus.core.registry import get_profile
+from starterbus.core.simulator import SimulatedStarter
+from starterbus.fleet.config import parse_fleet
+from starterbus.opcua.history_events import event_id
+from starterbus.opcua.server import OpcUaServer, OpcUaSettings
+from starterbus.ops.history import HistoryStore
+from starterbus.ops.recorder import HistoryRecorder
+from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+
+NS = "urn:starterbus:fleet"
+T0 = 1_700_000_000.0  # the synthetic history's first sample
+
+
+def fleet(port: str) -> Any:
+    return parse_fleet(
+        f'[poll]\nperiod = 0.1\nmax_backoff = 0.3\n[[bus]]\nname = "l"\nurl = "modbus-rtu://{port}?timeout=0.2"\n'
+        '[[bus.device]]\nname = "conveyor"\nmodel = "jjr5000"\naddress = 1\nmeasurements = ["phase_a_current"]\n'
+        'parameters = ["start_mode"]\n',
+        "h.toml",
+    )
+
+
+def at(seconds: float) -> datetime:
+    return datetime.fromtimestamp(seconds, timezone.utc)
+
+
+def synthetic(path: Path, count: int) -> list[dict[str, Any]]:
+    """``count`` samples of conveyor, three to a timestamp (the continuation must not rely on unique times)."""
+    rows = []
+    for i in range(count):
+        online = i % 50 != 49  # now and then offline: Bad values in the history too
+        rows.append({
+            "time": T0 + (i // 3) * 0.1, "device": "conveyor", "model": "jjr5000", "online": int(online),
+            "state": "running" if online else None, "fault_code": None,
+            "values": {"phase_a_current": {"value": float(i), "raw": i, "unit": "A"}} if online else {},
+            "error": None if online else "no answer",
+        })  # fmt: skip
+    with HistoryStore(path) as store:
+        store.add_batch(rows, [])
+    return rows
+
+
+def run_server(settings: OpcUaSettings, port: str, body: Callable[[Client, int, OpcUaServer], Awaitable[None]],
+               sink: Any = None) -> None:  # fmt: skip
+    async def scenario() -> None:
+        async with AsyncFleet(fleet(port), sink=sink) as f, OpcUaServer(f, settings) as server:
+            client = Client(server.endpoint_url, timeout=10)
+            async with client:
+                await body(client, await client.get_namespace_index(NS), server)
+
+    asyncio.run(scenario())
+
+
+@pytest.fixture(scope="module")
+def pki(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One server certificate for the module (generating a key takes seconds)."""
+    return tmp_path_factory.mktemp("pki")
+
+
+@pytest.fixture
+def line() -> Any:
+    starter = SimulatedStarter(get_profile("jjr5000"))
+    sim = ModbusRtuSimulator({1: starter}, pty=True).start()
+    port = sim.client_urls()[1].split("://", 1)[1].split("?", 1)[0]
+    yield port, starter
+    sim.close()
+
+
+def settings(pki: Path, history: Path | None) -> OpcUaSettings:
+    return OpcUaSettings("opc.tcp://127.0.0.1:0/sb", pki_dir=pki, anonymous=True, allow_insecure=True, history=history)
+
+
+async def read_raw(node: Node, start: float | None, end: float | None, count: int, point: bytes | None = None) -> Any:
+    details = ua.ReadRawModifiedDetails(
+        IsReadModified=False,
+        StartTime=at(start) if start is not None else ua.get_win_epoch(),
+        EndTime=at(end) if end is not None else ua.get_win_epoch(),
+        NumValuesPerNode=count,
+        ReturnBounds=False,
+    )
+    return await node.history_read(details, point)
+
+
+async def pages(node: Node, start: float | None, end: float | None, count: int) -> list[list[ua.DataValue]]:
+    out, point = [], None
+    while True:
+        result = await read_raw(node, start, end, count, point)
+        result.StatusCode.check()
+        out.append(result.HistoryData.DataValues)
+        point = result.ContinuationPoint
+        if point is None:
+            return out
+
+
+def test_long_ranges_come_in_pages_with_nothing_lost_or_repeated(tmp_path: Path, pki: Path, line: Any) -> None:
+    rows = synthetic(tmp_path / "h.db", 2345)
+    currents = [r["values"]["phase_a_current"]["value"] if r["online"] else None for r in rows]
+
+    async def body(client: Client, idx: int, server: OpcUaServer) -> None:
+        node = client.get_node(ua.NodeId("conveyor.Measurements.phase_a_current", idx))
+        assert (await node.read_attribute(ua.AttributeIds.Historizing)).Value.Value is True
+        assert ua.AccessLevel.HistoryRead in await node.get_access_level()
+        end = T0 + 1000.0
+        forward = await pages(node, T0 - 1, end, 100)
+        assert [len(p) for p in forward] == [100] * 23 + [45]
+        got = [dv.Value.Value if dv.StatusCode.is_good() else None for p in forward for dv in p]
+        assert got == currents  # in order, each once, offline polls as Bad values
+        bad = forward[0][49]
+        assert bad.StatusCode.value == ua.StatusCodes.BadCommunicationError and bad.SourceTimestamp == at(T0 + 1.6)
+        stamps = [dv.SourceTimestamp for p in forward for dv in p]
+        assert stamps == [at(r["time"]) for r in rows] and all(dv.ServerTimestamp is None for p in forward for dv in p)
+
+        backward = await pages(node, end, T0 - 1, 700)  # EndTime before StartTime: latest first
+        assert [len(p) for p in backward] == [700, 700, 700, 245]
+        assert [dv.Value.Value if dv.StatusCode.is_good() else None for p in backward for dv in p] == currents[::-1]
+
+        one_ended = await pages(node, T0 + 10.0, None, 1500)  # StartTime and a count: 1500 in all, server pages 1000
+        assert [len(p) for p in one_ended] == [1000, 500]
+        first = rows.index(next(r for r in rows if r["time"] >= T0 + 10.0 - 1e-9))
+        assert [dv.SourceTimestamp for p in one_ended for dv in p] == [
+            at(r["time"]) for r in rows[first : first + 1500]
+        ]
+        latest = await pages(node, None, end, 4)  # EndTime and a count: the last four, latest first
+        assert [dv.Value.Value for dv in latest[0]] == [2344.0, 2343.0, 2342.0, 2341.0] and len(latest) == 1
+
+        state = client.get_node(ua.NodeId("conveyor.Status.State", idx))
+        (states,) = await pages(state, T0 - 1, T0 + 0.05, 0)
+        assert [dv.Value.Value for dv in states] == [4, 4, 4]  # Running (StarterStateEnum), the three of T0
+
+        tampered = bytearray((await read_raw(node, T0 - 1, end, 100)).ContinuationPoint)
+        tampered[-1] ^= 1
+        result = await read_raw(node, T0 - 1, end, 100, bytes(tampered))
+        assert result.StatusCode.value == ua.StatusCodes.BadContinuationPointInvalid
+        other = (await read_raw(state, T0 - 1, end, 100)).ContinuationPoint  # another node's point
+        assert (
+            await read_raw(node, T0 - 1, end, 100, other)
+        ).StatusCode.value == ua.StatusCodes.BadContinuationPointInvalid
+
+    run_server(settings(pki, tmp_path / "h.db"), line[0], body)
+
+
+def test_nodes_without_history_answer_bad_codes(tmp_path: Path, pki: Path, line: Any) -> None:
+    synthetic(tmp_path / "h.db", 10)
+
+    async def body(client: Client, idx: int, server: OpcUaServer) -> None:
+        def code(result: Any) -> int:
+            return int(result.StatusCode.value)
+
+        unsupported = ua.StatusCodes.BadHistoryOperationUnsupported
+        last_operation = client.get_node(ua.NodeId("conveyor.Status.LastOperation", idx))  # not in the history
+        assert code(await read_raw(last_operation, T0 - 1, T0 + 10, 0)) == unsupported
+        assert ua.AccessLevel.HistoryRead not in await last_operation.get_access_level()
+        assert code(await read_raw(client.get_node(ua.NodeId("nothing", idx)), T0, T0 + 1, 0)) == (
+            ua.StatusCodes.BadNodeIdUnknown
+        )
+        current = client.get_node(ua.NodeId("conveyor.Measurements.phase_a_current", idx))
+        assert code(await read_raw(current, T0, None, 0)) == ua.StatusCodes.BadInvalidTimestampArgument
+        modified = ua.ReadRawModifiedDetails(IsReadModified=True, StartTime=at(T0), EndTime=at(T0 + 1))
+        assert code(await current.history_read(modified)) == unsupported
+        processed = ua.ReadProcessedDetails(StartTime=at(T0), EndTime=at(T0 + 1), ProcessingInterval=1000.0)
+        assert code(await current.history_read(processed)) == unsupported  # type: ignore[arg-type]
+        events = await client.nodes.server.read_event_history(at(T0 - 1), at(T0 + 10))
+        assert events == []  # a history with no events: none, Good
+
+    run_server(settings(pki, tmp_path / "h.db"), line[0], body)
+
+    async def without_history(client: Client, idx: int, server: OpcUaServer) -> None:
+        current = client.get_node(ua.NodeId("conveyor.Measurements.phase_a_current", idx))
+        result = await read_raw(current, T0 - 1, T0 + 10, 0)
+        assert result.StatusCode.value == ua.StatusCodes.BadHistoryOperationUnsupported
+        assert ua.AccessLevel.HistoryRead not in await current.get_access_level()
+
+    run_server(settings(pki, None), line[0], without_history)
+
+
+async def until(check: Callable[[], bool], timeout: float = 15.0) -> None:
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while not check():
+        assert loop.time() < deadline, "timed out"
+        await asyncio.sleep(0.05)
+
+
+def test_the_recorded_samples_and_the_recorded_fault_are_read_back(tmp_path: Path, pki: Path, line: Any) -> None:
+    port, starter = line
+    db = tmp_path / "plant.db"
+    recorder = HistoryRecorder(db)
+
+    def recorded(kind: str) -> list[dict[str, Any]]:
+        if not db.exists():
+            return []
+        with HistoryStore(db, create=False) as store:
+            return store.events(device="conveyor", kind=kind)
+
+    async def body(client: Client, idx: int, server: OpcUaServer) -> None:
+        starter.start()
+        await until(lambda: starter.current() > 1 and len(recorded("state")) >= 2)  # starting, then running
+        served = server.samples_served
+        await until(lambda: server.samples_served >= served + 3)
+        starter.inject_fault(6)
+        await until(lambda: bool(recorded("fault")))
+        (fault,) = recorded("fault")
+        with HistoryStore(db, create=False) as store:
+            samples = store.samples(device="conveyor", until=fault["time"])
+        start = (samples[1]["time"] + samples[2]["time"]) / 2  # between two polls: from the third one on
+        expected = samples[2:]
+
+        current = client.get_node(ua.NodeId("conveyor.Measurements.phase_a_current", idx))
+        (values,) = await pages(current, start, fault["time"] + 0.001, 0)
+        assert [dv.SourceTimestamp for dv in values] == [at(s["time"]) for s in expected]
+        assert [dv.Value.Value for dv in values] == [s["values"]["phase_a_current"]["value"] for s in expected]
+        fault_code = client.get_node(ua.NodeId("conveyor.Status.FaultCode", idx))
+        (codes,) = await pages(fault_code, start, fault["time"] + 0.001, 0)
+        assert codes[-1].Value.Value == 6 and all(dv.Value.Value == 0 for dv in codes[:-1])
+
+        before = [s for s in samples if s["time"] < fault["time"] and s["state"] != "fault"][-1]
+        fault_type = await client.nodes.base_event_type.get_child(
+            [
+                "0:ConditionType",
+                "0:AcknowledgeableConditionType",
+                "0:AlarmConditionType",
+                f"{idx}:StarterFaultAlarmType",
+            ]
+        )
+        device = client.get_node(ua.NodeId("conveyor", idx))
+        for source in (device, client.nodes.server):
+            assert ua.EventNotifier.HistoryRead in await source.read_event_notifier()
+            (event,) = await source.read_event_history(at(start), at(fault["time"] + 0.001), evtypes=fault_type)
+            assert event.FaultCode == 6 and event.FaultText.Text == "motor overload" and event.Severity == 800
+            assert event.CurrentKeys == "phase_a_current"
+            assert event.CurrentsBeforeTrip == [before["values"]["phase_a_current"]["value"]]
+            assert event.CurrentsBeforeTrip[0] > 1
+            assert event.Time == at(fault["time"]) and event.SourceName == "conveyor" and event.Retain is True
+            assert getattr(event, "ActiveState/Id") is True and getattr(event, "AckedState/Id") is False
+            assert event.Message.Text == "conveyor: fault 6: motor overload"
+
+        record_type = await client.nodes.base_event_type.get_child(f"{idx}:StarterRecordEventType")
+        everything = await device.read_event_history(
+            at(start - 60), at(fault["time"] + 0.001), evtypes=[record_type, fault_type]
+        )
+        kinds = [(getattr(e, "Kind", None), e.Message.Text) for e in everything]
+        assert ("state", "conveyor: state: running -> fault") in kinds
+        assert kinds[-1] == (None, "conveyor: fault 6: motor overload")  # written after its state change
+        state_event = next(e for e in everything if getattr(e, "Kind", None) == "state")
+        assert json.loads(state_event.Detail)["from"] in ("stopped", "ready", "starting")
+
+        evfilter = await get_filter_from_event_type([fault_type])
+        details = ua.ReadEventDetails(
+            StartTime=at(start - 60), EndTime=at(fault["time"] + 1), NumValuesPerNode=1, Filter=evfilter
+        )
+        first = await device.history_read_events(details)  # one to a page: the fault is the only one
+        assert len(first.HistoryData.Events) == 1 and first.ContinuationPoint is None
+        got = Event.from_event_fields(evfilter.SelectClauses, first.HistoryData.Events[0].EventFields)
+        assert got.FaultCode == 6
+
+        evfilter = await get_filter_from_event_type([record_type, fault_type])
+        details.Filter = evfilter
+        ids, point = [], None
+        while True:  # every event of the range, one to a page
+            item = ua.HistoryReadValueId(NodeId=device.nodeid, ContinuationPoint=point)
+            params = ua.HistoryReadParameters(
+                HistoryReadDetails=details,
+                TimestampsToReturn=ua.TimestampsToReturn.Both,
+                ReleaseContinuationPoints=False,  # asyncua's default is True
+                NodesToRead=[item],
+            )
+            (result,) = await client.uaclient.history_read(params)
+            result.StatusCode.check()
+            assert len(result.HistoryData.Events) == 1
+            fields = result.HistoryData.Events[0].EventFields
+            ids.append(Event.from_event_fields(evfilter.SelectClauses, fields).EventId)
+            point = result.ContinuationPoint
+            if point is None:
+                break
+        with HistoryStore(db, create=False) as store:
+            rows = store.events(device="conveyor", since=start - 60, until=fault["time"] + 1)
+        assert ids == [event_id(r["id"]) for r in rows] and len(ids) >= 4
+
+    try:
+        run_server(settings(pki, db), port, body, sink=recorder)
+    finally:
+        recorder.close()
