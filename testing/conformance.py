@@ -12,22 +12,32 @@ serve a :class:`~starterbus.core.simulator.SimulatedStarter` behind your protoco
             with AcmeSimulator(starter) as sim:
                 yield f"acme-loop://{sim.address}"
 
+Optional hooks make the kit check more (each check that needs one skips, saying so, without it):
+``serve_units(starters)`` serves several starters on one link; ``faults(starter)`` is the fault hook
+(:mod:`starterbus.testing.faults`) through which the kit sees the requests that reach the device and makes it
+silent, slow, late, duplicating, busy or unreachable behind a gateway; ``refusal_code(profile, reason)`` and
+``invalid_url_values(profile)`` tell what the simulator answers and which URL values the model refuses;
+``url_timeout`` and ``url_retries`` name the URL parameters of the timeout and the retries. docs/plugins.md
+shows them for a serial protocol.
+
 The kit checks declared capabilities against behaviour (what is declared works, what is not is refused with
 ``UnsupportedOperationError``), read/write round trips against the simulator's own registers, the status,
 every command through the guarded path (the state reached), validation before sending, typed device errors,
 dry-run previews, the lifecycle (no thread or file descriptor left behind), a cross-check against the
-reference transport (Modbus RTU on a pseudo-terminal) serving the same starter, and that no read-only operation
-changes a running motor's state or sends it a control output (:mod:`starterbus.testing.read_only`).
+reference transport (Modbus RTU on a pseudo-terminal) serving the same starter with the motor running, that no
+read-only operation changes a running motor's state or sends it a control output
+(:mod:`starterbus.testing.read_only`); the status and the measurements with the motor running (non-zero
+currents) and after every command (a fault reset twice, the bus-control bit), the device's refusal codes and
+the model's texts for them, several devices on one link, every URL parameter's validation
+(:mod:`starterbus.testing.kit_running`); previews against what is then sent, writes sent exactly once, the poll
+plan and the counters, and a faulty device (:mod:`starterbus.testing.kit_faults`).
 """
 
 from __future__ import annotations
 
 import contextlib
-import os
 import threading
-import time
-import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 
 import pytest
 
@@ -42,133 +52,29 @@ from starterbus.core.errors import (
 from starterbus.core.guarded import ConfirmationRefused, Proposal
 from starterbus.core.model import Kind, PointDef
 from starterbus.core.profile import Profile
-from starterbus.core.registry import get_profile, get_transport
+from starterbus.core.registry import get_transport
 from starterbus.core.sharing import leases
-from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
+from starterbus.core.simulator import Phase, SimulatedStarter
 from starterbus.core.status import Command, MotorState
 from starterbus.core.transport import Capability, Transport
 from starterbus.core.url import DeviceUrl
-from starterbus.testing.read_only import check_reads_never_actuate
+from starterbus.testing.faults import DeviceTap, Fault, FaultControl, FaultNotSupported
+from starterbus.testing.kit_base import ConformanceNotice, is_open, open_fds, phase
+from starterbus.testing.kit_faults import FaultChecks
+from starterbus.testing.kit_running import RunningChecks
+from starterbus.testing.read_only import check_reads_never_actuate, run_motor
+from starterbus.testing.waits import wait_until
 
 REFERENCE = "modbus-rtu"
 
-
-class ConformanceNotice(UserWarning):
-    """What the kit could not check as it should (shown in pytest's warnings summary)."""
-
-
-def wait_until(predicate: Callable[[], bool], timeout: float = 5.0) -> bool:
-    """Poll an observable until it holds (threads ending, descriptors closing); never a fixed sleep."""
-    deadline = time.monotonic() + timeout
-    while not predicate():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.01)
-    return True
+__all__ = [
+    "REFERENCE", "ConformanceNotice", "DeviceTap", "Fault", "FaultControl", "FaultNotSupported",
+    "TransportConformance", "wait_until",
+]  # fmt: skip
 
 
-def phase(starter: SimulatedStarter) -> Phase:
-    return starter.phase
-
-
-def is_open(transport: Transport) -> bool:
-    return transport.is_open  # read through a call: mypy would keep an earlier assert's narrowing
-
-
-def open_fds() -> int:
-    try:
-        return len(os.listdir("/proc/self/fd"))
-    except OSError:  # not Linux: the thread check still runs
-        return 0
-
-
-class TransportConformance:
+class TransportConformance(RunningChecks, FaultChecks):
     """Base class of a transport's conformance tests (pytest collects subclasses named ``Test*``)."""
-
-    transport: str = ""
-    model: str = "jjr5000"
-    #: parameters the kit may write (default: writable, not locked while running, addressed on this transport)
-    writable_sample = 4
-
-    def serve(self, starter: SimulatedStarter) -> contextlib.AbstractContextManager[str]:
-        """Serve ``starter`` behind the transport under test; a context manager giving the URL a client opens."""
-        raise NotImplementedError("a conformance test class must implement serve(starter)")
-
-    # -- fixtures -------------------------------------------------------------------------------------------
-
-    @pytest.fixture
-    def profile(self) -> Profile:
-        return get_profile(self.model)
-
-    @pytest.fixture
-    def starter(self, profile: Profile) -> SimulatedStarter:
-        return SimulatedStarter(profile, ManualClock(0.0), load=0.5)
-
-    @pytest.fixture
-    def url(self, starter: SimulatedStarter) -> Iterator[str]:
-        with self.serve(starter) as url:
-            yield url
-
-    @pytest.fixture
-    def device(self, url: str, profile: Profile) -> Iterator[Device]:
-        with open_device(url, profile) as device:
-            yield device
-
-    # -- helpers --------------------------------------------------------------------------------------------
-
-    def addressed(self, device: Device, kind: Kind) -> list[PointDef]:
-        """Points of this kind the transport can address (a point with no address here is refused, not read)."""
-        points = device.profile.parameters if kind is Kind.PARAMETER else device.profile.measurements
-        usable = []
-        for point in points:
-            try:
-                device.transport.preview_write(point, point.raw_min) if point.writable else None
-            except UnsupportedOperationError:
-                continue
-            except StarterbusError:
-                pass
-            usable.append(point)
-        return usable
-
-    def candidates(self, device: Device, *, certain: bool = True) -> list[PointDef]:
-        """Parameters the kit may write: writable, not locked while running, more than one value, addressed on
-        this transport, and (``certain``) with both ends of the range certain (codes printed in the manual)."""
-        locked = device.profile.control.locked_while_running | {device.profile.control.write_protect_key}
-        points = [
-            p
-            for p in self.addressed(device, Kind.PARAMETER)
-            if p.writable
-            and p.key not in locked
-            and p.raw_max > p.raw_min
-            and (not certain or (p.uncertainty(p.raw_min) is None and p.uncertainty(p.raw_max) is None))
-        ]
-        return points[: self.writable_sample]
-
-    def write_targets(self, device: Device) -> tuple[list[PointDef], bool]:
-        """The parameters the write tests use, and whether writing them needs ``accept_uncertain=True``.
-
-        Those whose codes are printed in the manual; failing that (a model that states no certainty), the
-        others, written with ``accept_uncertain=True``, and a :class:`ConformanceNotice` warning says so in the
-        test's output. None at all, while the transport declares writes: the test fails, naming the model.
-        """
-        points = self.candidates(device)
-        if points:
-            return points, False
-        points = self.candidates(device, certain=False)
-        if not points:
-            pytest.fail(
-                f"{self.transport} declares {Capability.WRITE_PARAMETERS.value} but {device.profile.display_name} "
-                "has no parameter the kit may write (writable, not locked while running, more than one value, "
-                f"addressed on {self.transport}): give the kit a model that has one"
-            )
-        warnings.warn(
-            ConformanceNotice(
-                f"{device.profile.display_name} states no parameter whose codes are all printed in the manual: "
-                f"the write tests use {', '.join(p.key for p in points)} with accept_uncertain=True"
-            ),
-            stacklevel=2,
-        )
-        return points, True
 
     # -- the tests ------------------------------------------------------------------------------------------
 
@@ -371,7 +277,7 @@ class TransportConformance:
         from starterbus.fleet.crosscheck import crosscheck
         from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 
-        starter.start()
+        run_motor(starter)  # currents are not zero
         with ModbusRtuSimulator({1: starter}, pty=True) as reference:
             report = crosscheck([url, reference.client_urls()[1]], profile)
         assert report.ok, [row.what for row in report.rows if row.agree is False] + [p.error for p in report.paths]

@@ -9,24 +9,18 @@ from collections.abc import Iterator
 
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.testing import TransportConformance
+from starterbus.tests.conformance.modbus_kit import ModbusRtuKit
 
 _channels = itertools.count()
 
 
-class TestModbusRtu(TransportConformance):
-    transport = "modbus-rtu"
-    model = "jjr5000"
-
-    @contextlib.contextmanager
-    def serve(self, starter: SimulatedStarter) -> Iterator[str]:
-        from starterbus.transports.modbus.simulator import ModbusRtuSimulator
-
-        with ModbusRtuSimulator({2: starter}, pty=True) as sim:
-            yield sim.client_urls()[2] + "&timeout=0.5"
+class TestModbusRtu(ModbusRtuKit):
+    """The reference transport, with every hook of the kit (several units, faults, refusal codes)."""
 
 
 class TestModbusRtuJjr8000(TestModbusRtu):
     model = "jjr8000"
+    merges_requests = False  # one register per FC03 (the manual's limit)
 
 
 class TestProfibusPpo1(TransportConformance):

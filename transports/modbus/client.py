@@ -15,6 +15,8 @@ from collections.abc import Iterator, Sequence
 from starterbus.core.errors import (
     ConfigurationError,
     RemoteDeviceError,
+    StarterbusError,
+    TimeoutError,
     UnsupportedOperationError,
 )
 from starterbus.core.model import PointDef, Reading
@@ -51,6 +53,10 @@ from starterbus.transports.modbus.timing import char_time
 
 #: one line object per serial port / TCP endpoint in this process
 LINES: SharedPool[RtuLine] = SharedPool("modbus-rtu lines")
+
+#: exception codes a gateway sends about the device behind it (0x0A path unavailable, 0x0B target device failed
+#: to respond): the device did not answer, it refused nothing (offline and probed, never a refusal)
+GATEWAY_CODES = frozenset({0x0A, 0x0B})
 
 #: prepared requests (and read plans) a transport keeps per kind; a poller repeats a handful of them
 CACHE_SIZE = 256
@@ -152,11 +158,17 @@ class ModbusRtuTransport(Transport):
 
     # -- transactions ------------------------------------------------------------------------------------------
 
-    def _remote_error(self, request: Request, response: ExceptionResponse) -> RemoteDeviceError:
+    def _remote_error(self, request: Request, response: ExceptionResponse) -> StarterbusError:
+        """The device's refusal; a gateway's 0x0A / 0x0B: no answer from the device behind it (TimeoutError)."""
         if isinstance(request, ReadRequest):
             what = f"FC03 read {request.count} register(s) from 0x{request.address:04X}"
         else:
             what = f"FC06 write 0x{request.value:04X} to 0x{request.address:04X}"
+        if response.code in GATEWAY_CODES:
+            return TimeoutError(
+                f"{self.describe()}: no answer from the device behind the gateway: exception 0x{response.code:02X} "
+                f"({exception_meaning(self.profile, response.code)}) to {what}"
+            )
         return RemoteDeviceError(
             TRANSPORT,
             response.code,
@@ -295,13 +307,18 @@ class ModbusRtuTransport(Transport):
     @contextlib.contextmanager
     def probe_policy(self, timeout: float) -> Iterator[None]:
         """One attempt, at most ``timeout`` s: requests made inside use a policy of their own (fresh caches)."""
-        normal = self.config, self._reads, self._writes
+        normal = self.config, self._reads, self._writes, self._points
         policy = dataclasses.replace(self.config.policy, retries=0, timeout=min(timeout, self.config.policy.timeout))
-        self.config, self._reads, self._writes = dataclasses.replace(self.config, policy=policy), {}, {}
+        self.config, self._reads, self._writes, self._points = (
+            dataclasses.replace(self.config, policy=policy),
+            {},
+            {},
+            {},
+        )
         try:
             yield
         finally:
-            self.config, self._reads, self._writes = normal
+            self.config, self._reads, self._writes, self._points = normal
 
     def _read_status(self) -> Status:
         self._no_broadcast_reads()

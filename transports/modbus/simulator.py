@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from starterbus.core.errors import ConfigurationError, DecodeError
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.transport import RunningSimulator
-from starterbus.transports.modbus.frames import AnyRequest
+from starterbus.transports.modbus.frames import AnyRequest, ExceptionResponse, Response
 from starterbus.transports.modbus.link import Link, SerialSettings
 from starterbus.transports.modbus.receiver import NEED_DATA, RequestReceiver
 from starterbus.transports.modbus.slave import TRANSPORT, SlaveLogic
@@ -46,6 +46,25 @@ def _precise_timers() -> None:
         ctypes.CDLL(None).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0)
     except (OSError, AttributeError):
         pass
+
+
+@dataclass(frozen=True, slots=True)
+class SlaveFault:
+    """What the slave does with one request instead of answering it at once (:attr:`ModbusRtuSimulator.fault_hook`).
+
+    ``exception``: answer this exception code and act on nothing (06 busy; 0x0B, a gateway's "target device
+    failed to respond"); else act on the request (a write is written) and, if ``answer``, send the answer
+    ``copies`` times back to back, ``delay`` seconds late (the serving thread waits: a slave serves one request
+    at a time, so later requests wait too).
+    """
+
+    answer: bool = True
+    delay: float = 0.0
+    copies: int = 1
+    exception: int | None = None
+
+
+FaultHook = Callable[[AnyRequest], "SlaveFault | None"]
 
 
 @dataclass(slots=True)
@@ -93,6 +112,9 @@ class ModbusRtuSimulator(RunningSimulator):
             baudrate, parity.upper(), stopbits, 8, silent_interval(baudrate) if silence is None else silence
         )
         self.trace = trace
+        #: called with each request that passed the CRC check, before it is acted on; what it returns changes
+        #: how the slave answers (None: as usual). How tests make the device silent, slow, late, busy...
+        self.fault_hook: FaultHook | None = None
         self.counters = SlaveCounters()
         self._stop_r, self._stop_w = -1, -1
         self._threads: list[threading.Thread] = []
@@ -306,12 +328,21 @@ class ModbusRtuSimulator(RunningSimulator):
 
     def _answer(self, ep: _Endpoint, request: AnyRequest, last_rx: float) -> None:
         self.counters.requests += 1
-        response = self.logic.handle(request)
+        hook = self.fault_hook
+        fault = hook(request) if hook is not None else None
+        response: Response | None
+        if fault is not None and fault.exception is not None:
+            served = request.unit in self.starters
+            response = ExceptionResponse(request.unit, request.function, fault.exception) if served else None
+        else:
+            response = self.logic.handle(request)
         if response is None:
             self.counters.ignored += 1
             return
-        frame = response.encode()
-        delay = last_rx + self.settings.silence - time.monotonic()
+        if fault is not None and not fault.answer:
+            return
+        frame = response.encode() * (fault.copies if fault is not None else 1)
+        delay = last_rx + self.settings.silence - time.monotonic() + (fault.delay if fault is not None else 0.0)
         if delay > 0:
             time.sleep(delay)
         try:
@@ -335,4 +366,4 @@ def parse_host_port(text: str) -> tuple[str, int]:
     return host.strip("[]") or "0.0.0.0", int(port)
 
 
-__all__ = ["TRANSPORT", "ModbusRtuSimulator", "SlaveCounters", "parse_host_port"]
+__all__ = ["TRANSPORT", "FaultHook", "ModbusRtuSimulator", "SlaveCounters", "SlaveFault", "parse_host_port"]
