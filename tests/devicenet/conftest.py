@@ -9,7 +9,7 @@ import can
 import pytest
 from can.interfaces import virtual
 
-from starterbus.testing.conformance import wait_until
+from starterbus.testing import wait_until
 from starterbus.transports.devicenet.canbus import from_message
 from starterbus.transports.devicenet.frames import CanFrame
 from starterbus.transports.devicenet.transport import SCANNERS

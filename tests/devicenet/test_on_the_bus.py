@@ -18,6 +18,7 @@ from starterbus.core.errors import (
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.core.status import Command, MotorState
+from starterbus.testing import wait_until
 from starterbus.transports.devicenet.assemblies import AssemblySet
 from starterbus.transports.devicenet.cip import Service
 from starterbus.transports.devicenet.explicit import ExplicitRequest
@@ -149,12 +150,12 @@ def test_commands_measurements_and_fault_reset(
         assert status.currents["a"].resolution == 1.0  # the assembly's L1 current is in whole A
         assert status.currents["a"].raw == round(starter.current())
         starter.inject_fault(6)
-        assert until_status(device, lambda s: s.fault)
+        assert wait_until(lambda: device.status().fault, 2.0)
         status = device.status()
         assert (status.fault_code, status.fault_text) == (6, "motor overload")
         device.reset()
         assert starter.phase is Phase.STOPPED and starter.fault_code is None
-        assert until_status(device, lambda s: not s.fault)
+        assert wait_until(lambda: not device.status().fault, 2.0)
         device.stop()
         with pytest.raises(UnsupportedOperationError):
             device.read("motor_rated_current")  # parameters are not reachable over DeviceNet
@@ -162,17 +163,6 @@ def test_commands_measurements_and_fault_reset(
             device.write("ramp_time", 10)
         with pytest.raises(UnsupportedOperationError):
             device.command(Command.RELEASE_BUS_CONTROL)
-
-
-def until_status(device: Device, predicate: Callable[..., bool], timeout: float = 2.0) -> bool:
-    import time
-
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate(device.status()):
-            return True
-        time.sleep(0.01)
-    return False
 
 
 def test_basic_assemblies(channel: str, jjr8000: Profile) -> None:
@@ -184,7 +174,7 @@ def test_basic_assemblies(channel: str, jjr8000: Profile) -> None:
             starter.clock.advance(100.0)  # type: ignore[attr-defined]
             device.start()
             starter.clock.advance(100.0)  # type: ignore[attr-defined]
-            assert until_status(device, lambda s: s.running)
+            assert wait_until(lambda: device.status().running, 2.0)
             status = device.status()
             assert status.at_reference is True and status.fault_code is None
             value = device.read("phase_a_current")["phase_a_current"]
@@ -267,7 +257,7 @@ def test_slave_goes_away_and_comes_back(channel: str, jjr8000: Profile, until: U
             assert starter.phase in (Phase.STOPPING, Phase.STOPPED)
             starter.clock.advance(100.0)  # type: ignore[attr-defined]  # the soft stop ends
             device.start()
-            assert until_status(device, lambda s: s.state is MotorState.STARTING)
+            assert wait_until(lambda: device.status().state is MotorState.STARTING, 2.0)
         finally:
             sim.close()
 

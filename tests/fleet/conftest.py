@@ -13,6 +13,7 @@ from starterbus.core.simulator import SimulatedStarter
 from starterbus.fleet.config import FleetConfig, parse_fleet
 from starterbus.fleet.demo import DemoFleet, start_demo_fleet
 from starterbus.fleet.sample import Sample
+from starterbus.testing import wait_until
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 
 
@@ -34,28 +35,31 @@ class Samples:
         self.list: list[Sample] = []
         self.threads: list[str] = []
         self.hooks: list[Callable[[Sample], None]] = []
-        self.changed = threading.Condition()
+        self.lock = threading.Lock()
 
     def __call__(self, sample: Sample) -> None:
         for hook in self.hooks:
             hook(sample)
-        with self.changed:
+        with self.lock:
             self.list.append(sample)
             self.threads.append(threading.current_thread().name)
-            self.changed.notify_all()
+
+    def snapshot(self) -> list[Sample]:
+        with self.lock:
+            return list(self.list)
 
     def wait_for(self, predicate: Callable[[list[Sample]], bool], timeout: float = 20.0) -> None:
-        with self.changed:
-            assert self.changed.wait_for(lambda: predicate(self.list), timeout), [
-                (s.device, s.online, s.probe, s.error) for s in self.list[-10:]
-            ]
+        """Until ``predicate`` holds for the samples so far (``wait_until`` over a snapshot)."""
+        assert wait_until(lambda: predicate(self.snapshot()), timeout), [
+            (s.device, s.online, s.probe, s.error) for s in self.snapshot()[-10:]
+        ]
 
     def mark(self) -> int:
-        with self.changed:
+        with self.lock:
             return len(self.list)
 
     def of(self, device: str, since: int = 0) -> list[Sample]:
-        with self.changed:
+        with self.lock:
             return [s for s in self.list[since:] if s.device == device]
 
 

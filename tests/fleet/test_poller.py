@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import json
-import threading
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
 
 from starterbus.cli.main import main
 from starterbus.fleet.demo import DemoFleet
-from starterbus.fleet.poller import FleetPoller, Sample
+from starterbus.fleet.poller import FleetPoller
+
+if TYPE_CHECKING:
+    from starterbus.tests.fleet.conftest import Samples
 
 
 def test_poll_once_json_gives_every_device(demo: DemoFleet, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -51,38 +54,24 @@ def test_poll_once_json_gives_every_device(demo: DemoFleet, tmp_path: Path, caps
     assert first["time"][:4].isdigit() and first["time"][10] == "T"  # ISO 8601
 
 
-def test_device_removed_goes_offline_and_comes_back(demo: DemoFleet) -> None:
-    samples: list[Sample] = []
-    changed = threading.Condition()
-
-    def keep(sample: Sample) -> None:
-        with changed:
-            samples.append(sample)
-            changed.notify_all()
-
-    def wait_for(predicate: object, timeout: float = 20.0) -> None:
-        with changed:
-            assert changed.wait_for(lambda: predicate(samples), timeout), [  # type: ignore[operator]
-                (s.device, s.online, s.error) for s in samples[-10:]
-            ]
-
+def test_device_removed_goes_offline_and_comes_back(demo: DemoFleet, samples: Samples) -> None:
     line = next(sim for sim in demo.simulators if 2 in getattr(sim, "starters", {}))
     fan = line.starters[2]  # type: ignore[attr-defined]
-    poller = FleetPoller(demo.config, keep).start()
+    poller = FleetPoller(demo.config, samples).start()
     try:
-        wait_for(lambda ss: any(s.device == "fan" and s.online for s in ss))
+        samples.wait_for(lambda ss: any(s.device == "fan" and s.online for s in ss))
         del line.starters[2]  # type: ignore[attr-defined]
-        mark = len(samples)
-        wait_for(lambda ss: any(s.device == "fan" and not s.online for s in ss[mark:]))
-        offline = next(s for s in samples[mark:] if s.device == "fan" and not s.online)
+        mark = samples.mark()
+        samples.wait_for(lambda ss: any(s.device == "fan" and not s.online for s in ss[mark:]))
+        offline = next(s for s in samples.of("fan", mark) if not s.online)
         assert offline.status is None and offline.values == {}, "an offline device never shows values"
         assert "timeout" in (offline.error or "").lower() or "no answer" in (offline.error or "").lower()
         # its neighbour on the same line and every other bus keep answering meanwhile
-        mark = len(samples)
-        wait_for(lambda ss: {s.device for s in ss[mark:] if s.online} >= {"conveyor", "mill", "pump-a"})
+        mark = samples.mark()
+        samples.wait_for(lambda ss: {s.device for s in ss[mark:] if s.online} >= {"conveyor", "mill", "pump-a"})
         line.starters[2] = fan  # type: ignore[attr-defined]
-        mark = len(samples)
-        wait_for(lambda ss: any(s.device == "fan" and s.online for s in ss[mark:]))
+        mark = samples.mark()
+        samples.wait_for(lambda ss: any(s.device == "fan" and s.online for s in ss[mark:]))
     finally:
         line.starters[2] = fan  # type: ignore[attr-defined]
         poller.stop()

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import random
-import threading
-from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import pytest
 from hypothesis import given
@@ -16,6 +15,9 @@ from starterbus.fleet.config import parse_fleet
 from starterbus.fleet.poller import FleetPoller, Sample
 from starterbus.fleet.probing import JITTER, ProbeBudget, ProbeSettings, backoff
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+
+if TYPE_CHECKING:
+    from starterbus.tests.fleet.conftest import Samples
 
 
 def test_backoff_doubles_up_to_the_ceiling_with_jitter_below_it() -> None:
@@ -57,7 +59,7 @@ def test_probe_settings_are_checked() -> None:
     assert ProbeSettings(None).timeout_for(0.1) is None
 
 
-def test_an_offline_device_is_probed_once_per_attempt_with_the_probe_timeout() -> None:
+def test_an_offline_device_is_probed_once_per_attempt_with_the_probe_timeout(samples: Samples) -> None:
     live = SimulatedStarter(get_profile("jjr5000"))
     dead = SimulatedStarter(get_profile("ssd1"))
     with ModbusRtuSimulator({1: live}, pty=True, baudrate=19200) as sim:
@@ -68,43 +70,30 @@ def test_an_offline_device_is_probed_once_per_attempt_with_the_probe_timeout() -
             '[[bus.device]]\nname = "live"\nmodel = "jjr5000"\naddress = 1\n'
             '[[bus.device]]\nname = "dead"\nmodel = "ssd1"\naddress = 3\n'
         )
-        samples: list[Sample] = []
-        changed = threading.Condition()
-
-        def keep(sample: Sample) -> None:
-            with changed:
-                samples.append(sample)
-                changed.notify_all()
-
-        def wait_for(predicate: Callable[[list[Sample]], bool]) -> None:
-            with changed:
-                assert changed.wait_for(lambda: predicate(samples), 20.0), [
-                    (s.device, s.online, s.probe, s.error) for s in samples[-10:]
-                ]
 
         def dead_probes(ss: list[Sample]) -> list[Sample]:
             return [s for s in ss if s.device == "dead" and s.probe]
 
-        poller = FleetPoller(config, keep, probing=ProbeSettings(timeout=0.02, share=1.0), rng=random.Random(1))
+        poller = FleetPoller(config, samples, probing=ProbeSettings(timeout=0.02, share=1.0), rng=random.Random(1))
         with poller:
-            wait_for(lambda ss: len(dead_probes(ss)) >= 3)
-            first = next(s for s in samples if s.device == "dead")
+            samples.wait_for(lambda ss: len(dead_probes(ss)) >= 3)
+            first = next(s for s in samples.snapshot() if s.device == "dead")
             assert not first.online and not first.probe
             assert first.wire is not None and first.wire.requests == 3, "the first failure is a normal poll"
             assert "within 0.1 s" in (first.error or "")
-            for probe in dead_probes(samples)[:3]:
+            for probe in dead_probes(samples.snapshot())[:3]:
                 assert not probe.online and probe.wire is not None
                 assert (probe.wire.requests, probe.wire.retries, probe.wire.timeouts) == (1, 0, 1)
                 assert "within 0.02 s" in (probe.error or ""), probe.error
             sim.starters[3] = dead  # the unit comes back
-            mark = len(samples)
-            wait_for(lambda ss: any(s.device == "dead" and s.online for s in ss[mark:]))
-            back = next(s for s in samples[mark:] if s.device == "dead" and s.online)
+            mark = samples.mark()
+            samples.wait_for(lambda ss: any(s.device == "dead" and s.online for s in ss[mark:]))
+            back = next(s for s in samples.of("dead", mark) if s.online)
             assert back.probe and back.status is not None
-            mark = len(samples)
-            wait_for(lambda ss: any(s.device == "dead" and not s.probe for s in ss[mark:]))
-        assert all(s.online for s in samples if s.device == "live")
+            mark = samples.mark()
+            samples.wait_for(lambda ss: any(s.device == "dead" and not s.probe for s in ss[mark:]))
+        assert all(s.online for s in samples.list if s.device == "live")
         stats = poller.line_stats()["rtu"]
-        assert stats.probes == len(dead_probes(samples))
-        assert stats.wire.timeouts == sum(s.wire.timeouts for s in samples if s.wire is not None)
-        assert stats.wire.requests == sum(s.wire.requests for s in samples if s.wire is not None)
+        assert stats.probes == len(dead_probes(samples.list))
+        assert stats.wire.timeouts == sum(s.wire.timeouts for s in samples.list if s.wire is not None)
+        assert stats.wire.requests == sum(s.wire.requests for s in samples.list if s.wire is not None)

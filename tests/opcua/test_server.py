@@ -27,6 +27,7 @@ from starterbus.opcua.address_space import STATES
 from starterbus.opcua.certs import ensure_certificate
 from starterbus.opcua.server import OpcUaServer, OpcUaSettings
 from starterbus.opcua.users import Role, UserEntry, hash_password
+from starterbus.testing import wait_until_async
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 
 T = TypeVar("T")
@@ -178,16 +179,15 @@ async def ns_node(c: Client, text: str) -> Node:
 
 
 async def wait_value(node: Node, accept: Callable[[ua.DataValue], bool], timeout: float = 10.0) -> ua.DataValue:
-    """Read until ``accept`` holds (values arrive with the polls)."""
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while True:
-        value = await node.read_data_value(raise_on_bad_status=False)
-        if accept(value):
-            return value
-        if loop.time() > deadline:
-            raise AssertionError(f"{node}: still {value}")
-        await asyncio.sleep(0.02)  # polling an observable, not synchronising on time
+    """Read until ``accept`` holds (values arrive with the polls); the value accepted."""
+    last: list[ua.DataValue] = []
+
+    async def accepted() -> bool:
+        last[:] = [await node.read_data_value(raise_on_bad_status=False)]
+        return accept(last[0])
+
+    assert await wait_until_async(accepted, timeout), f"{node}: still {last}"
+    return last[0]
 
 
 def audit(rig: Rig) -> list[dict[str, Any]]:

@@ -9,7 +9,6 @@ import sqlite3
 import subprocess
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -23,17 +22,12 @@ from starterbus.core.status import Status
 from starterbus.fleet.poller import Sample
 from starterbus.ops.history import HistoryStore, Retention
 from starterbus.ops.recorder import HistoryRecorder, parse_keep
+from starterbus.testing import wait_until
 
 from .conftest import Line
 
+WAIT = 15.0
 ISO = r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}\+00:00"
-
-
-def wait_for(what: Callable[[], bool], timeout: float = 15.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not what():
-        assert time.monotonic() < deadline, "timed out"
-        time.sleep(0.02)
 
 
 def count(db: Path, sql: str) -> int:
@@ -84,19 +78,21 @@ def test_a_fault_during_poll_record_is_an_event_with_its_text(
     fleet.write_text(FLEET.format(port=line.port), encoding="utf-8")
     proc = spawn(["-m", "starterbus.cli.main", "poll", str(fleet), "--record", str(db), "--keep", "7d"])
     try:
-        wait_for(lambda: count(db, "SELECT COUNT(DISTINCT device) FROM samples WHERE online = 1") == 2)
+        assert wait_until(lambda: count(db, "SELECT COUNT(DISTINCT device) FROM samples WHERE online = 1") == 2, WAIT)
         line.starters[2].start()
-        wait_for(lambda: count(db, "SELECT COUNT(*) FROM samples WHERE device = 'conveyor' AND current_a > 0") > 0)
+        assert wait_until(
+            lambda: count(db, "SELECT COUNT(*) FROM samples WHERE device = 'conveyor' AND current_a > 0") > 0, WAIT
+        )
         line.starters[2].inject_fault(6)
         line.starters[5].inject_fault(8)
-        wait_for(lambda: count(db, "SELECT COUNT(*) FROM events WHERE kind = 'fault'") == 2)
+        assert wait_until(lambda: count(db, "SELECT COUNT(*) FROM events WHERE kind = 'fault'") == 2, WAIT)
         other = Line()  # the fleet holds its line: a guarded write to a device elsewhere, audited -> an event
         try:
             with open_device(other.url(5), "jjr8000") as dev:
                 dev.write("ramp_time", 10)
         finally:
             other.sim.close()
-        wait_for(lambda: count(db, "SELECT COUNT(*) FROM events WHERE kind = 'write'") == 1)
+        assert wait_until(lambda: count(db, "SELECT COUNT(*) FROM events WHERE kind = 'write'") == 1, WAIT)
     finally:
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=20) == 130, proc.stderr.read() if proc.stderr else ""  # Ctrl-C: 130, cleanly
@@ -134,7 +130,7 @@ def test_a_killed_writer_leaves_a_sound_database(tmp_path: Path) -> None:
     db = tmp_path / "h.db"
     proc = spawn(["-c", WRITER, str(db)])
     try:
-        wait_for(lambda: count(db, "SELECT COUNT(*) FROM samples") >= 500)
+        assert wait_until(lambda: count(db, "SELECT COUNT(*) FROM samples") >= 500, WAIT)
     finally:
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=10)

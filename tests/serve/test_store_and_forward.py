@@ -14,9 +14,12 @@ from typing import TYPE_CHECKING
 from prometheus_client.parser import text_string_to_metric_families
 
 from starterbus.serve.embedded import Mosquitto, free_port, start_mosquitto
+from starterbus.testing import wait_until
 
 if TYPE_CHECKING:
     from starterbus.tests.serve.conftest import Host, Line, Message, Proxy, Serve
+
+WAIT = 15.0
 
 
 def is_(kind: str, device: str | None = None) -> Callable[[Message], bool]:
@@ -32,18 +35,16 @@ def scrape(port: int) -> dict[str, float]:
     return {s.name: s.value for f in text_string_to_metric_families(text) for s in f.samples if not s.labels}
 
 
-def wait_metric(port: int, pred: Callable[[dict[str, float]], bool], what: str, timeout: float = 15.0) -> None:
-    """Until serve's own metrics satisfy ``pred`` (an observable; the endpoint may not be up yet)."""
-    pause = threading.Event()
-    deadline = time.monotonic() + timeout
-    while True:
+def reported(port: int, pred: Callable[[dict[str, float]], bool]) -> Callable[[], bool]:
+    """A predicate for ``wait_until``: serve's own metrics satisfy ``pred`` (false while the endpoint is not up)."""
+
+    def holds() -> bool:
         try:
-            if pred(scrape(port)):
-                return
+            return pred(scrape(port))
         except OSError:
-            pass
-        assert time.monotonic() < deadline, f"serve never reported {what}"
-        pause.wait(0.05)
+            return False
+
+    return holds
 
 
 def test_buffer_survives_kill_and_is_delivered_once_in_order(
@@ -70,19 +71,27 @@ def test_buffer_survives_kill_and_is_delivered_once_in_order(
 
     broker.process.terminate()  # the broker goes away while serve runs
     broker.process.wait(10)
-    wait_metric(ports[0], lambda m: m["starterbus_serve_connected"] == 0, "the connection lost")
+    assert wait_until(reported(ports[0], lambda m: m["starterbus_serve_connected"] == 0), WAIT), (
+        "serve never reported the connection lost"
+    )
     stored = scrape(ports[0])["starterbus_serve_history_stored_total"]
     line.starters[2].start()  # sampled during the outage: buffered on disk
-    wait_metric(ports[0], lambda m: m["starterbus_serve_history_stored_total"] >= stored + 2, "buffered DDATA")
+    assert wait_until(reported(ports[0], lambda m: m["starterbus_serve_history_stored_total"] >= stored + 2), WAIT), (
+        "serve never reported buffered DDATA"
+    )
     first.kill()  # SIGKILL: no clean stop, nothing flushed by an exit handler
     killed_at = int(time.time() * 1000)
     proxy.cut()  # the restarted serve cannot reach the broker either
 
     second = serve(*common, "--metrics", f"127.0.0.1:{ports[1]}")
-    wait_metric(ports[1], lambda m: m["starterbus_serve_buffered"] > 0, "the buffer of the killed process")
+    assert wait_until(reported(ports[1], lambda m: m["starterbus_serve_buffered"] > 0), WAIT), (
+        "serve never reported the buffer of the killed process"
+    )
     stored = scrape(ports[1])["starterbus_serve_history_stored_total"]
     line.starters[2].soft_stop()  # sampled by the new process, still during the outage
-    wait_metric(ports[1], lambda m: m["starterbus_serve_history_stored_total"] >= stored + 2, "more buffered DDATA")
+    assert wait_until(reported(ports[1], lambda m: m["starterbus_serve_history_stored_total"] >= stored + 2), WAIT), (
+        "serve never reported more buffered DDATA"
+    )
 
     resubscribed.clear()
     again = start_mosquitto(broker.port)  # the broker returns on its port; the host reconnects first
@@ -92,7 +101,9 @@ def test_buffer_survives_kill_and_is_delivered_once_in_order(
         proxy.resume()
         k, _ = host.wait(is_("NBIRTH"), after=mark)
         d, _ = host.wait(is_("DBIRTH", "pump"), after=k)
-        wait_metric(ports[1], lambda m: m["starterbus_serve_buffered"] == 0, "an empty buffer")
+        assert wait_until(reported(ports[1], lambda m: m["starterbus_serve_buffered"] == 0), WAIT), (
+            "serve never reported an empty buffer"
+        )
         totals = scrape(ports[1])
         history = [m for m in host.messages if historical(m)]
         assert second.process.poll() is None
