@@ -11,11 +11,11 @@ from collections.abc import Sequence
 from starterbus.cli.parser import Handler, command_module, parse_arguments
 
 
-def _quiet_libraries() -> None:
-    """pymodbus logs connection failures itself; starterbus reports them as one typed error, once."""
-    import logging
+def _quiet_libraries(verbosity: int) -> None:
+    """The libraries' own logs (pymodbus, asyncua, ...) only with ``-v``: cli/logs.py."""
+    from starterbus.cli.logs import configure_logging
 
-    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+    configure_logging(verbosity)
 
 
 def _stdout_closed() -> None:
@@ -33,7 +33,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return complete_main(args_list[1:])
     try:
         args = parse_arguments(args_list)
-        _quiet_libraries()  # after parsing: `--help` exits before, without importing logging
+        # after parsing: `--help` exits before, without importing logging
+        _quiet_libraries(getattr(args, "log_level", 0))
         if getattr(args, "resolve_target", False):
             from starterbus.cli.target import resolve
 

@@ -39,6 +39,10 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         description="Monitor, configure and control soft starters over Modbus RTU, Profibus DP and DeviceNet.",
     )
     parser.add_argument("--version", action=_Version, nargs=0, help="print the version and exit")
+    parser.add_argument(
+        "-v", "--verbose", dest="log_level", action="count", default=0,
+        help="before the command: the libraries' log (pymodbus, asyncua, canopen, paho, can) on stderr; -vv: debug",
+    )  # fmt: skip
     sub = parser.add_subparsers(dest="command_name", required=True, metavar="COMMAND")
 
     p = sub.add_parser("models", help="list installed device models")
