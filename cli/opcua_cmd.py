@@ -11,6 +11,7 @@ import dataclasses
 import getpass
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from starterbus.cli.lifetime import exit_code, until_signalled
 from starterbus.cli.output import emit_json, emit_json_line
@@ -21,6 +22,11 @@ from starterbus.core.status import Command
 from starterbus.core.supervision import Supervisor
 from starterbus.core.timestamps import iso_time
 from starterbus.fleet.config import FleetConfig, RemotePolicy, load_fleet
+
+if TYPE_CHECKING:
+    from starterbus.opcua.server import OpcUaSettings
+    from starterbus.ops.history_writer import HistoryWriter
+    from starterbus.ops.recorder import HistoryRecorder
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted: str) -> None:
@@ -63,6 +69,17 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     )
     p.add_argument(
         "--locale", choices=["en", "zh"], default="en", help="language of display names (the other: descriptions)"
+    )
+    p.add_argument(
+        "--record", metavar="DB", help="also write samples and events to this SQLite history, served by HistoryRead"
+    )
+    p.add_argument("--keep", action="append", metavar="AGE|SIZE", help="history retention: 30d, 12h, 500MB")
+    p.add_argument(
+        "--record-backlog",
+        type=int,
+        default=10_000,
+        metavar="N",
+        help="samples kept in memory while the history cannot be written; older ones are dropped (default 10000)",
     )
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument(
@@ -135,8 +152,11 @@ def cmd_opcua(args: argparse.Namespace) -> int:
         certificate_addresses=tuple(args.cert_ip),
         application_uri=args.application_uri,
         locale=args.locale,
+        history=args.record,
     )
     settings.check()
+    if args.keep and not args.record:
+        raise ConfigurationError("--keep needs --record DB (the history it keeps)")
     if args.demo:
         from starterbus.fleet.demo import demo_fleet
 
@@ -146,15 +166,43 @@ def cmd_opcua(args: argparse.Namespace) -> int:
 
 
 async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace) -> int:
-    from starterbus.aio import AsyncFleet
-    from starterbus.opcua.server import OpcUaServer, OpcUaSettings, security_names
+    from starterbus.opcua.server import OpcUaSettings
 
     assert isinstance(settings, OpcUaSettings)
     stop = asyncio.Event()
     supervisor = Supervisor()  # the poller's threads and the server's tasks: a fatal failure stops it, exit 1
+    recorder = None
+    if args.record:  # as poll --record: refused (one line) before anything listens
+        from starterbus.ops.recorder import for_fleet
+
+        recorder = await asyncio.to_thread(
+            for_fleet, args.record, config, args.keep, backlog=args.record_backlog, supervisor=supervisor
+        )
+    try:
+        return await _serve_recorded(config, settings, args, supervisor, recorder, stop)
+    finally:
+        if recorder is not None:
+            await asyncio.to_thread(recorder.close)  # what waits is written (the poller has stopped)
+
+
+async def _serve_recorded(
+    config: FleetConfig,
+    settings: OpcUaSettings,
+    args: argparse.Namespace,
+    supervisor: Supervisor,
+    recorder: HistoryRecorder | None,
+    stop: asyncio.Event,
+) -> int:
+    from starterbus.aio import AsyncFleet
+    from starterbus.opcua.server import OpcUaServer, security_names
+
     interrupted = until_signalled(stop, args.duration, supervisor)
-    async with AsyncFleet(config, supervisor=supervisor) as fleet, OpcUaServer(fleet, settings) as server:
-        metrics = _start_health(fleet.poller, args.metrics, server)
+    async with (
+        AsyncFleet(config, supervisor=supervisor, sink=recorder) as fleet,
+        OpcUaServer(fleet, settings) as server,
+    ):
+        history = recorder.writer if recorder is not None else None
+        metrics = _start_health(fleet.poller, args.metrics, server, history)
         policies = security_names(settings.allow_insecure)
         if args.json:
             emit_json_line(
@@ -166,6 +214,7 @@ async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace
                     "users": len(settings.users),
                     "anonymous": settings.anonymous,
                     "metrics": metrics,
+                    "history": str(recorder.path) if recorder is not None else None,
                 }
             )
         else:
@@ -178,11 +227,15 @@ async def _serve(config: FleetConfig, settings: object, args: argparse.Namespace
             print(f"OPC UA: {len(config.devices)} devices on {server.endpoint_url} ({security}; {users})", flush=True)
             if metrics:
                 print(f"  Prometheus metrics: {metrics}", flush=True)
+            if recorder is not None:
+                print(f"  history: {recorder.path} (recorded and served by HistoryRead)", flush=True)
         await stop.wait()
     return exit_code(interrupted, supervisor)
 
 
-def _start_health(poller: object, address: str | None, server: object) -> str | None:
+def _start_health(
+    poller: object, address: str | None, server: object, history: HistoryWriter | None = None
+) -> str | None:
     """systemd's notifications, and with ``--metrics`` the fleet's series, the logins' (``starterbus_opcua_*``),
     ``/healthz`` and ``/readyz``; returns the metrics URL."""
     from starterbus.fleet.health import notify_systemd
@@ -199,7 +252,7 @@ def _start_health(poller: object, address: str | None, server: object) -> str | 
     collector = FleetCollector()
     collector.poller = poller
     host, port, _server = start_metrics_server(
-        address, collector, ServiceCollector(poller.supervisor), LoginCollector(lambda: server.logins)
+        address, collector, ServiceCollector(poller.supervisor, history), LoginCollector(lambda: server.logins)
     )
     return f"http://{host}:{port}/metrics"
 

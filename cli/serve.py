@@ -125,6 +125,7 @@ def _opcua_server(args: argparse.Namespace, fleet: object) -> contextlib.Abstrac
         anonymous=args.opcua_anonymous,
         allow_insecure=args.opcua_allow_insecure,
         trust_any_client=args.opcua_trust_any_client,
+        history=args.record,  # HistoryRead serves what --record writes
     )
     settings.check()
     server: contextlib.AbstractAsyncContextManager[object] = OpcUaServer(fleet, settings)  # type: ignore[arg-type]

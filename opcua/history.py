@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
+import sqlite3
 from collections.abc import Mapping
 from datetime import datetime, timezone
 from pathlib import Path
@@ -83,7 +84,7 @@ class SqliteHistory(HistoryStorageInterface):
             self._store.close()
             self._store = None
         if self._store is None:
-            self._store = HistoryStore(self.path, create=False)
+            self._store = HistoryStore(self.path)  # the schema too: the writer may not have written it yet
             self._identity = identity
         return self._store
 
@@ -226,8 +227,8 @@ class HistoryService(HistoryManager):
                 fields = [ua.HistoryEventFieldList(EventFields=e.to_event_fields(details.Filter.SelectClauses))
                           for e in events]  # fmt: skip
                 result.HistoryData = ua.HistoryEvent(Events=fields)
-        except ConfigurationError as exc:  # the file became something that is not a history
-            log.error("HistoryRead: %s", exc)
+        except (ConfigurationError, sqlite3.Error) as exc:  # the file became something that is not a history
+            log.error("HistoryRead %s: %s: %s", node.to_string(), history.path, exc)
             return _result(ua.StatusCodes.BadInternalError)
         result.ContinuationPoint = encode(more, checksum) if more is not None else None
         return result

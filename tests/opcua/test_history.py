@@ -6,6 +6,11 @@ from __future__ import annotations
 
 import asyncio
 import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
 from collections.abc import Awaitable, Callable
 from datetime import datetime, timezone
 from pathlib import Path
@@ -16,6 +21,7 @@ from asyncua import Client, Node, ua
 from asyncua.common.events import Event, get_filter_from_event_type
 
 from starterbus.aio import AsyncFleet
+from starterbus.core.errors import ConfigurationError
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.fleet.config import parse_fleet
@@ -23,11 +29,10 @@ from starterbus.opcua.history_events import event_id
 from starterbus.opcua.server import OpcUaServer, OpcUaSettings
 from starterbus.ops.history import HistoryStore
 from starterbus.ops.recorder import HistoryRecorder
-from starterbus.testing import wait_until_async
+from starterbus.testing.conformance import wait_until
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 
 NS = "urn:starterbus:fleet"
-WAIT = 15.0
 T0 = 1_700_000_000.0  # the synthetic history's first sample
 
 
@@ -178,7 +183,7 @@ def test_nodes_without_history_answer_bad_codes(tmp_path: Path, pki: Path, line:
         modified = ua.ReadRawModifiedDetails(IsReadModified=True, StartTime=at(T0), EndTime=at(T0 + 1))
         assert code(await current.history_read(modified)) == unsupported
         processed = ua.ReadProcessedDetails(StartTime=at(T0), EndTime=at(T0 + 1), ProcessingInterval=1000.0)
-        assert code(await current.history_read(processed)) == unsupported  # type: ignore[arg-type]
+        assert code(await current.history_read(processed)) == unsupported
         events = await client.nodes.server.read_event_history(at(T0 - 1), at(T0 + 10))
         assert events == []  # a history with no events: none, Good
 
@@ -193,25 +198,33 @@ def test_nodes_without_history_answer_bad_codes(tmp_path: Path, pki: Path, line:
     run_server(settings(pki, None), line[0], without_history)
 
 
+async def until(check: Callable[[], bool], timeout: float = 15.0) -> None:
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while not check():
+        assert loop.time() < deadline, "timed out"
+        await asyncio.sleep(0.05)
+
+
 def test_the_recorded_samples_and_the_recorded_fault_are_read_back(tmp_path: Path, pki: Path, line: Any) -> None:
     port, starter = line
     db = tmp_path / "plant.db"
     recorder = HistoryRecorder(db)
 
     def recorded(kind: str) -> list[dict[str, Any]]:
-        if not db.exists():
+        try:
+            with HistoryStore(db, create=False) as store:
+                return store.events(device="conveyor", kind=kind)
+        except ConfigurationError:  # not there yet, or its tables not yet written
             return []
-        with HistoryStore(db, create=False) as store:
-            return store.events(device="conveyor", kind=kind)
 
     async def body(client: Client, idx: int, server: OpcUaServer) -> None:
         starter.start()
-        # starting, then running
-        assert await wait_until_async(lambda: starter.current() > 1 and len(recorded("state")) >= 2, WAIT)
+        await until(lambda: starter.current() > 1 and len(recorded("state")) >= 2)  # starting, then running
         served = server.samples_served
-        assert await wait_until_async(lambda: server.samples_served >= served + 3, WAIT)
+        await until(lambda: server.samples_served >= served + 3)
         starter.inject_fault(6)
-        assert await wait_until_async(lambda: bool(recorded("fault")), WAIT)
+        await until(lambda: bool(recorded("fault")))
         (fault,) = recorded("fault")
         with HistoryStore(db, create=False) as store:
             samples = store.samples(device="conveyor", until=fault["time"])
@@ -293,3 +306,44 @@ def test_the_recorded_samples_and_the_recorded_fault_are_read_back(tmp_path: Pat
         run_server(settings(pki, db), port, body, sink=recorder)
     finally:
         recorder.close()
+
+
+def test_opcua_record_records_and_serves_the_history(tmp_path: Path, pki: Path) -> None:
+    exe = shutil.which("starterbus") or str(Path(sys.executable).with_name("starterbus"))
+    db = tmp_path / "demo.db"
+    proc = subprocess.Popen(
+        [exe, "opcua", "--demo", "--endpoint", "opc.tcp://127.0.0.1:0/sb", "--anonymous", "--allow-insecure",
+         "--pki", str(pki), "--record", str(db), "--keep", "1d", "--json", "--duration", "120"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "STARTERBUS_AUDIT_LOG": str(tmp_path / "audit.jsonl")},
+    )  # fmt: skip
+    try:
+        assert proc.stdout is not None
+        ready = json.loads(proc.stdout.readline())
+        assert ready["history"] == str(db)
+        device = ready["devices"][0]
+
+        def samples() -> list[dict[str, Any]]:
+            try:
+                with HistoryStore(db, create=False) as store:
+                    return store.samples(device=device)
+            except ConfigurationError:  # not there yet, or its tables not yet written
+                return []
+
+        assert wait_until(lambda: len(samples()) >= 3, 30.0)
+        rows = samples()[:3]
+
+        async def body() -> None:
+            async with Client(ready["endpoint"], timeout=10) as client:
+                idx = await client.get_namespace_index(NS)
+                online = client.get_node(ua.NodeId(f"{device}.Status.Online", idx))
+                (values,) = await pages(online, rows[0]["time"] - 0.001, rows[-1]["time"], 0)
+                assert [(dv.SourceTimestamp, dv.Value.Value) for dv in values] == [
+                    (at(r["time"]), r["online"]) for r in rows
+                ]
+
+        asyncio.run(body())
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        _out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 0, err

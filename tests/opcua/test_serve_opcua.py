@@ -10,6 +10,7 @@ import socket
 import subprocess
 import sys
 import time
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import pytest
@@ -31,7 +32,8 @@ def test_serve_demo_with_opcua(tmp_path: Path) -> None:
     env = {**os.environ, "STARTERBUS_AUDIT_LOG": str(tmp_path / "audit.jsonl")}
     proc = subprocess.Popen(
         [EXE, "serve", "--demo", "--opcua", url, "--opcua-anonymous", "--opcua-allow-insecure",
-         "--opcua-pki", str(tmp_path / "pki"), "--state-file", str(tmp_path / "bdseq"), "--duration", "60"],
+         "--opcua-pki", str(tmp_path / "pki"), "--state-file", str(tmp_path / "bdseq"), "--duration", "60",
+         "--record", str(tmp_path / "h.db")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )  # fmt: skip
 
@@ -44,11 +46,19 @@ def test_serve_demo_with_opcua(tmp_path: Path) -> None:
                     node = client.get_node(f"ns={ns};s=conveyor.Status.State")
                     while True:
                         try:
-                            return await node.read_value()
+                            state = await node.read_value()
                         except BadWaitingForInitialData:  # before the first poll: wait for it
                             if time.monotonic() > deadline:
                                 raise
                             await asyncio.sleep(0.1)
+                            continue
+                        # --record's history is HistoryRead's: the polls so far, Good, with their times
+                        start = datetime.now(timezone.utc) - timedelta(minutes=5)
+                        while not (history := await node.read_raw_history(start, datetime.now(timezone.utc))):
+                            assert time.monotonic() < deadline
+                            await asyncio.sleep(0.1)
+                        assert all(dv.StatusCode.is_good() and dv.SourceTimestamp >= start for dv in history)
+                        return state
             except (OSError, asyncio.TimeoutError):
                 if proc.poll() is not None or time.monotonic() > deadline:
                     raise
