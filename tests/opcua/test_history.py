@@ -29,10 +29,11 @@ from starterbus.opcua.history_events import event_id
 from starterbus.opcua.server import OpcUaServer, OpcUaSettings
 from starterbus.ops.history import HistoryStore
 from starterbus.ops.recorder import HistoryRecorder
-from starterbus.testing.conformance import wait_until
+from starterbus.testing import wait_until, wait_until_async
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 
 NS = "urn:starterbus:fleet"
+WAIT = 15.0
 T0 = 1_700_000_000.0  # the synthetic history's first sample
 
 
@@ -198,14 +199,6 @@ def test_nodes_without_history_answer_bad_codes(tmp_path: Path, pki: Path, line:
     run_server(settings(pki, None), line[0], without_history)
 
 
-async def until(check: Callable[[], bool], timeout: float = 15.0) -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not check():
-        assert loop.time() < deadline, "timed out"
-        await asyncio.sleep(0.05)
-
-
 def test_the_recorded_samples_and_the_recorded_fault_are_read_back(tmp_path: Path, pki: Path, line: Any) -> None:
     port, starter = line
     db = tmp_path / "plant.db"
@@ -220,11 +213,12 @@ def test_the_recorded_samples_and_the_recorded_fault_are_read_back(tmp_path: Pat
 
     async def body(client: Client, idx: int, server: OpcUaServer) -> None:
         starter.start()
-        await until(lambda: starter.current() > 1 and len(recorded("state")) >= 2)  # starting, then running
+        # starting, then running
+        assert await wait_until_async(lambda: starter.current() > 1 and len(recorded("state")) >= 2, WAIT)
         served = server.samples_served
-        await until(lambda: server.samples_served >= served + 3)
+        assert await wait_until_async(lambda: server.samples_served >= served + 3, WAIT)
         starter.inject_fault(6)
-        await until(lambda: bool(recorded("fault")))
+        assert await wait_until_async(lambda: bool(recorded("fault")), WAIT)
         (fault,) = recorded("fault")
         with HistoryStore(db, create=False) as store:
             samples = store.samples(device="conveyor", until=fault["time"])
