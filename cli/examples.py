@@ -65,6 +65,10 @@ EXAMPLES: dict[str, tuple[str, ...]] = {
         "starterbus crosscheck --model jjr5000 'modbus-rtu:///dev/ttyUSB0?unit=2' "
         "'modbus-rtu+tcp://10.0.0.7:4001?unit=2' --no-parameters --json",
     ),
+    "scan": (
+        "starterbus scan modbus-rtu:///dev/ttyUSB0 --quick -o plant.toml",
+        "starterbus scan modbus-rtu:///dev/ttyUSB0 --units 1-10 --baudrates 9600,19200 --parities E --json",
+    ),
     "identify": (
         "starterbus identify pump-a --fleet examples/fleet.toml",
         f"starterbus identify {_DNET} --model jjr8000 --json",

@@ -20,6 +20,7 @@ import functools
 import os
 import select
 import socket
+import termios
 import threading
 import time
 import tty
@@ -101,6 +102,7 @@ class ModbusRtuSimulator(RunningSimulator):
         stopbits: int = 1,
         silence: float | None = None,
         trace: Trace | None = None,
+        strict_line: bool = False,
     ) -> None:
         if sum((port is not None, pty, tcp is not None)) != 1:
             raise ConfigurationError("ModbusRtuSimulator needs exactly one of port=PATH, pty=True, tcp=(HOST, PORT)")
@@ -112,6 +114,13 @@ class ModbusRtuSimulator(RunningSimulator):
             baudrate, parity.upper(), stopbits, 8, silent_interval(baudrate) if silence is None else silence
         )
         self.trace = trace
+        #: on a pty, answer only a client whose line settings (speed, parity, stop bits) are the simulator's, as a
+        #: real slave at another setting receives only garbage (how a bus scan is tested)
+        self.strict_line = strict_line
+        #: the client's parity when a test knows it: a pty keeps the speed and stop bits but no parity (Linux
+        #: clears PARENB on a pty), so ``strict_line`` checks parity only through this
+        self.client_parity: Callable[[], str | None] | None = None
+        self._line_fd = -1
         #: called with each request that passed the CRC check, before it is acted on; what it returns changes
         #: how the slave answers (None: as usual). How tests make the device silent, slow, late, busy...
         self.fault_hook: FaultHook | None = None
@@ -158,6 +167,7 @@ class ModbusRtuSimulator(RunningSimulator):
         master, slave = os.openpty()
         tty.setraw(slave)  # no echo, no line editing: a client that opens the path later sees raw bytes
         self._closers += [lambda: os.close(master), lambda: os.close(slave)]
+        self._line_fd = slave  # the client's tty: its settings are readable here
         self._client_path = os.ttyname(slave)
         os.set_blocking(master, False)
         endpoint = _Endpoint(master, lambda n: os.read(master, n), lambda d: os.write(master, d), self._client_path)
@@ -326,7 +336,24 @@ class ModbusRtuSimulator(RunningSimulator):
                     break
                 self._answer(ep, event, last_rx)
 
+    def client_settings_match(self) -> bool:
+        """True unless ``strict_line`` and the client's tty is set to another speed or stop bits, or
+        :attr:`client_parity` says another parity."""
+        if not self.strict_line or self._line_fd < 0:
+            return True
+        attributes = termios.tcgetattr(self._line_fd)
+        cflag, speed, settings = attributes[2], attributes[5], self.settings
+        parity = self.client_parity() if self.client_parity is not None else None
+        return (
+            speed == getattr(termios, f"B{settings.baudrate}", None)
+            and (2 if cflag & termios.CSTOPB else 1) == settings.stopbits
+            and parity in (None, settings.parity)
+        )
+
     def _answer(self, ep: _Endpoint, request: AnyRequest, last_rx: float) -> None:
+        if not self.client_settings_match():
+            self._error(f"{ep.name}: the client's line settings are not {self.settings.describe()}: garbage")
+            return
         self.counters.requests += 1
         hook = self.fault_hook
         fault = hook(request) if hook is not None else None
