@@ -1,4 +1,5 @@
-"""``starterbus serve FLEET.toml --mqtt URL --group G --node N``: the fleet as a Sparkplug B edge node."""
+"""``starterbus serve FLEET.toml --mqtt URL --opcua URL --http HOST:PORT``: the fleet as a Sparkplug B edge node,
+an OPC UA server and web pages (any of them), one process, one poller."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import contextlib
 import logging
 import socket
 import sys
+from contextlib import AsyncExitStack
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -17,11 +20,14 @@ from starterbus.cli.output import emit_json_line
 from starterbus.core.errors import ConfigurationError
 
 if TYPE_CHECKING:
+    from starterbus.fleet.config import FleetConfig
+    from starterbus.serve.broker import BrokerOptions
     from starterbus.serve.history import Bounds
+    from starterbus.serve.session import EdgeSession, SessionOptions
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted: str) -> None:
-    p = sub.add_parser("serve", help="publish the fleet as a Sparkplug B edge node (MQTT), optional Prometheus")
+    p = sub.add_parser("serve", help="serve the fleet: Sparkplug B (MQTT), OPC UA, web pages, Prometheus (one poller)")
     p.add_argument("fleet", metavar="FLEET.toml", nargs="?", help="fleet file (or --demo)")
     p.add_argument("--demo", action="store_true", help="serve the simulated demo fleet (no hardware)")
     p.add_argument(
@@ -101,11 +107,17 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if args.demo == bool(args.fleet):
         raise ConfigurationError("serve: give a FLEET.toml or --demo (one of them)")
     if args.mqtt is None and not args.demo:
-        raise ConfigurationError(
-            "serve: --mqtt URL is required (only --demo starts a broker of its own; "
-            "for OPC UA alone, `starterbus opcua FLEET.toml`)"
-        )
+        if not (args.http or args.opcua):
+            raise ConfigurationError("serve: give --mqtt URL, --opcua URL or --http HOST:PORT (what to serve)")
+        given = [f"--{o.replace('_', '-')}" for o in MQTT_ONLY if getattr(args, o)]
+        if given:
+            raise ConfigurationError(f"serve: {', '.join(given)} needs --mqtt URL")
     return asyncio.run(_serve(args))
+
+
+#: options of the edge node only: refused without ``--mqtt`` rather than ignored
+MQTT_ONLY = ("ca_file", "cert_file", "key_file", "credentials", "allow_plaintext_commands", "primary_host",
+             "state_file", "buffer_file", "client_id")  # fmt: skip
 
 
 def _opcua_server(args: argparse.Namespace, fleet: object) -> contextlib.AbstractAsyncContextManager[object]:
@@ -141,23 +153,83 @@ def _opcua_metrics(args: argparse.Namespace, box: list[object]) -> list[Any]:
     return [LoginCollector(lambda: getattr(box[0], "logins", None) if box else None)]
 
 
-async def _serve(args: argparse.Namespace) -> int:
-    from starterbus.aio import AsyncFleet
-    from starterbus.core.supervision import Supervisor
-    from starterbus.fleet.config import load_fleet
-    from starterbus.ops.recorder import HistoryRecorder
-    from starterbus.ops.recorder import for_fleet as recorder_for_fleet
-    from starterbus.ops.service_metrics import ServiceCollector
+@dataclass
+class _Edge:
+    """The Sparkplug edge node of ``--mqtt`` (or ``--demo``'s embedded broker): its brokers, session and buffer."""
+
+    session: EdgeSession
+    options: SessionOptions
+    brokers: list[BrokerOptions]
+    state_file: Path
+    buffer_file: Path
+    embedded: bool
+
+
+async def _edge_node(args: argparse.Namespace, config: FleetConfig, node: str, cleanup: AsyncExitStack) -> _Edge:
+    """The edge node's parts; what must be closed (the embedded broker, the buffer) goes on ``cleanup``."""
     from starterbus.serve.broker import BrokerOptions, load_credentials, parse_broker_url
-    from starterbus.serve.driver import EdgeNodeDriver
-    from starterbus.serve.prometheus import FleetCollector, start_metrics_server
     from starterbus.serve.session import EdgeSession, SessionOptions
     from starterbus.serve.state import default_state_file, load_bdseq
     from starterbus.serve.store import SqliteStore, default_buffer_file
 
+    if args.mqtt is None:
+        from starterbus.serve.embedded import start_mosquitto
+
+        broker_proc = await asyncio.to_thread(start_mosquitto)
+        cleanup.callback(broker_proc.close)
+        urls = [broker_proc.url]
+    else:
+        urls = args.mqtt
+    username, password = load_credentials(args.credentials)
+    brokers = [
+        BrokerOptions(
+            *parse_broker_url(url),
+            args.ca_file,
+            args.cert_file,
+            args.key_file,
+            username,
+            password,
+            client_id=args.client_id or f"starterbus-{args.group}-{node}",
+        )
+        for url in urls
+    ]
+    bounds = buffer_bounds(args)
+    options = SessionOptions(
+        group=args.group,
+        node=node,
+        refresh=args.refresh,
+        buffer_messages=bounds.messages,
+        buffer_size=bounds.size,
+        buffer_age=bounds.age,
+        command_max_age=args.command_max_age,
+        command_max_skew=args.command_max_skew,
+        command_max_bytes=args.command_max_bytes,
+        commands_allowed=all(b.tls for b in brokers) or args.allow_plaintext_commands,
+        primary_host=args.primary_host,
+        servers=len(brokers),
+    )
+    state_file = args.state_file or default_state_file(args.group, node)
+    bdseq = await asyncio.to_thread(load_bdseq, state_file)
+    steps, per_key = parse_deadbands(args.deadband)
+    buffer_file = args.buffer_file or default_buffer_file(state_file)
+    store = await asyncio.to_thread(SqliteStore.open, buffer_file, bounds)
+    cleanup.callback(store.close)
+    session = EdgeSession.for_fleet(
+        config, options, deadband_steps=steps, deadband_per_key=per_key, bdseq=bdseq, store=store
+    )
+    return _Edge(session, options, brokers, state_file, buffer_file, args.mqtt is None)
+
+
+async def _serve(args: argparse.Namespace) -> int:
+    from starterbus.aio import AsyncFleet
+    from starterbus.core.supervision import Supervisor
+    from starterbus.fleet.config import load_fleet
+    from starterbus.ops.recorder import for_fleet as recorder_for_fleet
+    from starterbus.ops.service_metrics import ServiceCollector
+    from starterbus.serve.driver import EdgeNodeDriver
+    from starterbus.serve.prometheus import FleetCollector, start_metrics_server
+
     supervisor = Supervisor()  # every thread and task of the service: a fatal failure stops it, exit 1
-    demo = broker_proc = store = None
-    recorder: HistoryRecorder | None = None
     interrupted: list[int] = []  # SIGINT once Ctrl-C stopped it: exit 130 after the clean shutdown
     node = args.node or socket.gethostname().split(".")[0]
     if args.opcua:  # where it listens: checked before the fleet, the broker or anything else starts
@@ -169,11 +241,13 @@ async def _serve(args: argparse.Namespace) -> int:
 
         parse_host_port(args.metrics, option="--metrics")
     web = serve_web.settings(args)  # --http: its address, users file and TLS files, checked first too
-    try:
+    async with AsyncExitStack() as cleanup:  # closed in reverse: buffer, broker, history, demo
+        demo = None
         if args.demo:
             from starterbus.fleet.demo import start_demo_fleet
 
             demo = await asyncio.to_thread(start_demo_fleet, 1.0)
+            cleanup.callback(demo.close)
             config = demo.config
             if web is not None:  # the web pages of the demo may act (MQTT still refuses plaintext DCMDs)
                 from starterbus.cli.opcua_cmd import demo_remote
@@ -181,64 +255,21 @@ async def _serve(args: argparse.Namespace) -> int:
                 config = demo_remote(config)
         else:
             config = await asyncio.to_thread(load_fleet, args.fleet)
+        recorder = None
         if args.record:  # checked (and refused, one line) before the broker or the poller starts
             recorder = await asyncio.to_thread(
                 recorder_for_fleet, args.record, config, args.keep, backlog=args.record_backlog, supervisor=supervisor
             )
-        if args.mqtt is None:
-            from starterbus.serve.embedded import start_mosquitto
-
-            broker_proc = await asyncio.to_thread(start_mosquitto)
-            urls = [broker_proc.url]
-        else:
-            urls = args.mqtt
-        username, password = load_credentials(args.credentials)
-        broker = [
-            BrokerOptions(
-                *parse_broker_url(url),
-                args.ca_file,
-                args.cert_file,
-                args.key_file,
-                username,
-                password,
-                client_id=args.client_id or f"starterbus-{args.group}-{node}",
-            )
-            for url in urls
-        ]
-        bounds = buffer_bounds(args)
-        options = SessionOptions(
-            group=args.group,
-            node=node,
-            refresh=args.refresh,
-            buffer_messages=bounds.messages,
-            buffer_size=bounds.size,
-            buffer_age=bounds.age,
-            command_max_age=args.command_max_age,
-            command_max_skew=args.command_max_skew,
-            command_max_bytes=args.command_max_bytes,
-            commands_allowed=all(b.tls for b in broker) or args.allow_plaintext_commands,
-            primary_host=args.primary_host,
-            servers=len(broker),
-        )
-        state_file = args.state_file or default_state_file(args.group, node)
-        bdseq = await asyncio.to_thread(load_bdseq, state_file)
-        steps, per_key = parse_deadbands(args.deadband)
-        buffer_file = args.buffer_file or default_buffer_file(state_file)
-        store = await asyncio.to_thread(SqliteStore.open, buffer_file, bounds)
-        session = EdgeSession.for_fleet(
-            config, options, deadband_steps=steps, deadband_per_key=per_key, bdseq=bdseq, store=store
-        )
-        collector = FleetCollector(session)
+            cleanup.push_async_callback(asyncio.to_thread, recorder.close)  # what waits is written
+        # the Sparkplug edge node with --mqtt (--demo: an embedded broker); --http/--opcua alone serve without one
+        edge = await _edge_node(args, config, node, cleanup) if args.mqtt or args.demo else None
+        collector = FleetCollector(edge.session if edge is not None else None)
         async with AsyncFleet(config, supervisor=supervisor, sink=recorder) as fleet:
             collector.poller = fleet.poller
             from starterbus.fleet.health import notify_systemd
 
             assert fleet.poller is not None  # started by `async with`
             notify_systemd(fleet.poller)  # under systemd: READY=1 after the first round, WATCHDOG=1 while polls go on
-            driver = EdgeNodeDriver(
-                fleet, session, broker, state_file=state_file, on_sample=collector.observe,
-                retry_delay=args.reconnect_delay,
-            )  # fmt: skip
             stop = asyncio.Event()
             interrupted = until_signalled(stop, args.duration, supervisor)
             metrics = None
@@ -255,43 +286,51 @@ async def _serve(args: argparse.Namespace) -> int:
                 serve_web.running(web, fleet) as http,
             ):  # the banner once every listener is up
                 opcua_box.append(opcua)
-                if not args.json:
-                    _print_banner(session, node, broker, broker_proc is not None, options.commands_allowed)
-                    if metrics:
-                        print(f"  Prometheus metrics: {metrics}", flush=True)
-                    if http is not None:
-                        print(f"  web dashboard: {http.url}", flush=True)
-                if args.json:
-                    emit_json_line(
-                        {
-                            "event": "ready",
-                            "broker": broker[0].describe(),
-                            "brokers": [b.describe() for b in broker],
-                            "buffer_file": str(buffer_file),
-                            "embedded_broker": broker_proc is not None,
-                            "topic": f"{session.topic_prefix}/+/{node}",
-                            "group": args.group,
-                            "node": node,
-                            "devices": list(session.devices),
-                            "commands": options.commands_allowed,
-                            "metrics": metrics,
-                            "opcua": getattr(opcua, "endpoint_url", None),
-                            "http": http.url if http is not None else None,
-                        }
-                    )
-                elif args.opcua:
-                    print(f"  OPC UA: {getattr(opcua, 'endpoint_url', args.opcua)}", flush=True)
-                await driver.run(stop)
-    finally:
-        if recorder is not None:
-            await asyncio.to_thread(recorder.close)  # what waits is written (the poller has stopped)
-        if store is not None:
-            store.close()
-        if broker_proc is not None:
-            broker_proc.close()
-        if demo is not None:
-            demo.close()
+                listeners = {
+                    "metrics": metrics,
+                    "opcua": getattr(opcua, "endpoint_url", None),
+                    "http": http.url if http is not None else None,
+                }
+                _report(args, config, edge, node, listeners)
+                if edge is None:
+                    await stop.wait()
+                else:
+                    driver = EdgeNodeDriver(
+                        fleet, edge.session, edge.brokers, state_file=edge.state_file, on_sample=collector.observe,
+                        retry_delay=args.reconnect_delay,
+                    )  # fmt: skip
+                    await driver.run(stop)
     return exit_code(interrupted, supervisor)
+
+
+def _report(
+    args: argparse.Namespace, config: FleetConfig, edge: _Edge | None, node: str, listeners: dict[str, str | None]
+) -> None:
+    """Once every listener is up: ``--json``'s one ready line, else the banner for a person."""
+    if args.json:
+        ready: dict[str, object] = {"event": "ready", "devices": [d.name for d in config.devices]}
+        if edge is not None:
+            ready |= {
+                "broker": edge.brokers[0].describe(),
+                "brokers": [b.describe() for b in edge.brokers],
+                "buffer_file": str(edge.buffer_file),
+                "embedded_broker": edge.embedded,
+                "topic": f"{edge.session.topic_prefix}/+/{node}",
+                "group": args.group,
+                "node": node,
+                "commands": edge.options.commands_allowed,
+            }
+        else:
+            ready |= {"broker": None, "brokers": [], "embedded_broker": False, "commands": False}
+        emit_json_line(ready | listeners)
+        return
+    if edge is not None:
+        _print_banner(edge.session, node, edge.brokers, edge.embedded, edge.options.commands_allowed)
+    else:
+        print(f"starterbus serve: {len(config.devices)} devices, no MQTT (no --mqtt)", flush=True)
+    for label, key in (("Prometheus metrics", "metrics"), ("web dashboard", "http"), ("OPC UA", "opcua")):
+        if listeners[key]:
+            print(f"  {label}: {listeners[key]}", flush=True)
 
 
 def _print_banner(session: object, node: str, brokers: object, embedded: bool, commands_allowed: bool) -> None:
