@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from starterbus.aio import AsyncFleet, RemoteNotAllowed
 from starterbus.core.device import Device
+from starterbus.core.errors import ConfigurationError, ValidationError
 from starterbus.core.guarded import Outcome
 from starterbus.core.status import Command
 from starterbus.ops import backup as backups
@@ -17,7 +18,10 @@ async def restore_device(fleet: AsyncFleet, name: str, text: str, *, actor: str)
     """Restore an uploaded backup into device ``name``: planned against the device (read, compared, validated),
     refused unless the fleet file's ``remote.write`` allows every parameter it would write, then written
     through the guarded path in the device's bus worker, each write read back and audited as ``actor``."""
-    backup, _profile = backups.loads(text, "the uploaded backup")
+    try:
+        backup, _profile = backups.loads(text, "the uploaded backup")
+    except ConfigurationError as exc:  # not a backup: refused as invalid input, before anything is read or sent
+        raise ValidationError(str(exc)) from exc
     allowed = fleet.device_config(name).remote
 
     def run(device: Device) -> list[Outcome]:

@@ -20,7 +20,6 @@ from typing import Any, Protocol
 from aiohttp import web
 
 from starterbus.aio import AsyncFleet, RemoteNotAllowed
-from starterbus.core.device import Device
 from starterbus.core.errors import (
     ConfigurationError,
     StarterbusError,
@@ -30,7 +29,6 @@ from starterbus.core.errors import (
 )
 from starterbus.core.guarded import GuardedOperationError
 from starterbus.core.registry import get_profile
-from starterbus.ops import backup as backups
 from starterbus.web import devices
 from starterbus.web.actions import COMMANDS, restore_device
 from starterbus.web.auth import COOKIE, Auth, LoginRefused, Session
@@ -68,7 +66,6 @@ def add_routes(app: web.Application) -> None:
     r.add_get("/api/devices/{name}/starts", device_starts)
     r.add_get("/api/devices/{name}/starts/{event}", device_start)
     r.add_get("/api/devices/{name}/history", device_history)
-    r.add_get("/api/devices/{name}/backup", device_backup)
     r.add_post("/api/devices/{name}/command", device_command)
     r.add_post("/api/devices/{name}/write", device_write)
     r.add_post("/api/devices/{name}/restore", device_restore)
@@ -288,39 +285,6 @@ async def device_history(request: web.Request) -> web.Response:
     return await _in_thread(lambda: devices.series(db, name, key, since, until))
 
 
-async def device_backup(request: web.Request) -> web.Response:
-    """Every parameter read from the device now (a job on its bus): as a backup file, or JSON with the diff
-    against the profile's defaults (``?format=json``)."""
-    server = _server(request)
-    name = _name(request)
-
-    def take(dev: Device) -> tuple[backups.Backup, str]:
-        taken = backups.take_backup(dev)
-        return taken, backups.dumps(taken, dev.profile)
-
-    try:
-        taken, text = await server.fleet.run(name, take)
-    except UnsupportedOperationError as exc:
-        return _error(409, str(exc))
-    except StarterbusError as exc:
-        return _error(502, str(exc))
-    if request.query.get("format") == "json":
-        profile = get_profile(taken.model)
-        return web.json_response(
-            {
-                "taken": taken.taken,
-                "values": {k: {"raw": e.raw, "text": e.text} for k, e in taken.parameters.items()},
-                "diff_defaults": devices.backup_diff(taken, profile),
-            }
-        )
-    stamp = taken.taken.replace(":", "").replace("-", "")[:15]
-    return web.Response(
-        text=text,
-        content_type="application/toml",
-        headers={"Content-Disposition": f'attachment; filename="{name}-{stamp}.toml"'},
-    )
-
-
 def _outcomes_json(outcomes: list[Any]) -> list[dict[str, object]]:
     return [o.as_json() for o in outcomes]
 
@@ -340,6 +304,8 @@ async def _act(request: web.Request, run: Action) -> web.Response:
         return _error(403, f"{exc}; refused, nothing sent")
     except (ValidationError, UnknownPointError) as exc:
         return _error(422, f"{exc}; refused, nothing sent")
+    except UnsupportedOperationError as exc:
+        return _error(409, f"{exc}; refused, nothing sent")
     except GuardedOperationError as exc:
         return _error(502, str(exc), outcomes=_outcomes_json(exc.outcomes))
     except StarterbusError as exc:

@@ -25,7 +25,7 @@ from aiohttp import web
 
 from starterbus.aio import AsyncFleet
 from starterbus.core.errors import ConfigurationError
-from starterbus.web import api
+from starterbus.web import api, backup_api
 from starterbus.web.auth import Auth
 from starterbus.web.settings import WebSettings
 from starterbus.web.view import FleetView
@@ -83,6 +83,7 @@ class WebServer:
         app = web.Application(middlewares=[_headers], client_max_size=1024 * 1024)
         app[SERVER] = self
         api.add_routes(app)
+        backup_api.add_routes(app)
         app.router.add_get("/", _page("fleet.html"))
         app.router.add_get("/device/{name}", _page("device.html"))
         app.router.add_static("/assets/", ASSETS, append_version=False)

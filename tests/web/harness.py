@@ -7,8 +7,12 @@ where it lands; the audit log and the history database are files in a temporary 
 from __future__ import annotations
 
 import asyncio
+import http.cookiejar
+import json
 import os
 import threading
+import urllib.error
+import urllib.request
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -107,3 +111,37 @@ def web_demo(tmp: Path, *, period: float = 0.5, **settings: Any) -> Iterator[Web
             os.environ.pop(ENV_VAR, None)
         else:
             os.environ[ENV_VAR] = before
+
+
+class Client:
+    """A visitor of the JSON API with its own cookies (a session once logged in) and CSRF token."""
+
+    def __init__(self, base: str) -> None:
+        self.base = base.rstrip("/")
+        self.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(http.cookiejar.CookieJar()))
+        self.csrf: str | None = None
+
+    def call(
+        self, method: str, path: str, body: object = None, headers: dict[str, str] | None = None
+    ) -> tuple[int, Any]:
+        """``body`` is sent as JSON, or as it is when it is bytes (a file upload)."""
+        raw = isinstance(body, bytes)
+        data = body if isinstance(body, bytes) else json.dumps(body).encode() if body is not None else None
+        request = urllib.request.Request(self.base + path, data=data, method=method)
+        if data is not None:
+            request.add_header("Content-Type", "application/octet-stream" if raw else "application/json")
+        if self.csrf:
+            request.add_header("X-CSRF-Token", self.csrf)
+        for k, v in (headers or {}).items():
+            request.add_header(k, v)
+        try:
+            with self.opener.open(request, timeout=20) as r:
+                return r.status, json.loads(r.read() or b"null")
+        except urllib.error.HTTPError as exc:
+            return exc.code, json.loads(exc.read() or b"null")
+
+    def login(self, user: str, password: str = PASSWORD) -> int:
+        status, body = self.call("POST", "/api/login", {"user": user, "password": password})
+        if status == 200:
+            self.csrf = body["csrf"]
+        return status

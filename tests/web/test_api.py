@@ -3,7 +3,6 @@ TLS (or explicitly allowed plaintext), with CSRF token, the guarded path, read-b
 
 from __future__ import annotations
 
-import http.cookiejar
 import json
 import os
 import subprocess
@@ -12,7 +11,6 @@ import urllib.error
 import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 
@@ -21,40 +19,10 @@ from starterbus.core.status import MotorState
 from starterbus.ops.throttle import ThrottlePolicy
 from starterbus.serve.embedded import mosquitto_binary
 from starterbus.testing.conformance import wait_until
-from starterbus.tests.web.harness import PASSWORD, WebDemo, web_demo
+from starterbus.tests.web.harness import PASSWORD, Client, WebDemo, web_demo
 from starterbus.web.auth import AuthPolicy
 
 DEMO_DEVICES = {"conveyor", "fan", "crusher", "mill", "mixer", "pump-a", "pump-b"}
-
-
-class Client:
-    def __init__(self, base: str) -> None:
-        self.base = base.rstrip("/")
-        self.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(http.cookiejar.CookieJar()))
-        self.csrf: str | None = None
-
-    def call(
-        self, method: str, path: str, body: object = None, headers: dict[str, str] | None = None
-    ) -> tuple[int, Any]:
-        data = json.dumps(body).encode() if body is not None else None
-        request = urllib.request.Request(self.base + path, data=data, method=method)
-        if data is not None:
-            request.add_header("Content-Type", "application/json")
-        if self.csrf:
-            request.add_header("X-CSRF-Token", self.csrf)
-        for k, v in (headers or {}).items():
-            request.add_header(k, v)
-        try:
-            with self.opener.open(request, timeout=20) as r:
-                return r.status, json.loads(r.read() or b"null")
-        except urllib.error.HTTPError as exc:
-            return exc.code, json.loads(exc.read() or b"null")
-
-    def login(self, user: str, password: str = PASSWORD) -> int:
-        status, body = self.call("POST", "/api/login", {"user": user, "password": password})
-        if status == 200:
-            self.csrf = body["csrf"]
-        return status
 
 
 @pytest.fixture(scope="module")

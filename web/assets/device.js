@@ -190,19 +190,41 @@
     document.getElementById("history-note").textContent = d.t.length + " samples" + (d.thinned > 1 ? " (every " + d.thinned + "th)" : "");
   }
 
+  function renderDiff(rows, left, note) {
+    const out = document.getElementById("diff");
+    out.dataset.rows = String(rows.length);
+    if (!rows.length) { out.replaceChildren(SB.el("p", { text: note + " " + SB.t("no_diff_any") })); return; }
+    const table = SB.el("table", {}, SB.el("caption", { text: note }), SB.el("thead", {}, SB.el("tr", {},
+      SB.el("th", { scope: "col", text: SB.t("key") }), SB.el("th", { scope: "col", text: left }),
+      SB.el("th", { scope: "col", text: SB.t("device") }))));
+    const tb = SB.el("tbody", {});
+    for (const row of rows) {
+      tb.append(SB.el("tr", { "data-key": row.key }, SB.el("th", { scope: "row", text: row.address + " " + row.key }),
+        SB.el("td", { text: row.a }), SB.el("td", { text: row.b })));
+    }
+    table.append(tb);
+    out.replaceChildren(table);
+  }
   async function diffDefaults() {
     const out = document.getElementById("diff");
     out.textContent = SB.t("reading");
     try {
       const r = await SB.getJSON(base + "/backup?format=json");
-      if (!r.diff_defaults.length) { out.textContent = SB.t("no_diff"); return; }
-      const table = SB.el("table", {}, SB.el("thead", {}, SB.el("tr", {}, SB.el("th", { text: SB.t("key") }),
-        SB.el("th", { text: "default" }), SB.el("th", { text: SB.t("device") }))));
-      const tb = SB.el("tbody", {});
-      for (const row of r.diff_defaults) tb.append(SB.el("tr", {}, SB.el("td", { text: row.address + " " + row.key }), SB.el("td", { text: row.a }), SB.el("td", { text: row.b })));
-      table.append(tb);
-      out.replaceChildren(table);
+      renderDiff(r.diff_defaults, "default", SB.t("diff_defaults") + ":");
     } catch (e) { out.textContent = e.message; }
+  }
+  async function diffFile(file) {
+    const out = document.getElementById("diff");
+    out.textContent = SB.t("reading");
+    try {
+      const r = await fetch(base + "/diff?file=" + encodeURIComponent(file.name), {
+        method: "POST", credentials: "same-origin", headers: { "Content-Type": "application/octet-stream" }, body: file,
+      });
+      const body = await r.json().catch(() => ({ error: r.statusText }));
+      if (!r.ok) { out.replaceChildren(SB.el("p", { class: "result-bad", role: "alert", text: body.error })); return; }
+      renderDiff(body.diff, file.name, SB.t("diff_file") + ": " + file.name + (body.file.taken ? " (" + body.file.taken + ")" : ""));
+    } catch (e) { out.textContent = e.message; }
+    document.getElementById("diff-file").value = "";
   }
 
   async function restoreFile(file) {
@@ -215,6 +237,7 @@
     document.getElementById("backup-link").href = base + "/backup";
     for (const b of document.querySelectorAll("[data-command]")) b.addEventListener("click", () => command(b.dataset.command));
     document.getElementById("diff-button").addEventListener("click", diffDefaults);
+    document.getElementById("diff-file").addEventListener("change", (e) => { if (e.target.files[0]) diffFile(e.target.files[0]); });
     document.getElementById("restore-file").addEventListener("change", (e) => { if (e.target.files[0]) restoreFile(e.target.files[0]); });
     document.getElementById("start-select").addEventListener("change", (e) => plotStart(e.target.value));
     document.getElementById("history-key").addEventListener("change", plotHistory);
