@@ -37,6 +37,30 @@ from starterbus.fleet.poller import FleetPoller, Sample
 T = TypeVar("T")
 
 
+class SampleStream:
+    """The samples of one subscriber of an :class:`AsyncFleet`, in the order the poller produced them (an async
+    iterator; :meth:`close` unsubscribes). Raises :class:`~starterbus.core.supervision.ServiceFailed` if the
+    service fails."""
+
+    def __init__(self, fleet: AsyncFleet, queue: asyncio.Queue[Sample | None]) -> None:
+        self._fleet = fleet
+        self._queue = queue
+
+    def __aiter__(self) -> SampleStream:
+        return self
+
+    async def __anext__(self) -> Sample:
+        while True:
+            self._fleet.supervisor.check()
+            sample = await self._queue.get()
+            if sample is not None:
+                return sample
+
+    def close(self) -> None:
+        if self._queue in self._fleet._subscribers:
+            self._fleet._subscribers.remove(self._queue)
+
+
 class RemoteNotAllowed(StarterbusError):
     """A remote caller asked for a command or a write the fleet file does not enable for that device."""
 
@@ -155,21 +179,22 @@ class AsyncFleet:
         if loop is not None and not loop.is_closed():
             loop.call_soon_threadsafe(self._deliver, None)
 
-    async def samples(self) -> AsyncIterator[Sample]:
-        """Every sample from now on, in the order the poller produced them; raises
-        :class:`~starterbus.core.supervision.ServiceFailed` if the service fails."""
+    def subscribe(self) -> SampleStream:
+        """Every sample from this call on (registered at once, not at the first iteration: a consumer that
+        starts reading later, after a slow start-up, misses nothing); close the stream when done."""
         queue: asyncio.Queue[Sample | None] = asyncio.Queue(self._queue_size)
         self._subscribers.append(queue)
+        return SampleStream(self, queue)
+
+    async def samples(self) -> AsyncIterator[Sample]:
+        """Every sample from the first iteration on, in the order the poller produced them; raises
+        :class:`~starterbus.core.supervision.ServiceFailed` if the service fails."""
+        stream = self.subscribe()
         try:
-            while True:
-                self.supervisor.check()
-                sample = await queue.get()
-                if sample is None:
-                    self.supervisor.check()
-                    continue
+            async for sample in stream:
                 yield sample
         finally:
-            self._subscribers.remove(queue)
+            stream.close()
 
     def device_config(self, name: str) -> DeviceConfig:
         try:

@@ -264,7 +264,16 @@ async def _serve(args: argparse.Namespace) -> int:
         # the Sparkplug edge node with --mqtt (--demo: an embedded broker); --http/--opcua alone serve without one
         edge = await _edge_node(args, config, node, cleanup) if args.mqtt or args.demo else None
         collector = FleetCollector(edge.session if edge is not None else None)
-        async with AsyncFleet(config, supervisor=supervisor, sink=recorder) as fleet:
+        running = AsyncFleet(config, supervisor=supervisor, sink=recorder)
+        driver = (
+            None
+            if edge is None
+            else EdgeNodeDriver(
+                running, edge.session, edge.brokers, state_file=edge.state_file, on_sample=collector.observe,
+                retry_delay=args.reconnect_delay,
+            )
+        )  # fmt: skip  # subscribed before the first poll: nothing polled while OPC UA and the web start is lost
+        async with running as fleet:
             collector.poller = fleet.poller
             from starterbus.fleet.health import notify_systemd
 
@@ -292,13 +301,9 @@ async def _serve(args: argparse.Namespace) -> int:
                     "http": http.url if http is not None else None,
                 }
                 _report(args, config, edge, node, listeners)
-                if edge is None:
+                if driver is None:
                     await stop.wait()
                 else:
-                    driver = EdgeNodeDriver(
-                        fleet, edge.session, edge.brokers, state_file=edge.state_file, on_sample=collector.observe,
-                        retry_delay=args.reconnect_delay,
-                    )  # fmt: skip
                     await driver.run(stop)
     return exit_code(interrupted, supervisor)
 

@@ -66,6 +66,7 @@ class EdgeNodeDriver:
         primary host goes offline there; ``retry_delay`` between rounds of the whole list). ``audit``: where
         refused commands go (default: the guarded path's default audit log)."""
         self.fleet = fleet
+        self._stream = fleet.subscribe()  # from now on: samples polled while other servers start are not lost
         self.session = session
         self.brokers = [broker] if isinstance(broker, BrokerOptions) else list(broker)
         if not self.brokers:
@@ -255,10 +256,13 @@ class EdgeNodeDriver:
     # -- tasks ---------------------------------------------------------------------------------------------
 
     async def _samples(self) -> None:
-        async for sample in self.fleet.samples():
-            if self.on_sample is not None:
-                self.on_sample(sample)
-            self._apply(self.session.on_sample(sample, time.time()))
+        try:
+            async for sample in self._stream:
+                if self.on_sample is not None:
+                    self.on_sample(sample)
+                self._apply(self.session.on_sample(sample, time.time()))
+        finally:
+            self._stream.close()
 
     async def _ticks(self) -> None:
         while True:

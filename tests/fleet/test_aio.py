@@ -91,3 +91,34 @@ def test_async_device_runs_off_the_loop() -> None:
         asyncio.run(scenario())
     finally:
         sim.close()
+
+
+def test_a_stream_subscribed_before_the_start_misses_no_sample() -> None:
+    """serve subscribes its edge node before the poller starts: what is polled while the other servers start
+    (OPC UA takes seconds) still reaches it, the first sample of each device included."""
+    profile = get_profile("jjr5000")
+    sim = ModbusRtuSimulator({2: SimulatedStarter(profile), 3: SimulatedStarter(profile)}, pty=True).start()
+    try:
+        port = sim.client_urls()[2].split("://", 1)[1].split("?", 1)[0]
+        config = parse_fleet(fleet_text(port), "f.toml")
+
+        async def scenario() -> list[tuple[str, float]]:
+            fleet = AsyncFleet(config)
+            stream = fleet.subscribe()  # before the poller exists
+            seen: list[tuple[str, float]] = []
+            async with fleet:
+                assert fleet.poller is not None
+                while fleet.poller.transactions() < 6:  # a slow start-up: polls go on, nobody reads yet
+                    await asyncio.sleep(0.01)
+                async for sample in stream:
+                    seen.append((sample.device, sample.time))
+                    if len(seen) == 4:
+                        break
+            stream.close()
+            return seen
+
+        seen = asyncio.run(scenario())
+        assert {device for device, _ in seen[:2]} == {"allowed", "closed"}  # the very first round
+        assert [t for _, t in seen] == sorted(t for _, t in seen)
+    finally:
+        sim.close()
