@@ -7,7 +7,10 @@
 from __future__ import annotations
 
 import os
+import re
 import shutil
+import time
+import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -16,9 +19,10 @@ import pytest
 
 from starterbus.core.simulator import Phase
 from starterbus.core.status import Command
+from starterbus.ops.backup import loads
 from starterbus.ops.throttle import ThrottlePolicy
 from starterbus.testing.conformance import wait_until
-from starterbus.tests.web.harness import PASSWORD, WebDemo, web_demo
+from starterbus.tests.web.harness import PASSWORD, Client, WebDemo, web_demo
 from starterbus.web.auth import AuthPolicy
 
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -132,3 +136,47 @@ def test_a_recorded_start_plots(site: WebDemo, page: Any) -> None:
     sync_api.expect(page.locator("#start-note")).to_contain_text("peak")
     page.locator("#h-starts").scroll_into_view_if_needed()
     _screenshot(page, "web-device.png")
+
+
+def test_the_history_chart_plots_a_measured_point_over_a_time_range(site: WebDemo, page: Any) -> None:
+    client = Client(site.url)
+    recorded = "/api/devices/mill/history?key=current_a"
+    assert wait_until(lambda: (r := client.call("GET", recorded))[0] == 200 and len(r[1]["t"]) > 2, 30)
+    page.goto(site.url + "device/mill")
+    page.wait_for_selector("body[data-ready='1']", timeout=WAIT_MS)
+    chart = page.locator("#history-chart")
+    sync_api.expect(page.locator("#history-key option[value='current_a']")).to_have_count(1, timeout=WAIT_MS)
+    page.select_option("#history-key", "current_a")
+    page.select_option("#history-range", "600")  # the last 10 minutes
+    sync_api.expect(chart).to_have_attribute("data-key", "current_a", timeout=WAIT_MS)
+    sync_api.expect(chart.locator("canvas")).to_have_count(1)
+    assert int(chart.get_attribute("data-points") or 0) > 2  # samples from the SQLite history, drawn
+    assert float(chart.get_attribute("data-since") or 0) > time.time() - 3000  # 10 min asked, not the default hour
+    sync_api.expect(page.locator("#history-note")).to_contain_text("samples")
+
+
+def test_the_diff_view_against_the_defaults_and_an_uploaded_file(site: WebDemo, page: Any) -> None:
+    with urllib.request.urlopen(site.url + "api/devices/conveyor/backup", timeout=20) as r:
+        text = r.read().decode()
+    ramp = loads(text)[0].parameters["ramp_time"].raw
+    edited = text.replace(f"raw = {ramp}\n", f"raw = {ramp + 1}\n", 1)
+    edited = re.sub(r"(\[parameters\.ramp_time\]\n(?:.*\n)*?)value = .*\n", r"\1", edited, count=1)
+    assert loads(edited)[0].parameters["ramp_time"].raw == ramp + 1
+    page.goto(site.url + "device/conveyor")
+    page.wait_for_selector("body[data-ready='1']", timeout=WAIT_MS)
+    diff = page.locator("#diff")
+    page.click("#diff-button")  # against the defaults (a visitor may: it only reads)
+    sync_api.expect(diff).to_have_attribute("data-rows", re.compile(r"\d+"), timeout=WAIT_MS)
+    page.set_input_files("#diff-file", files=[_file("edited.toml", edited.encode())])
+    row = diff.locator("tr[data-key='ramp_time']")
+    sync_api.expect(row).to_have_count(1, timeout=WAIT_MS)
+    assert diff.locator("tbody tr").count() == 1  # only what differs from the file
+    cells = row.locator("td").all_inner_texts()
+    assert str(ramp + 1) in cells[0] and str(ramp) in cells[1]  # the file's, then the device's
+    sync_api.expect(diff.locator("caption")).to_contain_text("edited.toml")
+    page.set_input_files("#diff-file", files=[_file("gbk.toml", "x = '工'".encode("gbk"))])  # not UTF-8
+    sync_api.expect(diff.locator("[role='alert']")).to_contain_text("gbk.toml: line 1", timeout=WAIT_MS)
+
+
+def _file(name: str, data: bytes) -> dict[str, object]:
+    return {"name": name, "mimeType": "text/plain", "buffer": data}

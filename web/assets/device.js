@@ -187,6 +187,9 @@
     holder.replaceChildren();
     historyPlot = new uPlot({ ...chartSize(holder), series: [{}, { label: key, stroke: "#0b5394", width: 2, spanGaps: false }],
       cursor: { drag: { x: true, y: false } } }, [d.t, d.v], holder);
+    holder.dataset.key = key;
+    holder.dataset.since = String(Math.floor(since));
+    holder.dataset.points = String(d.v.filter((v) => v != null).length);
     document.getElementById("history-note").textContent = d.t.length + " samples" + (d.thinned > 1 ? " (every " + d.thinned + "th)" : "");
   }
 
