@@ -36,6 +36,10 @@ def _device(args: argparse.Namespace) -> Device:
 
 
 def cmd_read(args: argparse.Namespace) -> int:
+    if args.raw:
+        from starterbus.cli.raw_cmds import cmd_read_raw
+
+        return cmd_read_raw(args)
     device = _device(args)
     keys = args.keys or [p.key for p in device.profile.measurements]
     with device:
@@ -102,6 +106,10 @@ def _user() -> str:
 
 
 def cmd_write(args: argparse.Namespace) -> int:
+    if args.raw:
+        from starterbus.cli.raw_cmds import cmd_write_raw
+
+        return cmd_write_raw(args)
     device = _guarded_device(args)
     assignments = parse_assignments(args.assignments)
     checked = [device.validate_write(key, value) for key, value in assignments.items()]  # before anything opens

@@ -61,6 +61,9 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     p = sub.add_parser("read", help="read parameters/measurements (all measurements if no KEY)")
     device_args(p)
     p.add_argument("keys", nargs="*", metavar="KEY", help="key or manual address (motor_rated_current, 0x0100, p7, m3)")
+    p.add_argument(
+        "--raw", action="store_true", help="KEY is ADDRESS:COUNT: holding registers as they are (0x0100:4; Modbus only)"
+    )
     p.set_defaults(handler=_handler("device_cmds", "cmd_read"), rest_into="keys")
 
     p = sub.add_parser("write", help="write parameters (engineering units or enum labels; validated first)")
@@ -70,6 +73,11 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         "--accept-uncertain",
         action="store_true",
         help="acknowledge writing a code or scale the manual does not print (see `params`: certainty)",
+    )
+    p.add_argument(
+        "--raw",
+        action="store_true",
+        help="KEY=VALUE is ADDRESS=VALUE into a holding register, bypassing the model's checks (Modbus only)",
     )
     guard_args(p)
     p.set_defaults(handler=_handler("device_cmds", "cmd_write"))

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 from starterbus.core import settings_check as check
 from starterbus.core.address_space import AddressSpace
@@ -90,6 +90,26 @@ class ModbusRegisters(AddressSpace):
 
 SPACE = ModbusRegisters()
 
+
+@runtime_checkable
+class RegisterAccess(Protocol):
+    """Raw holding-register access, below the model (``read --raw``, ``write --raw``): a transport of the
+    ``modbus`` space offers it by having these methods (the built-in ``modbus-rtu`` and ``modbus-tcp`` do).
+    Nothing here checks a model's ranges: the caller guards (confirmation, audit, state)."""
+
+    def read_registers(self, address: int, count: int) -> tuple[int, ...]:
+        """FC03: ``count`` registers from ``address``, in one request; an exception answer raises."""
+        ...
+
+    def write_register(self, address: int, value: int) -> None:
+        """FC06: ``value`` (0..0xFFFF) into ``address``, sent once; an exception answer raises."""
+        ...
+
+    def preview_register_write(self, address: int, value: int) -> list[str]:
+        """The exact frames :meth:`write_register` would send (hex), sending nothing."""
+        ...
+
+
 __all__ = [
     "GATEWAY_EXCEPTIONS",
     "MAX_READ_REGISTERS",
@@ -99,4 +119,5 @@ __all__ = [
     "STANDARD_EXCEPTION_TEXTS",
     "ModbusRegisters",
     "ModbusSettings",
+    "RegisterAccess",
 ]

@@ -222,6 +222,10 @@ class ModbusRtuTransport(Transport):
             exchange = self._prepare(self._writes, (address, value), WriteRequest(self.unit, address, value))
         self._run(exchange)
 
+    def preview_register_write(self, address: int, value: int) -> list[str]:
+        """The FC06 frame :meth:`write_register` would send (``write --raw --dry-run``)."""
+        return [self._frame_text(WriteRequest(self.unit, address, value))]
+
     # -- Transport operations ----------------------------------------------------------------------------------
 
     def _address(self, point: PointDef) -> int:
@@ -346,9 +350,12 @@ class ModbusRtuTransport(Transport):
             self.execute(request)
         self.control.apply(command)
 
+    def _frame_text(self, request: Request) -> str:
+        """What goes on the wire for ``request``, in hex (a TCP transport's MBAP frame)."""
+        return request.encode().hex(" ").upper()
+
     def _preview_write(self, point: PointDef, raw: int) -> list[str]:
-        frame = WriteRequest(self.unit, self._address(point), raw).encode()
-        return [frame.hex(" ").upper()]
+        return [self._frame_text(WriteRequest(self.unit, self._address(point), raw))]
 
     def _preview_command(self, command: Command) -> list[str]:
-        return [request.encode().hex(" ").upper() for request in self._control_requests(command)]
+        return [self._frame_text(request) for request in self._control_requests(command)]
