@@ -1,4 +1,5 @@
-"""``starterbus scan URL``: the Modbus RTU devices on a line (speed, parity, unit ids, models) and a fleet file to
+"""``starterbus scan URL``: the Modbus RTU devices on a line (speed, parity, unit ids, models), the units behind a
+Modbus TCP gateway, the nodes on a DeviceNet bus (:mod:`starterbus.cli.scan_devicenet`), and a fleet file to
 start from (docs/commissioning.md)."""
 
 from __future__ import annotations
@@ -9,6 +10,7 @@ from collections.abc import Sequence
 
 from starterbus.cli.arguments import json_flag
 from starterbus.cli.output import emit_json, table
+from starterbus.cli.scan_devicenet import mac_range
 from starterbus.core.errors import ConfigurationError
 from starterbus.core.profile import Profile
 from starterbus.core.url import DeviceUrl
@@ -33,12 +35,17 @@ def csv_list(text: str) -> list[str]:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("url", metavar="URL", help="the line: modbus-rtu:///dev/ttyUSB0 (its query is ignored)")
+    p.add_argument(
+        "url",
+        metavar="URL",
+        help="modbus-rtu:///dev/ttyUSB0 (its query is ignored), modbus-tcp://HOST:PORT, devicenet://INTERFACE/CHANNEL",
+    )
     p.add_argument("--models", help="the models to tell apart, comma-separated (default: every installed one)")
     p.add_argument("--baudrates", help="speeds to try, comma-separated (default: those the models offer)")
     p.add_argument("--parities", help="parities to try: E,N,O (default; --quick: E,N)")
     p.add_argument("--stopbits", default="1", help="stop bits to try: 1 (default), 2 or 1,2")
     p.add_argument("--units", type=unit_range, metavar="A-B", help="unit ids to try (default 1-247; --quick 1-32)")
+    p.add_argument("--macs", type=mac_range, metavar="A-B", help="DeviceNet MAC ids to try (default 0-63)")
     p.add_argument("--quick", action="store_true", help="stop at the first setting where a unit answers")
     p.add_argument("--timeout", type=float, default=0.1, help="seconds to wait for each answer (default 0.1)")
     p.add_argument("-o", "--output", metavar="FLEET.toml", help="write a fleet file of what answered")
@@ -97,9 +104,18 @@ def cmd_scan(args: argparse.Namespace) -> int:
     from starterbus.transports.modbus.scan import scan_line, settings
 
     url = DeviceUrl.parse(args.url)
-    if url.transport != "modbus-rtu":
-        raise ConfigurationError(f"scan {args.url}: scans a Modbus RTU line (modbus-rtu:///dev/ttyUSB0)")
+    if url.transport not in ("modbus-rtu", "devicenet"):
+        raise ConfigurationError(
+            f"scan {args.url}: scans a Modbus RTU line (modbus-rtu:///dev/ttyUSB0), a Modbus TCP gateway "
+            "(modbus-tcp://HOST:502) or a DeviceNet bus (devicenet://socketcan/can0)"
+        )
     target = check_target(args.output, force=args.force) if args.output else None
+    if url.transport == "devicenet":
+        from starterbus.cli.scan_devicenet import run_scan
+
+        return run_scan(args, url, target)
+    if args.macs:
+        raise ConfigurationError("scan: --macs is for a DeviceNet bus")
     models = _profiles(args.models)
     if args.baudrates:
         speeds = _ints(args.baudrates, "--baudrates")
