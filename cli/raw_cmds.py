@@ -16,7 +16,6 @@ import getpass
 import sys
 from dataclasses import dataclass
 
-from starterbus.cli.device_cmds import show_dry_run
 from starterbus.cli.output import emit_json, table
 from starterbus.core.audit import AuditLog
 from starterbus.core.device import Device, open_device
@@ -168,8 +167,7 @@ def cmd_write_raw(args: argparse.Namespace) -> int:
     frames = [f for a, v in writes for f in registers.preview_register_write(a, v)]
     print(f"starterbus: warning: {WARNING}", file=sys.stderr)
     if args.dry_run:
-        rows = [{"key": f"0x{a:04X}", "value": v, "frames": registers.preview_register_write(a, v)} for a, v in writes]
-        show_dry_run(args, rows, raw=True)
+        _show_dry_run(args, [(a, v, registers.preview_register_write(a, v)) for a, v in writes])
         return 0
     audit = AuditLog(args.audit_log)
     who = {"device": device.transport.url.text, "model": device.profile.name, "actor": f"cli:{getpass.getuser()}"}
@@ -210,6 +208,19 @@ def cmd_write_raw(args: argparse.Namespace) -> int:
         o = mismatched[0]
         raise GuardedOperationError(f"0x{o.address:04X}: wrote {o.value} but read back {o.read_back}", [])
     return 0
+
+
+def _show_dry_run(args: argparse.Namespace, rows: list[tuple[int, int, list[str]]]) -> None:
+    """What would be sent, and nothing sent (``write``'s dry-run document, with ``"raw": true``)."""
+    if args.json:
+        would = [{"address": f"0x{a:04X}", "value": v, "frames": frames} for a, v, frames in rows]
+        emit_json({"device": args.url, "dry_run": True, "raw": True, "would_send": would})
+        return
+    print(f"dry run: nothing sent to {args.url}")
+    for address, value, frames in rows:
+        print(f"  0x{address:04X} = {value} (0x{value:04X})")
+        for frame in frames:
+            print(f"    {frame}")
 
 
 def _read_one(registers: RegisterAccess, address: int) -> int | None:
