@@ -125,7 +125,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         ("poll", "poll", "add_arguments", "poll a fleet file: live table, JSON lines, CSV log"),
         ("demo", "demo", "add_arguments", "the main job on a simulated mixed fleet (no hardware needed)"),
         ("crosscheck", "crosscheck", "add_arguments", "read one device through several URLs and compare"),
-        ("scan", "scan", "add_arguments", "find the devices on a Modbus RTU line (speed, parity, units, models)"),
+        ("scan", "scan", "add_arguments", "find the devices on a Modbus RTU line, gateway or DeviceNet bus"),
     ):
         p = sub.add_parser(name, help=help_text)
         _setup(p, wants == name, module, setup)

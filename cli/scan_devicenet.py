@@ -79,7 +79,7 @@ def run_scan(args: argparse.Namespace, url: DeviceUrl, target: Path | None) -> i
         print(text, file=sys.stderr, flush=True)
 
     try:
-        found = scan_bus(url, profiles, list(range(lo, hi + 1)), timeout=args.timeout, progress=progress)
+        found = scan_bus(url, profiles, list(range(lo, hi + 1)), timeout=args.timeout or 0.1, progress=progress)
     except KeyboardInterrupt:
         print("scan: interrupted; nothing written", file=sys.stderr)
         return 130

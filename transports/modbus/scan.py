@@ -13,6 +13,10 @@ or an exception) is there. Its model is then told from its registers (:func:`ide
 A model is a candidate when every probe agrees with it; one candidate is the answer, several are listed (a
 model whose register map another one contains entirely, and whose values fit both, cannot be told apart), none
 is "unknown" (a model not installed, a firmware with other ranges). Nothing is written: reads only.
+
+Behind a Modbus TCP gateway (:func:`scan_gateway`) there is no line setting to find: each unit id is read once
+through the gateway's one connection; no answer, and the gateway's exceptions 0x0A (path unavailable) and 0x0B
+(target device failed to respond), mean nobody there; the model is told the same way.
 """
 
 from __future__ import annotations
@@ -22,10 +26,11 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from itertools import combinations
 
-from starterbus.core.errors import DecodeError, TimeoutError
+from starterbus.core.errors import DecodeError, RemoteDeviceError, TimeoutError
 from starterbus.core.model import PointDef
 from starterbus.core.profile import Profile
 from starterbus.core.url import DeviceUrl
+from starterbus.transports.modbus.client import ModbusRtuTransport
 from starterbus.transports.modbus.config import ModbusRtuConfig
 from starterbus.transports.modbus.exchange import Exchange, TransactionPolicy
 from starterbus.transports.modbus.frames import ExceptionResponse, ReadRequest, ReadResponse
@@ -56,7 +61,7 @@ class Found:
     """A unit that answered: where, and what it is (``model`` None: unknown or ambiguous, see ``candidates``)."""
 
     unit: int
-    setting: Setting
+    setting: Setting | None  # None: behind a Modbus TCP gateway (no line setting to tell)
     model: str | None
     candidates: tuple[str, ...]
     why: str
@@ -184,4 +189,50 @@ def _scan_units(
         model, candidates, why = identify(register, unit, profiles)
         progress(f"scan: {setting.describe()} unit {unit}: {model or 'model unknown'} ({why})")
         found.append(Found(unit, setting, model, candidates, why))
+    return found
+
+
+def _read_behind_gateway(transport: ModbusRtuTransport, address: int) -> int | ExceptionResponse | None:
+    """One register through a gateway: its value, the device's own exception, or None (nobody answered)."""
+    try:
+        return transport.read_registers(address, 1)[0]
+    except RemoteDeviceError as exc:  # the device's own exception (the gateway's 0x0A / 0x0B are TimeoutError)
+        return ExceptionResponse(transport.unit, 3, exc.code)
+    except (TimeoutError, DecodeError):
+        return None
+
+
+def scan_gateway(
+    url: DeviceUrl,
+    profiles: Sequence[Profile],
+    units: Sequence[int],
+    *,
+    timeout: float = 0.5,
+    progress: Progress = lambda _: None,
+) -> list[Found]:
+    """Every unit of ``units`` that answers behind the Modbus TCP gateway of ``url`` (``modbus-tcp://HOST:PORT``,
+    its query ignored), one connection for the whole scan, each unit's model told from its registers."""
+    from starterbus.transports.modbus.tcp_client import ModbusTcpConfig, ModbusTcpTransport
+
+    base = url.text.partition("?")[0]
+    first = DeviceUrl.parse(f"{base}?unit=1&retries=0&timeout={timeout:g}")
+    config = ModbusTcpConfig.from_tcp_url(first, profiles[0])
+    status = profiles[0].role("status_word")
+    probe = status.address_for(PROTOCOL) if status is not None else 0
+    found: list[Found] = []
+    progress(f"scan: {config.target}, units {units[0]}-{units[-1]}")
+    with ModbusTcpTransport(first, profiles[0], config):  # holds the gateway's one connection for the whole scan
+        for unit in units:
+            transport = ModbusTcpTransport(first, profiles[0], dataclasses.replace(config, unit=unit))
+            with transport:
+                if _read_behind_gateway(transport, probe) is None:
+                    continue
+
+                def register(address: int, at: ModbusRtuTransport = transport) -> int | ExceptionResponse:
+                    answer = _read_behind_gateway(at, address)
+                    return ExceptionResponse(at.unit, 3, 0xFF) if answer is None else answer  # no answer fits no model
+
+                model, candidates, why = identify(register, unit, profiles)
+            progress(f"scan: {config.target} unit {unit}: {model or 'model unknown'} ({why})")
+            found.append(Found(unit, None, model, candidates, why))
     return found
