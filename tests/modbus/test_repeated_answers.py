@@ -13,7 +13,7 @@ from starterbus.tests.modbus.line_task_kit import Poll, values
 from starterbus.tests.modbus.scripted_line import SILENCE, Responder, drive, make_line, numbered
 from starterbus.transports.modbus.exchange import TransactionPolicy
 from starterbus.transports.modbus.frames import ReadRequest
-from starterbus.transports.modbus.guard import CLEAN_ANSWERS, LineGuard
+from starterbus.transports.modbus.guard import CLEAN_ANSWERS, REPEAT_HOLD, LineGuard
 
 POLICY = TransactionPolicy(timeout=0.1, retries=0, quarantine=0.3)
 READ = ReadRequest(2, 0x0100, 2)
@@ -58,7 +58,7 @@ def test_a_repeat_seen_after_a_success_quarantines_the_line_after_every_answer()
         line.transact(READ, POLICY)
     assert line.guard.repeats == 2  # the repeat of #1's answer, seen in the quarantine after it
     repeat_of_1 = link.writes[1][0] + 0.05
-    assert link.writes[2][0] >= repeat_of_1 + POLICY.quarantine
+    assert link.writes[2][0] >= repeat_of_1 + REPEAT_HOLD * POLICY.quarantine
 
 
 def test_the_same_through_a_poll_task() -> None:
@@ -70,7 +70,7 @@ def test_the_same_through_a_poll_task() -> None:
     assert values(drive(second.task), second) == [(1, 2)] and line.guard.suspect
     third = Poll(line, READ, policy=POLICY)
     assert isinstance(drive(third.task), TimeoutError)
-    assert link.writes[2][0] >= link.writes[1][0] + 0.05 + POLICY.quarantine
+    assert link.writes[2][0] >= link.writes[1][0] + 0.05 + REPEAT_HOLD * POLICY.quarantine
 
 
 def test_an_answer_followed_by_itself_makes_the_line_suspect() -> None:
@@ -154,7 +154,7 @@ def test_a_stray_while_suspect_starts_the_clean_count_again() -> None:
     now = 2.0
     for _ in range(CLEAN_ANSWERS - 1):
         delivered_at(guard, now, answer)
-        assert guard.send_wait(now + SILENCE) == pytest.approx(0.3 - SILENCE)  # the quarantine from its last byte
+        assert guard.send_wait(now + SILENCE) == pytest.approx(REPEAT_HOLD * 0.3 - SILENCE)  # from its last byte
         now += 0.5
     guard.stray(b"\xff", now, 0.3)  # noise: the line was not clean
     for _ in range(CLEAN_ANSWERS):

@@ -22,9 +22,9 @@ the guard the times (monotonic seconds) and the bytes it saw:
    again where none was asked for (in stray bytes after a success, in bytes trailing an answer, as a frame
    dropped for beating the wire), or an answer followed by itself, shows a slave that repeats answers: a
    repeat arriving while a later request gets no answer of its own would be taken for that answer. From then
-   on every delivered answer is followed by the quarantine (from its last byte; any byte restarts it, and a
-   repeat seen in it renews the rule), until :data:`CLEAN_ANSWERS` answers in a row came with no stray byte
-   and no failure.
+   on every delivered answer is followed by :data:`REPEAT_HOLD` quarantines (from its last byte; any byte
+   restarts it, a repeat seen in it renews the rule), until :data:`CLEAN_ANSWERS` answers in a row came with no
+   stray byte and no failure.
 
 Nothing here reads a clock or does I/O; the tests drive it with explicit times.
 """
@@ -43,6 +43,8 @@ REMEMBERED_ANSWERS = 64
 STRAY_MEMORY = 512
 #: rule 5: a line seen repeating an answer is quarantined after every answer until this many in a row were clean
 CLEAN_ANSWERS = 100
+#: rule 5: that quarantine, in quarantines: repeats were measured up to 1.5 timeouts after their answer
+REPEAT_HOLD = 1.5
 
 
 def hex_bytes(data: bytes, limit: int = 16) -> str:
@@ -139,7 +141,7 @@ class LineGuard:
     def repeat_seen(self, quarantine: float) -> None:
         """A delivered answer was seen again: quarantine the line after every answer from now on (rule 5)."""
         self.repeats += 1
-        self.repeat_hold = max(self.repeat_hold, quarantine)
+        self.repeat_hold = max(self.repeat_hold, REPEAT_HOLD * quarantine)
         self.clean = 0
         self.stray_seen = False
 
