@@ -105,6 +105,8 @@ class SimulatedStarter:
             if point.enum is not None and default not in point.enum.labels:
                 default = min(v for v in point.enum.labels if point.raw_min <= v <= point.raw_max)
             self.params[point.key] = default
+        if profile.control.source_key:  # commissioned for the bus: start/stop from any master, as in a plant
+            self.params[profile.control.source_key] = profile.control.source_bus_codes[0]
         for key, raw in (values or {}).items():
             self.params[profile.point(key).key] = raw
         self._phase = Phase.STOPPED
