@@ -176,12 +176,15 @@
       plotHistory();
     } catch (e) { document.getElementById("history-note").textContent = e.status === 404 ? SB.t("no_history") : e.message; }
   }
+  let historyAsked = 0;
   async function plotHistory() {
     const key = document.getElementById("history-key").value;
     if (!key) return;
     const span = Number(document.getElementById("history-range").value);
     const since = Date.now() / 1000 - span;
+    const asked = ++historyAsked;  // a slower answer to an earlier choice must not replace this one
     const d = await SB.getJSON(base + "/history?key=" + encodeURIComponent(key) + "&since=" + since);
+    if (asked !== historyAsked) return;
     const holder = document.getElementById("history-chart");
     if (historyPlot) historyPlot.destroy();
     holder.replaceChildren();
