@@ -25,8 +25,10 @@ from starterbus.core.simulator import SimulatedStarter
 from starterbus.fleet.config import parse_fleet
 from starterbus.opcua.address_space import STATES
 from starterbus.opcua.certs import ensure_certificate
+from starterbus.opcua.logins import LoginPolicy
 from starterbus.opcua.server import OpcUaServer, OpcUaSettings
 from starterbus.opcua.users import Role, UserEntry, hash_password
+from starterbus.ops.throttle import ThrottlePolicy
 from starterbus.testing import wait_until_async
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 
@@ -127,7 +129,14 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Rig]:
         ports = [sim.client_urls()[unit].split("://", 1)[1].split("?", 1)[0] for sim, unit in ((line1, 1), (line2, 3))]
         config = parse_fleet(fleet_text(*ports), "opcua-test.toml")
         settings = OpcUaSettings(
-            "opc.tcp://127.0.0.1:0/starterbus", pki_dir=tmp / "pki", users=USERS, anonymous=True, allow_insecure=True
+            "opc.tcp://127.0.0.1:0/starterbus",
+            pki_dir=tmp / "pki",
+            users=USERS,
+            anonymous=True,
+            allow_insecure=True,
+            # one server for the module: the wrong-password test must not throttle 127.0.0.1 for the tests after
+            # it, in whatever order they run (throttling is tested in test_logins.py)
+            logins=LoginPolicy(throttle=ThrottlePolicy(backoff_base=0.0), refusal_delay=0.0),
         )
         cert, _key = ensure_certificate(tmp / "pki" / "client", CLIENT_URI)  # the tests' client, trusted
         (tmp / "pki" / "trusted").mkdir()
