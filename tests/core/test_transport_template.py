@@ -12,7 +12,7 @@ from starterbus.core.profile import Profile
 from starterbus.core.status import Command
 from starterbus.core.transport import Capability, Transport
 from starterbus.core.url import DeviceUrl
-from starterbus.testing.conformance import is_open
+from starterbus.testing.kit_base import is_open
 
 READS = frozenset({Capability.READ_MEASUREMENTS, Capability.READ_PARAMETERS})
 

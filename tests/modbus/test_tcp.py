@@ -49,6 +49,7 @@ def test_units_behind_one_gateway_share_one_connection(gateway: ModbusTcpSimulat
         poll = b.transport.poll([b.profile.point("ramp_time")], True)
         assert poll.status is not None and poll.readings[0].raw == ssd.params["ramp_time"]
         counters = b.transport.counters()
+        assert counters is not None
         assert counters.transactions >= 2 and counters.requests == counters.transactions and not counters.errors
     assert GATEWAYS.users(("modbus-tcp", *gateway.address)) == 0
 
@@ -67,7 +68,8 @@ def test_the_gateway_s_target_failed_is_no_answer_not_a_refusal(gateway: ModbusT
     with open_device(gateway.url(7, retries=1, timeout=0.5), "jjr5000") as device:
         with pytest.raises(TimeoutError, match=r"unreachable: unit 7, exception 0x0B.*attempt 2 of 2"):
             device.status()
-        assert device.transport.counters().timeouts == 1
+        counters = device.transport.counters()
+        assert counters is not None and counters.timeouts == 1
 
 
 def test_a_stale_answer_is_never_a_value(gateway: ModbusTcpSimulator) -> None:
@@ -88,7 +90,7 @@ def test_a_stale_answer_is_never_a_value(gateway: ModbusTcpSimulator) -> None:
             device.read("ramp_time")
         gateway.answer_hook = None
         assert device.read("ramp_time")["ramp_time"].raw == 10  # the next transaction is served as usual
-        gateway_connection = device.transport._gateway
+        gateway_connection = device.transport._gateway  # type: ignore[attr-defined]
         assert gateway_connection is not None and gateway_connection.stale == 1
     assert seen[0] != seen[1]
 
@@ -165,7 +167,7 @@ def test_reconnects_after_the_gateway_restarts_and_backs_off_while_it_is_down() 
     host, port = sim.address
     with open_device(sim.url(3, retries=0), "ssd1") as device:
         assert device.read("ramp_time")
-        connection = device.transport._gateway
+        connection = device.transport._gateway  # type: ignore[attr-defined]
         assert connection is not None
         sim.close()
         assert wait_until(lambda: connection._sock is None)  # the reader saw the gateway close the connection

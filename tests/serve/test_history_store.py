@@ -97,6 +97,10 @@ def test_a_corrupt_file_is_moved_aside(tmp_path: Path, caplog: pytest.LogCapture
     store.close()
 
 
+def failing(store: SqliteStore) -> object:
+    return store.failing  # read through a call: mypy would keep an earlier assert's narrowing
+
+
 def test_a_full_disk_drops_and_counts_then_recovers(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     store = SqliteStore.open(tmp_path / "buffer.db")
     store.append("pump", values(0), T)
@@ -105,11 +109,11 @@ def test_a_full_disk_drops_and_counts_then_recovers(tmp_path: Path, caplog: pyte
     big = [("Status/Fault Text", "x" * 20_000, T + 1)]
     store.append("pump", big, T + 1)
     store.append("pump", big, T + 2)
-    assert (len(store), store.buffered, store.dropped) == (1, 1, 2) and store.failing is not None
+    assert (len(store), store.buffered, store.dropped) == (1, 1, 2) and failing(store) is not None
     assert caplog.text.count("store failed") == 1  # logged once per episode
     store.db.execute("PRAGMA max_page_count = 1000000")
     store.append("pump", values(3), T + 3)
-    assert (len(store), store.buffered, store.dropped, store.failing) == (2, 2, 2, None)
+    assert (len(store), store.buffered, store.dropped) == (2, 2, 2) and failing(store) is None
     store.close()
     again = SqliteStore.open(tmp_path / "buffer.db")
     assert (again.buffered, again.dropped) == (2, 2)  # the drops were saved with the next commit

@@ -57,7 +57,7 @@ def test_buffer_survives_kill_and_is_delivered_once_in_order(
     serve: Callable[..., Serve],
 ) -> None:
     host = host_factory(broker.port)
-    host.client.reconnect_delay_set(0.05, 0.2)
+    host.client.reconnect_delay_set(0.05, 0.2)  # type: ignore[arg-type]  # (paho hints int; it takes seconds as float)
     resubscribed = threading.Event()
     host.client.on_subscribe = lambda *_: resubscribed.set()
     common = [
