@@ -127,7 +127,10 @@ def test_issue_fleet_crash_inputs_are_configuration_errors(text: str, message: s
 
 
 def test_fleet_address_p08_resolves_and_a_typo_suggests() -> None:
-    base = '[[bus]]\nname = "a"\nurl = "modbus-rtu:///dev/ttyS9"\n[[bus.device]]\nname = "d"\nmodel = "jjr8000"\naddress = 2\n'
+    base = (
+        '[[bus]]\nname = "a"\nurl = "modbus-rtu:///dev/ttyS9"\n'
+        '[[bus.device]]\nname = "d"\nmodel = "jjr8000"\naddress = 2\n'
+    )
     assert parse_fleet(base + 'parameters = ["p08"]').devices[0].parameters == ("kick_start",)
     with pytest.raises(ConfigurationError, match="did you mean ramp_time"):
         parse_fleet(base + 'parameters = ["ramp_tim"]')
