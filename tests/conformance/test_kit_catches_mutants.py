@@ -14,6 +14,7 @@ import sys
 import textwrap
 import xml.etree.ElementTree as ET
 from collections import defaultdict
+from pathlib import Path
 
 import pytest
 
@@ -23,6 +24,19 @@ pytest_plugins = ["pytester"]
 
 BATCHES = 3
 SOUND = "TestSound"
+
+#: the sub-runs import the kit and the mutants as ``starterbus.tests...``, as tests/conftest.py arranges for the
+#: suite; an installed (not editable) starterbus has no ``tests`` package, so the same arrangement goes first
+IMPORTS = """
+import importlib.util
+import sys
+import types
+
+if importlib.util.find_spec("starterbus.tests") is None:
+    package = types.ModuleType("starterbus.tests")
+    package.__path__ = [{tests!r}]
+    sys.modules["starterbus.tests"] = package
+"""
 
 CONFTEST = """
 import pytest
@@ -103,7 +117,7 @@ def outcomes(junit: str) -> dict[str, dict[str, str]]:
 @pytest.mark.timeout(600)
 def test_the_kit_fails_on_every_mutant_and_passes_the_sound_transport(pytester: pytest.Pytester) -> None:
     assert len(MUTANTS) >= 20 and len({m.name for m in MUTANTS}) == len(MUTANTS)
-    pytester.makeconftest(CONFTEST)
+    pytester.makeconftest(IMPORTS.format(tests=str(Path(__file__).parents[1])) + CONFTEST)
     names = [m.name for m in MUTANTS]
     batches = [names[i::BATCHES] for i in range(BATCHES)]
     running = []
