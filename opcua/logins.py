@@ -27,7 +27,7 @@ from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, Metri
 from prometheus_client.registry import Collector
 
 from starterbus.ops.throttle import Throttle, ThrottlePolicy
-from starterbus.ops.users import DEFAULT_ITERATIONS, UserEntry, hash_password, verify_password
+from starterbus.ops.users import PasswordCheck, UserEntry
 
 security_log = logging.getLogger("starterbus.opcua.security")
 
@@ -77,8 +77,7 @@ class LoginGuard:
         self.checked_on_loop = 0  # verifications asyncua asked for without a precheck (should stay 0)
         self._pending = 0
         self._executor: ThreadPoolExecutor | None = None
-        iterations = [_iterations(u.password_hash) for u in self.users.values()]
-        self._dummy = hash_password("not a password of anybody", iterations=max(iterations, default=DEFAULT_ITERATIONS))
+        self._check = PasswordCheck(self.users)
 
     def close(self) -> None:
         if self._executor is not None:
@@ -111,10 +110,8 @@ class LoginGuard:
         return name, password, self._verify(name, password)
 
     def _verify(self, name: str, password: str | None) -> User | None:
-        entry = self.users.get(name)
-        encoded = entry.password_hash if entry is not None else self._dummy  # the same work for an unknown name
-        ok = verify_password(password or "", encoded)
-        if entry is None or password is None or not ok:
+        entry = self._check.verify(name, password)
+        if entry is None:
             return None
         return User(role=UserRole.User, name=entry.name)  # never Admin: asyncua lets an Admin write past AccessLevel
 
@@ -173,13 +170,6 @@ def _outcome(user: User | None, known: bool) -> str:
     if user is not None:
         return "accepted"
     return "wrong_password" if known else "unknown_user"
-
-
-def _iterations(encoded: str) -> int:
-    try:
-        return int(encoded.split("$")[1])
-    except (IndexError, ValueError):
-        return DEFAULT_ITERATIONS
 
 
 class LoginCollector(Collector):

@@ -71,6 +71,30 @@ def verify_password(password: str, encoded: str) -> bool:
     return hmac.compare_digest(actual, expected)
 
 
+class PasswordCheck:
+    """The users' passwords, checked with the same work for an unknown name (a dummy hash at the users' highest
+    iteration count), so the time a refusal takes does not tell which names exist. Blocking: call it off the
+    event loop."""
+
+    def __init__(self, users: Mapping[str, UserEntry]) -> None:
+        self.users = dict(users)
+        iterations = [_iterations(u.password_hash) for u in self.users.values()]
+        self._dummy = hash_password("not a password of anybody", iterations=max(iterations, default=DEFAULT_ITERATIONS))
+
+    def verify(self, name: str, password: str | None) -> UserEntry | None:
+        """The user ``name`` if ``password`` is theirs, else None."""
+        entry = self.users.get(name)
+        ok = verify_password(password or "", entry.password_hash if entry is not None else self._dummy)
+        return entry if ok and entry is not None and password is not None else None
+
+
+def _iterations(encoded: str) -> int:
+    try:
+        return int(encoded.split("$")[1])
+    except (IndexError, ValueError):
+        return DEFAULT_ITERATIONS
+
+
 def _b64(data: bytes) -> str:
     return base64.b64encode(data).decode("ascii").rstrip("=")
 

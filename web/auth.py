@@ -20,7 +20,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 from starterbus.ops.throttle import Throttle, ThrottlePolicy
-from starterbus.ops.users import DEFAULT_ITERATIONS, Role, UserEntry, hash_password, verify_password
+from starterbus.ops.users import PasswordCheck, Role, UserEntry
 
 security_log = logging.getLogger("starterbus.web.security")
 
@@ -68,8 +68,7 @@ class Auth:
         self.sessions: dict[str, Session] = {}
         self._pending = 0
         self._executor: ThreadPoolExecutor | None = None
-        iterations = [_iterations(u.password_hash) for u in self.users.values()]
-        self._dummy = hash_password("not a password of anybody", iterations=max(iterations, default=DEFAULT_ITERATIONS))
+        self._check = PasswordCheck(self.users)
 
     def close(self) -> None:
         if self._executor is not None:
@@ -113,9 +112,7 @@ class Auth:
         return session
 
     def _verify(self, username: str, password: str) -> bool:  # the worker thread
-        entry = self.users.get(username)
-        ok = verify_password(password, entry.password_hash if entry is not None else self._dummy)
-        return ok and entry is not None
+        return self._check.verify(username, password) is not None
 
     def session(self, session_id: str | None) -> Session | None:
         """The live session of a cookie (None: no cookie, unknown, or expired)."""
@@ -139,10 +136,3 @@ class Auth:
     @staticmethod
     def csrf_ok(session: Session, token: str | None) -> bool:
         return token is not None and hmac.compare_digest(session.csrf.encode(), token.encode())
-
-
-def _iterations(encoded: str) -> int:
-    try:
-        return int(encoded.split("$")[1])
-    except (IndexError, ValueError):
-        return DEFAULT_ITERATIONS

@@ -16,11 +16,11 @@ from starterbus.aio import AsyncFleet
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.fleet.config import parse_fleet
-from starterbus.opcua import logins
 from starterbus.opcua.certs import ensure_certificate
 from starterbus.opcua.logins import LoginCollector, LoginPolicy
 from starterbus.opcua.server import OpcUaServer, OpcUaSettings
 from starterbus.opcua.users import Role, UserEntry, hash_password
+from starterbus.ops import users as users_module
 from starterbus.ops.throttle import Throttle, ThrottlePolicy
 from starterbus.ops.users import verify_password
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
@@ -85,13 +85,13 @@ def test_logins_are_checked_off_the_loop_throttled_and_locked_out(
     policy = LoginPolicy(ThrottlePolicy(backoff_base=1, lockout_after=3, lockout_seconds=600), refusal_delay=0)
     settings = OpcUaSettings("opc.tcp://127.0.0.1:0/sb", pki_dir=tmp_path / "pki", users=users, logins=policy)
     verified: list[tuple[str, int]] = []  # (thread, iterations) of every PBKDF2 the server ran
-    real_verify = verify_password  # the one logins.py calls, spied on below
+    real_verify = verify_password  # the one PasswordCheck calls for logins.py, spied on below
 
     def spy(password: str, encoded: str) -> bool:
         verified.append((threading.current_thread().name, int(encoded.split("$")[1])))
         return real_verify(password, encoded)
 
-    monkeypatch.setattr(logins, "verify_password", spy)
+    monkeypatch.setattr(users_module, "verify_password", spy)
     caplog.set_level(logging.INFO, logger="starterbus.opcua.security")
     url = ""
 
