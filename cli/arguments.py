@@ -1,9 +1,23 @@
 """The options several commands share: a device (URL or fleet name), the fleet file, ``--json`` and the guard
-of anything that writes or actuates (``--yes``, ``--dry-run``, ``--audit-log``)."""
+of anything that writes or actuates (``--yes``, ``--dry-run``, ``--audit-log``), the history options of the
+long-running commands."""
 
 from __future__ import annotations
 
 import argparse
+
+
+def record_args(p: argparse.ArgumentParser, record_help: str) -> None:
+    """``--record DB`` (its help says what the command does with it), ``--keep`` and ``--record-backlog``."""
+    p.add_argument("--record", metavar="DB", help=record_help)
+    p.add_argument("--keep", action="append", metavar="AGE|SIZE", help="history retention: 30d, 12h, 500MB")
+    p.add_argument(
+        "--record-backlog",
+        type=int,
+        default=10_000,
+        metavar="N",
+        help="samples kept in memory while the history cannot be written; older ones are dropped (default 10000)",
+    )
 
 
 def json_flag(p: argparse.ArgumentParser) -> None:

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from starterbus.cli.arguments import record_args
 from starterbus.cli.lifetime import exit_code, until_signalled
 from starterbus.cli.output import emit_json, emit_json_line
 from starterbus.core.errors import ConfigurationError
@@ -70,17 +71,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p.add_argument(
         "--locale", choices=["en", "zh"], default="en", help="language of display names (the other: descriptions)"
     )
-    p.add_argument(
-        "--record", metavar="DB", help="also write samples and events to this SQLite history, served by HistoryRead"
-    )
-    p.add_argument("--keep", action="append", metavar="AGE|SIZE", help="history retention: 30d, 12h, 500MB")
-    p.add_argument(
-        "--record-backlog",
-        type=int,
-        default=10_000,
-        metavar="N",
-        help="samples kept in memory while the history cannot be written; older ones are dropped (default 10000)",
-    )
+    record_args(p, "also write samples and events to this SQLite history, served by HistoryRead")
     p.add_argument("--duration", type=float, metavar="S", help="stop after S seconds (default: until Ctrl-C)")
     p.add_argument(
         "--metrics",

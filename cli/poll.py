@@ -13,6 +13,7 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, TextIO
 
+from starterbus.cli.arguments import record_args
 from starterbus.cli.output import emit_json, table
 from starterbus.fleet.probing import DEFAULT_PROBE_SHARE, DEFAULT_PROBE_TIMEOUT
 
@@ -36,15 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="append every sample to a CSV log (wide: a column per point, ISO 8601 UTC times); - = stdout",
     )
     p.add_argument("--csv-long", action="store_true", help="CSV in long format: one row per value")
-    p.add_argument("--record", metavar="DB", help="write samples and events to this SQLite history (see `history`)")
-    p.add_argument("--keep", action="append", metavar="AGE|SIZE", help="history retention: 30d, 12h, 500MB")
-    p.add_argument(
-        "--record-backlog",
-        type=int,
-        default=10_000,
-        metavar="N",
-        help="samples kept in memory while the history cannot be written; older ones are dropped (default 10000)",
-    )
+    record_args(p, "write samples and events to this SQLite history (see `history`)")
     p.add_argument("--metrics", metavar="HOST:PORT", help="Prometheus endpoint (/metrics), e.g. 127.0.0.1:9477")
     p.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
     p.add_argument("--refresh", type=float, default=0.5, help="table refresh period on a terminal, s")

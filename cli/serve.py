@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from starterbus.cli import serve_web
+from starterbus.cli.arguments import record_args
 from starterbus.cli.lifetime import exit_code, until_signalled
 from starterbus.cli.output import emit_json_line
 from starterbus.core.errors import ConfigurationError
@@ -68,15 +69,7 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p.add_argument(
         "--command-max-bytes", type=int, default=65_536, help="refuse larger NCMD/DCMD payloads, unparsed (bytes)"
     )
-    p.add_argument("--record", metavar="DB", help="also write samples and events to this SQLite history")
-    p.add_argument("--keep", action="append", metavar="AGE|SIZE", help="history retention: 30d, 12h, 500MB")
-    p.add_argument(
-        "--record-backlog",
-        type=int,
-        default=10_000,
-        metavar="N",
-        help="samples kept in memory while the history cannot be written; older ones are dropped (default 10000)",
-    )
+    record_args(p, "also write samples and events to this SQLite history")
     p.add_argument("--primary-host", metavar="ID", help="publish only while this primary host's STATE is online")
     p.add_argument("--metrics", metavar="HOST:PORT", help="Prometheus endpoint, e.g. 127.0.0.1:9477")
     p.add_argument("--opcua", metavar="URL", help="also serve the fleet over OPC UA here, e.g. opc.tcp://0.0.0.0:4840")
