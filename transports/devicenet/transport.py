@@ -205,10 +205,14 @@ class DeviceNetTransport(Transport):
             )
         return sample
 
-    def _explicit_inputs(self, scanner: Scanner, link: SlaveLink) -> InputAssembly:
-        """The input assembly read over explicit messaging (Get_Attribute_Single, attribute 3): no outputs sent."""
+    def _await_explicit(self, scanner: Scanner, link: SlaveLink) -> None:
+        """Give a slave being (re-)allocated up to ``timeout`` to establish its explicit connection."""
         if not link.established:
             scanner.wait_for(lambda: link.established or scanner.machine.link_error(link) is not None, self.timeout)
+
+    def _explicit_inputs(self, scanner: Scanner, link: SlaveLink) -> InputAssembly:
+        """The input assembly read over explicit messaging (Get_Attribute_Single, attribute 3): no outputs sent."""
+        self._await_explicit(scanner, link)
         error = scanner.link_error(link)
         if error is not None:
             raise error
@@ -392,8 +396,7 @@ class DeviceNetTransport(Transport):
     def _identify(self) -> dict[str, object]:
         """Identity object attributes 1-7 (Get_Attribute_Single each; the product name is fragmented)."""
         scanner, link = self._require()
-        if not link.established:
-            scanner.wait_for(lambda: link.established or scanner.machine.link_error(link) is not None, self.timeout)
+        self._await_explicit(scanner, link)
         raw: dict[int, bytes] = {}
         for attribute in sorted(ATTRIBUTE_NAMES):
             request = ExplicitRequest(
