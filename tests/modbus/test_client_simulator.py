@@ -19,7 +19,7 @@ from starterbus.core.simulator import Phase, SimulatedStarter
 from starterbus.core.status import MotorState
 from starterbus.transports.modbus.client import LINES, ModbusRtuTransport
 from starterbus.transports.modbus.crc import append_crc
-from starterbus.transports.modbus.frames import ReadRequest, ReadResponse
+from starterbus.transports.modbus.frames import ReadRequest, ReadResponse, WriteRequest
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 
 if TYPE_CHECKING:
@@ -171,6 +171,23 @@ def test_slave_answers_raw_frames_as_the_manual_says(make_sim: SimFactory) -> No
     finally:
         raw.close()
     assert sim.counters.errors == 2  # the bad CRC and the garbage
+
+
+def test_requests_found_waiting_together_get_one_answer_the_last(make_sim: SimFactory) -> None:
+    """A simulator held up (a loaded machine) finds the master's retry behind the request it gave up on: it acts
+    on both, answers the last only, so no answer arrives in a later request's wait."""
+    sim = make_sim("jjr5000", units=(2,))
+    starter = sim.starters[2]
+    rated = starter.params["motor_rated_current"]
+    raw = RawClient(sim.client_path)
+    try:
+        write = WriteRequest(2, 0x0100, rated - 1).encode()
+        read = ReadRequest(2, 0x0100, 1).encode()
+        assert raw.ask(write + read) == ReadResponse(2, (rated - 1,)).encode()
+        assert raw.ask(read + read) == ReadResponse(2, (rated - 1,)).encode()
+    finally:
+        raw.close()
+    assert sim.counters.overtaken == 2 and sim.counters.requests == 4
 
 
 def test_jjr8000_commands_need_the_bus_control_bit(make_sim: SimFactory) -> None:

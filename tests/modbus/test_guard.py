@@ -26,16 +26,30 @@ def test_a_fault_quarantines_and_stray_bytes_restart_it() -> None:
     assert guard.send_wait(10.5) == pytest.approx(0.0)
 
 
-def test_a_delivered_answer_ends_the_quarantine_after_its_silence() -> None:
+def test_the_first_answer_after_a_failure_is_quarantined_then_the_line_is_healthy() -> None:
+    """Rule 6: a late answer to the failed request may still follow the first answer delivered after it."""
     guard = LineGuard(SILENCE)
     guard.failed(1.0, 0.5)
     guard.sent(1.6)
     assert guard.answer_complete(8, b"x" * 7, 1.61) is None
     assert guard.trail_until == pytest.approx(1.61 + SILENCE)
     guard.delivered(b"x" * 7)
-    assert not guard.quarantined and guard.send_wait(1.61 + SILENCE) == pytest.approx(0.0)
-    guard.stray(b"\x00", 2.0, 0.2)  # noise on a healthy line: quarantined again
-    assert guard.hold == 0.2 and guard.send_wait(2.0) == pytest.approx(0.2)
+    assert guard.hold == 0.5 and guard.send_wait(1.61) == pytest.approx(0.5)
+    guard.sent(2.2)
+    assert guard.answer_complete(8, b"y" * 7, 2.21) is None
+    guard.delivered(b"y" * 7)
+    assert not guard.quarantined and guard.send_wait(2.21 + SILENCE) == pytest.approx(0.0)
+    guard.stray(b"\x00", 3.0, 0.2)  # noise on a healthy line: quarantined again
+    assert guard.hold == 0.2 and guard.send_wait(3.0) == pytest.approx(0.2)
+
+
+def test_stray_bytes_before_a_request_quarantine_the_answer_after_it() -> None:
+    guard = LineGuard(SILENCE)
+    guard.stray(b"\x00", 1.0, 0.2)
+    guard.sent(1.3)
+    assert guard.answer_complete(8, b"x" * 7, 1.31) is None
+    guard.delivered(b"x" * 7)
+    assert guard.send_wait(1.31) == pytest.approx(0.2)
 
 
 def test_an_answer_faster_than_the_wire_is_refused() -> None:

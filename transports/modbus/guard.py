@@ -25,6 +25,11 @@ the guard the times (monotonic seconds) and the bytes it saw:
    on every delivered answer is followed by :data:`REPEAT_HOLD` quarantines (from its last byte; any byte
    restarts it, a repeat seen in it renews the rule), until :data:`CLEAN_ANSWERS` answers in a row came with no
    stray byte and no failure.
+6. **The first answer after a fault is quarantined too.** A late answer to a failed request that comes after
+   the quarantine is taken for the next request's answer, and that request's own answer then follows it:
+   the first answer delivered after a failure or stray bytes is followed by the quarantine in force, so such
+   an answer is a stray there (and, with the bytes of the answer just delivered, a repeat: rule 5) instead of
+   the answer to the request after it.
 
 Nothing here reads a clock or does I/O; the tests drive it with explicit times.
 """
@@ -187,12 +192,17 @@ class LineGuard:
     def delivered(self, answer: bytes) -> None:
         """``answer`` was followed by silence until :attr:`trail_until`: the line is healthy again (or, while it
         is suspect of repeating answers, quarantined from the answer's last byte: rule 5)."""
+        troubled, held = self.stray_seen, self.hold
         self.quiet_at = self.checked_at = self.trail_until
         self.hold = 0.0
         self.healthy = True
         self.answers.append(answer)
         if self.repeat_hold:
             self._quarantine_after_answer()
+        elif troubled:  # rule 6: a late answer to what failed may still follow this one
+            self.stray_seen = False
+            self.hold = held
+            self.quiet_at = self.trail_until - self.silence + held
 
     def _quarantine_after_answer(self) -> None:
         if self.stray_seen:

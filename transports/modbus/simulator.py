@@ -73,6 +73,7 @@ class SlaveCounters:
     requests: int = 0
     answers: int = 0
     ignored: int = 0  # other units, broadcasts
+    overtaken: int = 0  # not answered: a later request was already waiting (see ModbusRtuSimulator._answer)
     errors: int = 0  # bad CRC, truncated, garbage
     last_errors: list[str] = field(default_factory=list)
 
@@ -324,6 +325,7 @@ class ModbusRtuSimulator(RunningSimulator):
                 if request is not None:
                     self._answer(ep, request, last_rx)
                 continue
+            waiting: AnyRequest | None = None  # requests found waiting together: only the last is answered
             while True:
                 try:
                     event = receiver.next_event()
@@ -334,7 +336,11 @@ class ModbusRtuSimulator(RunningSimulator):
                     break
                 if event is NEED_DATA:
                     break
-                self._answer(ep, event, last_rx)
+                if waiting is not None:
+                    self._answer(ep, waiting, last_rx, overtaken=True)
+                waiting = event
+            if waiting is not None:
+                self._answer(ep, waiting, last_rx)
 
     def client_settings_match(self) -> bool:
         """True unless ``strict_line`` and the client's tty is set to another speed or stop bits, or
@@ -350,7 +356,10 @@ class ModbusRtuSimulator(RunningSimulator):
             and parity in (None, settings.parity)
         )
 
-    def _answer(self, ep: _Endpoint, request: AnyRequest, last_rx: float) -> None:
+    def _answer(self, ep: _Endpoint, request: AnyRequest, last_rx: float, overtaken: bool = False) -> None:
+        """Acts on ``request`` and answers it, unless ``overtaken``: a later request was already waiting behind
+        it (this thread was held up, e.g. on a loaded machine), so the master has given up on it and its answer
+        would only arrive in the later request's wait. It is acted on, but not answered."""
         if not self.client_settings_match():
             self._error(f"{ep.name}: the client's line settings are not {self.settings.describe()}: garbage")
             return
@@ -367,6 +376,10 @@ class ModbusRtuSimulator(RunningSimulator):
             self.counters.ignored += 1
             return
         if fault is not None and not fault.answer:
+            return
+        if overtaken:
+            self.counters.overtaken += 1
+            self._note("overtaken", response.encode())
             return
         frame = response.encode() * (fault.copies if fault is not None else 1)
         delay = last_rx + self.settings.silence - time.monotonic() + (fault.delay if fault is not None else 0.0)
