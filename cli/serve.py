@@ -74,7 +74,9 @@ def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted:
     p.add_argument("--metrics", metavar="HOST:PORT", help="Prometheus endpoint, e.g. 127.0.0.1:9477")
     p.add_argument("--opcua", metavar="URL", help="also serve the fleet over OPC UA here, e.g. opc.tcp://0.0.0.0:4840")
     p.add_argument("--opcua-users", metavar="FILE", help="OPC UA users file (see `starterbus opcua-user`)")
-    p.add_argument("--opcua-pki", metavar="DIR", default="pki", help="OPC UA server certificate directory")
+    p.add_argument(
+        "--opcua-pki", metavar="DIR", default="opcua-pki", help="OPC UA server PKI directory (default %(default)s)"
+    )
     p.add_argument("--opcua-anonymous", action="store_true", help="let anonymous OPC UA clients read (never write)")
     p.add_argument("--opcua-allow-insecure", action="store_true", help="also offer OPC UA security None (trials only)")
     p.add_argument(

@@ -2,7 +2,7 @@
 
 ```python
 async with AsyncFleet(load_fleet("fleet.toml")) as fleet:
-    async with OpcUaServer(fleet, OpcUaSettings("opc.tcp://0.0.0.0:4840", pki_dir="pki", users=users)):
+    async with OpcUaServer(fleet, OpcUaSettings("opc.tcp://0.0.0.0:4840", pki_dir="opcua-pki", users=users)):
         await asyncio.Event().wait()
 ```
 
@@ -85,7 +85,7 @@ class OpcUaSettings:
     """
 
     endpoint: str = "opc.tcp://0.0.0.0:4840/starterbus"
-    pki_dir: Path | str = "pki"
+    pki_dir: Path | str = "opcua-pki"
     users: Mapping[str, UserEntry] = field(default_factory=dict)
     anonymous: bool = False
     allow_insecure: bool = False
