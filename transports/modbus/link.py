@@ -244,6 +244,14 @@ class Link:
             self._close()
 
 
+#: pyserial lets termios.error (no OSError) out of its last tcsetattr: a pty refusing a parity change, say
+_TERMIOS_ERRORS: tuple[type[Exception], ...] = ()
+if sys.platform != "win32":
+    import termios
+
+    _TERMIOS_ERRORS = (termios.error,)
+
+
 def open_pyserial(target: str, settings: SerialSettings, *, url: bool = False) -> serial.SerialBase:
     """A pyserial port: a device path / COM port (opened exclusively), or with ``url`` a pyserial URL."""
     import serial
@@ -257,7 +265,7 @@ def open_pyserial(target: str, settings: SerialSettings, *, url: bool = False) -
             port: serial.SerialBase = serial.serial_for_url(target, **options)
         else:
             port = serial.Serial(port=device_name(target), exclusive=True, **options)
-    except (serial.SerialException, ValueError, OSError, ImportError) as exc:
+    except (serial.SerialException, ValueError, OSError, ImportError, *_TERMIOS_ERRORS) as exc:
         hint = " (COM ports exist on Windows)" if com_port(target) and sys.platform != "win32" else ""
         raise TransportError(f"cannot open serial port {target} ({settings.describe()}){hint}: {exc}") from exc
     return port
