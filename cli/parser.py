@@ -118,7 +118,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
         guard_args(p)
         p.set_defaults(handler=_handler("device_cmds", "cmd_command"), command=name)
 
-    wants = argv[0] if argv else ""
+    wants = next((arg for arg in argv if not arg.startswith("-")), "")  # global options (-v) take no value
     for name, module, setup, help_text in (
         ("simulate", "simulate", "add_arguments", "serve simulated soft starters behind protocol front ends"),
         ("decode", "decode", "add_subparsers", "annotate frames/telegrams of a protocol"),
