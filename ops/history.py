@@ -225,15 +225,25 @@ class HistoryStore:
         since: float | None = None,
         until: float | None = None,
         kind: str | None = None,
+        after: int | None = None,
+        limit: int | None = None,
     ) -> list[dict[str, Any]]:
+        """In time order; ``after``: only those written after event id ``after`` (ids grow as events are
+        written, whatever their time); ``limit``: the last ``limit`` of them."""
         where, params = _filters(device, since, until)
         if kind is not None:
             where += (" AND" if where else " WHERE") + " kind = ?"
             params.append(kind)
+        if after is not None:
+            where += (" AND" if where else " WHERE") + " id > ?"
+            params.append(after)
+        sql = f"SELECT {', '.join(EVENT_COLUMNS)} FROM events{where}"
+        if limit is None:
+            sql += " ORDER BY time, id"
+        else:
+            sql = f"SELECT * FROM ({sql} ORDER BY time DESC, id DESC LIMIT {int(limit)}) ORDER BY time, id"
         with self.lock:
-            rows = self.conn.execute(
-                f"SELECT {', '.join(EVENT_COLUMNS)} FROM events{where} ORDER BY time, id", params
-            ).fetchall()
+            rows = self.conn.execute(sql, params).fetchall()
         out = [dict(zip(EVENT_COLUMNS, r, strict=True)) for r in rows]
         for row in out:
             row["detail"] = json.loads(row["detail"] or "{}")

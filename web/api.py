@@ -30,7 +30,7 @@ from starterbus.core.errors import (
 from starterbus.core.guarded import GuardedOperationError
 from starterbus.core.registry import get_profile
 from starterbus.web import devices
-from starterbus.web.actions import COMMANDS, restore_device
+from starterbus.web.actions import COMMANDS
 from starterbus.web.auth import COOKIE, Auth, LoginRefused, Session
 from starterbus.web.settings import WebSettings
 from starterbus.web.view import FleetView
@@ -68,7 +68,6 @@ def add_routes(app: web.Application) -> None:
     r.add_get("/api/devices/{name}/history", device_history)
     r.add_post("/api/devices/{name}/command", device_command)
     r.add_post("/api/devices/{name}/write", device_write)
-    r.add_post("/api/devices/{name}/restore", device_restore)
 
 
 def _server(request: web.Request) -> ServerView:
@@ -154,6 +153,13 @@ async def _json_body(request: web.Request) -> dict[str, Any]:
         body = await request.json()
     except ValueError:
         body = None
+    except web.HTTPRequestEntityTooLarge as exc:  # aiohttp's own refusal is text; every error here is JSON
+        raise web.HTTPRequestEntityTooLarge(
+            max_size=request.client_max_size,
+            actual_size=request.content_length or 0,
+            text=json.dumps({"error": f"the request is larger than {request.client_max_size // 1024} kB"}),
+            content_type="application/json",
+        ) from exc
     if not isinstance(body, dict):
         raise web.HTTPBadRequest(text='{"error": "the body must be a JSON object"}', content_type="application/json")
     return body
@@ -257,7 +263,11 @@ async def _in_thread(fn: Callable[[], object]) -> web.Response:
 async def device_events(request: web.Request) -> web.Response:
     name, db = _name(request), _history(request)
     since = _float(request, "since")
-    return await _in_thread(lambda: devices.events(db, name, since))
+    after = request.query.get("after")
+    if after is not None and not (after.isascii() and after.isdigit()):
+        return _error(400, f"after={after!r}: not an event id")
+    last = int(after) if after is not None else None
+    return await _in_thread(lambda: devices.events(db, name, since, last))
 
 
 async def device_starts(request: web.Request) -> web.Response:
@@ -334,15 +344,5 @@ async def device_write(request: web.Request) -> web.Response:
                 raise ValidationError(f"{key}: {value!r} is not a number or a text")
         fleet = _server(request).fleet
         return await fleet.remote_write(name, values, actor=f"web:{session.user}")
-
-    return await _act(request, run)
-
-
-async def device_restore(request: web.Request) -> web.Response:
-    async def run(name: str, session: Session, body: dict[str, Any]) -> list[Any]:
-        text = body.get("backup")
-        if not isinstance(text, str):
-            raise ValidationError("backup: give the backup file's text")
-        return await restore_device(_server(request).fleet, name, text, actor=f"web:{session.user}")
 
     return await _act(request, run)

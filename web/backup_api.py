@@ -1,23 +1,30 @@
-"""The backup part of the JSON API: download a device's backup, and its diff against the defaults or a file.
+"""The backup part of the JSON API: download a device's backup, its diff against the defaults or a file, and
+the restore of a file.
 
-Both read every parameter of the device now (a job in its bus worker, between polls); both are reads, open to
-every visitor as the rest of the device page is. An uploaded file is checked before the device is read: at most
-:data:`MAX_UPLOAD` bytes, UTF-8 (``core.textinput``'s decoder), a backup of a known model (``ops.backup.loads``);
-any problem is one line naming the file.
+The download and the diff read every parameter of the device now (a job in its bus worker, between polls); both
+are reads, open to every visitor as the rest of the device page is. An uploaded file is checked before the
+device is read: at most :data:`MAX_UPLOAD` bytes, UTF-8 (``core.textinput``'s decoder), a backup of a known
+model (``ops.backup.loads``); any problem is one line naming the file. A restore is an operator's action (the
+checks of :func:`starterbus.web.api._act`), of a text of at most :data:`MAX_UPLOAD` bytes too.
 """
 
 from __future__ import annotations
 
+import json
+from typing import Any
+
 from aiohttp import web
 
 from starterbus.core.device import Device
-from starterbus.core.errors import StarterbusError, UnsupportedOperationError
+from starterbus.core.errors import StarterbusError, UnsupportedOperationError, ValidationError
 from starterbus.core.registry import get_profile
 from starterbus.core.textinput import decode_text
 from starterbus.ops import backup as backups
 from starterbus.ops import diff
 from starterbus.web import devices
-from starterbus.web.api import _error, _name, _server
+from starterbus.web.actions import restore_device
+from starterbus.web.api import _act, _error, _name, _server
+from starterbus.web.auth import Session
 
 MAX_UPLOAD = 256 * 1024  # a backup file is a few kB; anything far larger is not one
 
@@ -25,6 +32,7 @@ MAX_UPLOAD = 256 * 1024  # a backup file is a few kB; anything far larger is not
 def add_routes(app: web.Application) -> None:
     app.router.add_get("/api/devices/{name}/backup", device_backup)
     app.router.add_post("/api/devices/{name}/diff", device_diff)
+    app.router.add_post("/api/devices/{name}/restore", device_restore)
 
 
 async def _read_now(request: web.Request, name: str) -> tuple[backups.Backup, str] | web.Response:
@@ -105,3 +113,25 @@ async def device_diff(request: web.Request) -> web.Response:
             "diff": [row.as_json() for row in diff.compare(file_side, device_side)],
         }
     )
+
+
+async def device_restore(request: web.Request) -> web.Response:
+    """``POST {"backup": "TEXT OF THE FILE"}`` (an operator): the differing, allowed parameters written."""
+
+    async def run(name: str, session: Session, body: dict[str, Any]) -> list[Any]:
+        text = body.get("backup")
+        if not isinstance(text, str):
+            raise ValidationError("backup: give the backup file's text")
+        size = len(text.encode("utf-8", "surrogatepass"))
+        if size > MAX_UPLOAD:
+            raise web.HTTPRequestEntityTooLarge(
+                max_size=MAX_UPLOAD,
+                actual_size=size,
+                text=json.dumps(
+                    {"error": f"the backup: larger than {MAX_UPLOAD // 1024} kB, not a backup file; nothing sent"}
+                ),
+                content_type="application/json",
+            )
+        return await restore_device(_server(request).fleet, name, text, actor=f"web:{session.user}")
+
+    return await _act(request, run)

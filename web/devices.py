@@ -107,10 +107,14 @@ def _open(db: Path) -> HistoryStore:
     return HistoryStore(db, create=False)
 
 
-def events(db: Path, device: str, since: float | None, limit: int = 500) -> list[dict[str, Any]]:
+def events(
+    db: Path, device: str, since: float | None, after: int | None = None, limit: int = 500
+) -> list[dict[str, Any]]:
+    """The device's last ``limit`` events (since time ``since``; written after event id ``after``: what a page
+    that shows the events up to ``after`` has not seen, even an event of an earlier time written late)."""
     with _open(db) as store:
-        rows = store.events(device=device, since=since)
-    return [_jsonable_event(e) for e in rows[-limit:]]
+        rows = store.events(device=device, since=since, after=after, limit=limit)
+    return [_jsonable_event(e) for e in rows]
 
 
 def _jsonable_event(event: Mapping[str, Any]) -> dict[str, Any]:

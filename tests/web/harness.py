@@ -23,7 +23,7 @@ from starterbus.aio import AsyncFleet
 from starterbus.cli.opcua_cmd import demo_remote
 from starterbus.core.audit import ENV_VAR, AuditLog
 from starterbus.fleet.demo import DemoFleet, start_demo_fleet
-from starterbus.ops.recorder import HistoryRecorder
+from starterbus.ops.recorder import for_fleet
 from starterbus.ops.throttle import Throttle
 from starterbus.ops.users import Role, UserEntry, hash_password
 from starterbus.web.server import WebServer
@@ -74,11 +74,12 @@ def web_demo(tmp: Path, *, period: float = 0.5, **settings: Any) -> Iterator[Web
     async def main() -> None:
         demo = await asyncio.to_thread(start_demo_fleet, period)
         try:
-            recorder = HistoryRecorder(history, audit=AuditLog(audit))
+            config = demo_remote(demo.config)
+            recorder = for_fleet(history, config)  # as serve's: audit records named by the fleet's device names
             options = {"users": USERS, "history": history, "host": "127.0.0.1", "port": 0, **settings}
             try:
                 async with (
-                    AsyncFleet(demo_remote(demo.config), sink=recorder) as fleet,
+                    AsyncFleet(config, sink=recorder) as fleet,
                     WebServer(fleet, WebSettings(**options)) as web,
                 ):
                     box["demo"] = WebDemo(web.url, demo, fleet, web, audit, history, loop)
