@@ -56,6 +56,15 @@ class SampleStream:
             if sample is not None:
                 return sample
 
+    def drain(self) -> list[Sample]:
+        """The samples waiting in the stream, taken without waiting for more."""
+        waiting = []
+        while not self._queue.empty():
+            sample = self._queue.get_nowait()
+            if sample is not None:
+                waiting.append(sample)
+        return waiting
+
     def close(self) -> None:
         if self._queue in self._fleet._subscribers:
             self._fleet._subscribers.remove(self._queue)
@@ -152,8 +161,14 @@ class AsyncFleet:
         return self
 
     async def __aexit__(self, *exc: object) -> None:
+        await self.stop_polling()
+
+    async def stop_polling(self) -> None:
+        """Stop polling and wait until every bus is done (again: nothing more happens). Then every sample polled is
+        in the subscribers' streams: a service stopping on request publishes or stores them before it goes."""
         if self.poller is not None:
             await asyncio.to_thread(self.poller.stop)
+        await asyncio.sleep(0)  # the hand-overs the buses made before they ended come first
 
     def _on_sample(self, sample: Sample) -> None:  # a bus thread
         try:

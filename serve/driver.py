@@ -258,11 +258,25 @@ class EdgeNodeDriver:
     async def _samples(self) -> None:
         try:
             async for sample in self._stream:
-                if self.on_sample is not None:
-                    self.on_sample(sample)
-                self._apply(self.session.on_sample(sample, time.time()))
+                self._take(sample)
         finally:
             self._stream.close()
+
+    def _take(self, sample: Sample) -> None:
+        if self.on_sample is not None:
+            self.on_sample(sample)
+        self._apply(self.session.on_sample(sample, time.time()))
+
+    async def _last_samples(self, consumer: asyncio.Task[None]) -> None:
+        """A requested stop: polling ends first, then what it polled last is published (or stored, while no broker
+        is connected) before the NDEATH: a stop loses no sample that was polled (and recorded)."""
+        stop_polling = getattr(self.fleet, "stop_polling", None)  # a stand-in for the fleet may have none
+        if stop_polling is not None:
+            await stop_polling()
+        consumer.cancel()  # between samples: it waits for the next one
+        await asyncio.gather(consumer, return_exceptions=True)
+        for sample in self._stream.drain():
+            self._take(sample)
 
     async def _ticks(self) -> None:
         while True:
@@ -378,6 +392,8 @@ class EdgeNodeDriver:
         stopped, died = asyncio.create_task(stop.wait()), asyncio.create_task(failed.wait())
         try:
             await asyncio.wait([stopped, died, *jobs], return_when=asyncio.FIRST_COMPLETED)
+            if stopped.done() and not died.done() and not any(job.done() for job in jobs):
+                await self._last_samples(jobs[0])
         finally:
             for job in (*jobs, stopped, died):
                 job.cancel()
