@@ -89,17 +89,21 @@ def _name(request: web.Request) -> str:
 
 
 async def fleet(request: web.Request) -> web.Response:
-    return web.json_response(_server(request).view.snapshot())
+    response = web.Response(text=_server(request).view.snapshot_json(), content_type="application/json")
+    response.enable_compression()  # 200 kB for 1000 devices, 15 kB gzipped; when the browser accepts it
+    return response
 
 
 async def stream(request: web.Request) -> web.StreamResponse:
-    """Server-sent events: ``snapshot`` first, then ``update`` with the changed rows every interval."""
+    """Server-sent events: ``snapshot`` first, then ``update`` with the changed rows every interval. A page that
+    has the rows as of an event id (``?after=ID``, or ``Last-Event-ID`` when the browser reconnects) starts with
+    only the rows changed since."""
     view = _server(request).view
     response = web.StreamResponse(
         headers={"Content-Type": "text/event-stream", "Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
     )
     await response.prepare(request)
-    queue = view.subscribe()
+    queue = view.subscribe(request.headers.get("Last-Event-ID") or request.query.get("after"))
     try:
         await response.write(b"retry: 2000\n\n")
         while True:

@@ -2,8 +2,11 @@
 
 :class:`FleetView` consumes :meth:`AsyncFleet.samples` on the event loop, keeps the last sample of each device
 and which devices changed, and every ``interval`` encodes the changed rows once as a server-sent event that
-every connected page receives (one encoding, whatever the number of pages). A page that cannot keep up (its
-queue is full) is disconnected; its ``EventSource`` reconnects and starts again from a snapshot.
+every connected page receives (one encoding, whatever the number of pages; each row is encoded once when it
+changes, and snapshots are joined from those texts). Every event carries an id (``EPOCH-SEQ``): a page that has
+the rows as of an id (from ``/api/fleet``, or the last event before its connection broke) continues from it and
+receives only the rows changed since, as long as the view still knows them (the last ``history`` refreshes), else
+a snapshot. A page that cannot keep up (its queue is full) is disconnected; its ``EventSource`` reconnects so.
 """
 
 from __future__ import annotations
@@ -11,8 +14,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import secrets
 import time
-from collections.abc import AsyncIterator, Callable, Mapping
+from collections import deque
+from collections.abc import AsyncIterator, Callable, Iterable, Mapping
 from typing import Any
 
 from starterbus.core.errors import StarterbusError
@@ -75,6 +80,7 @@ class FleetView:
         *,
         interval: float = 0.5,
         queue_size: int = 64,
+        history: int = 32,
         clock: Callable[[], float] = time.time,
     ) -> None:
         self.config = config
@@ -90,6 +96,10 @@ class FleetView:
         self._clients: set[asyncio.Queue[bytes | None]] = set()
         self.events_sent = 0
         self.clients_dropped = 0
+        self.epoch = secrets.token_hex(4)  # event ids of another process (a restarted server) are not ours
+        self.seq = 0
+        self._changes: deque[tuple[int, frozenset[str]]] = deque(maxlen=history)
+        self._json: dict[str, str] = {}
         for device in config.devices:  # every configured device is on the page before its first poll
             self.rows[device.name] = {
                 "name": device.name,
@@ -103,6 +113,7 @@ class FleetView:
                 "offline_since": None,
                 "error": None,
             }
+            self._json[device.name] = _encode(self.rows[device.name])
 
     # -- in ------------------------------------------------------------------------------------------------
 
@@ -123,15 +134,25 @@ class FleetView:
 
     # -- out -----------------------------------------------------------------------------------------------
 
-    def _refresh(self) -> list[dict[str, Any]]:
-        changed = []
-        for name in self._dirty:
+    def _refresh(self) -> list[str]:
+        """Make the rows of the devices sampled since the last refresh (each encoded once); their names."""
+        if not self._dirty:
+            return []
+        changed = list(self._dirty)
+        for name in changed:
             sample = self.samples[name]
             row = device_row(sample, _profile(sample.model, self._profiles), self._offline_since.get(name))
             self.rows[name] = row
-            changed.append(row)
+            self._json[name] = _encode(row)
         self._dirty.clear()
+        self.seq += 1
+        self._changes.append((self.seq, frozenset(changed)))
         return changed
+
+    @property
+    def event_id(self) -> str:
+        """Names the rows as they are now: the stream continues from it (``/api/stream?after=ID``)."""
+        return f"{self.epoch}-{self.seq}"
 
     def line_rows(self) -> list[dict[str, Any]]:
         stats = self.lines() if self.lines is not None else {}
@@ -148,19 +169,34 @@ class FleetView:
             )
         return out
 
+    def _payload(self, names: Iterable[str], with_id: bool) -> str:
+        """``{"now", "devices", "lines"}`` (and ``"id"``) as JSON text, from the rows encoded once each."""
+        rows = ",".join(self._json[name] for name in names)
+        head = f'{{"id":{_encode(self.event_id)},' if with_id else "{"
+        return f'{head}"now":{_encode(self.clock())},"devices":[{rows}],"lines":{_encode(self.line_rows())}}}'
+
     def snapshot(self) -> dict[str, Any]:
         self._refresh_into_rows()
-        return {"now": self.clock(), "devices": list(self.rows.values()), "lines": self.line_rows()}
+        return {
+            "id": self.event_id,
+            "now": self.clock(),
+            "devices": list(self.rows.values()),
+            "lines": self.line_rows(),
+        }
+
+    def snapshot_json(self) -> str:
+        """:meth:`snapshot` as JSON text, cheaply: every row was encoded when it changed."""
+        self._refresh_into_rows()
+        return self._payload(self.rows, with_id=True)
 
     def _refresh_into_rows(self) -> None:
         if self._dirty:
             self._broadcast(self._refresh())
 
-    def _broadcast(self, changed: list[dict[str, Any]]) -> None:
+    def _broadcast(self, changed: list[str]) -> None:
         if not self._clients:
             return
-        payload = {"now": self.clock(), "devices": changed, "lines": self.line_rows()}
-        message = sse("update", payload)
+        message = sse("update", self._payload(changed, with_id=False), self.event_id)
         self.events_sent += 1
         for queue in list(self._clients):
             try:
@@ -170,7 +206,7 @@ class FleetView:
                 self._clients.discard(queue)
                 with contextlib.suppress(asyncio.QueueFull):
                     queue.get_nowait()
-                    queue.put_nowait(None)  # tells the stream to end; the page reconnects with a snapshot
+                    queue.put_nowait(None)  # tells the stream to end; the page reconnects from its last event id
 
     def flush(self) -> None:
         """Send what changed since the last flush (the line utilisation at least, as a heartbeat)."""
@@ -182,10 +218,31 @@ class FleetView:
                 await asyncio.wait_for(stop.wait(), self.interval)
             self.flush()
 
-    def subscribe(self) -> asyncio.Queue[bytes | None]:
-        """A new page: its queue starts with the snapshot."""
+    def changed_since(self, event_id: str) -> list[str] | None:
+        """The devices whose rows changed after ``event_id``; None if it is not known here (another process, or
+        older than the changes kept): then only a snapshot will do."""
+        epoch, _, number = event_id.partition("-")
+        if epoch != self.epoch or not number.isdigit() or int(number) > self.seq:
+            return None
+        after = int(number)
+        if after < self.seq and (not self._changes or self._changes[0][0] > after + 1):
+            return None
+        names: set[str] = set()
+        for seq, changed in self._changes:
+            if seq > after:
+                names |= changed
+        return sorted(names)
+
+    def subscribe(self, after: str | None = None) -> asyncio.Queue[bytes | None]:
+        """A new page: its queue starts with the snapshot or, for a page that has the rows as of event ``after``
+        (from ``/api/fleet``, or its stream's last event before a reconnection), with only what changed since."""
+        self._refresh_into_rows()
         queue: asyncio.Queue[bytes | None] = asyncio.Queue(self.queue_size)
-        queue.put_nowait(sse("snapshot", self.snapshot()))
+        changed = self.changed_since(after) if after else None
+        if changed is None:
+            queue.put_nowait(sse("snapshot", self._payload(self.rows, with_id=True), self.event_id))
+        elif changed:
+            queue.put_nowait(sse("update", self._payload(changed, with_id=False), self.event_id))
         self._clients.add(queue)
         return queue
 
@@ -197,7 +254,11 @@ class FleetView:
         return len(self._clients)
 
 
-def sse(event: str, payload: object) -> bytes:
-    """One server-sent event (``data`` is one line of compact JSON)."""
-    data = json.dumps(payload, ensure_ascii=False, separators=(",", ":"))
-    return f"event: {event}\ndata: {data}\n\n".encode()
+def _encode(value: object) -> str:
+    return json.dumps(value, ensure_ascii=False, separators=(",", ":"))
+
+
+def sse(event: str, data: str, event_id: str | None = None) -> bytes:
+    """One server-sent event (``data`` is one line: compact JSON); with ``id`` the browser reconnects from it."""
+    head = f"id: {event_id}\n" if event_id is not None else ""
+    return f"{head}event: {event}\ndata: {data}\n\n".encode()

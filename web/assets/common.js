@@ -183,10 +183,12 @@ const SB = (() => {
   }
 
   // -- server-sent events ---------------------------------------------------------------------------------
-  function stream(onSnapshot, onUpdate) {
+  // url: "/api/stream?after=ID" continues from the rows of a snapshot with that id (only what changed since)
+  function stream(onSnapshot, onUpdate, url) {
     const conn = document.getElementById("conn");
-    const source = new EventSource("/api/stream");
-    source.addEventListener("snapshot", (e) => { if (conn) conn.textContent = t("live"); onSnapshot(JSON.parse(e.data)); });
+    const source = new EventSource(url || "/api/stream");
+    source.addEventListener("open", () => { if (conn) conn.textContent = t("live"); });
+    source.addEventListener("snapshot", (e) => onSnapshot(JSON.parse(e.data)));
     source.addEventListener("update", (e) => onUpdate(JSON.parse(e.data)));
     source.addEventListener("error", () => { if (conn) conn.textContent = t("reconnecting"); });
     return source;
