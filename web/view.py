@@ -2,11 +2,11 @@
 
 :class:`FleetView` consumes :meth:`AsyncFleet.samples` on the event loop, keeps the last sample of each device
 and which devices changed, and every ``interval`` encodes the changed rows once as a server-sent event that
-every connected page receives (one encoding, whatever the number of pages; each row is encoded once when it
-changes, and snapshots are joined from those texts). Every event carries an id (``EPOCH-SEQ``): a page that has
-the rows as of an id (from ``/api/fleet``, or the last event before its connection broke) continues from it and
-receives only the rows changed since, as long as the view still knows them (the last ``history`` refreshes), else
-a snapshot. A page that cannot keep up (its queue is full) is disconnected; its ``EventSource`` reconnects so.
+every connected page receives (one encoding, whatever the number of pages). Every event carries an id
+(``EPOCH-SEQ``): a page that has the rows as of an id (from ``/api/fleet``, or the last event before its
+connection broke) continues from it and receives only the rows changed since, as long as the view still knows
+them (the last ``history`` refreshes), else a snapshot. A page that cannot keep up (its queue is full) is
+disconnected; its ``EventSource`` reconnects so.
 """
 
 from __future__ import annotations
@@ -99,7 +99,6 @@ class FleetView:
         self.epoch = secrets.token_hex(4)  # event ids of another process (a restarted server) are not ours
         self.seq = 0
         self._changes: deque[tuple[int, frozenset[str]]] = deque(maxlen=history)
-        self._json: dict[str, str] = {}
         for device in config.devices:  # every configured device is on the page before its first poll
             self.rows[device.name] = {
                 "name": device.name,
@@ -113,7 +112,6 @@ class FleetView:
                 "offline_since": None,
                 "error": None,
             }
-            self._json[device.name] = _encode(self.rows[device.name])
 
     # -- in ------------------------------------------------------------------------------------------------
 
@@ -135,7 +133,7 @@ class FleetView:
     # -- out -----------------------------------------------------------------------------------------------
 
     def _refresh(self) -> list[str]:
-        """Make the rows of the devices sampled since the last refresh (each encoded once); their names."""
+        """Make the rows of the devices sampled since the last refresh; their names."""
         if not self._dirty:
             return []
         changed = list(self._dirty)
@@ -143,7 +141,6 @@ class FleetView:
             sample = self.samples[name]
             row = device_row(sample, _profile(sample.model, self._profiles), self._offline_since.get(name))
             self.rows[name] = row
-            self._json[name] = _encode(row)
         self._dirty.clear()
         self.seq += 1
         self._changes.append((self.seq, frozenset(changed)))
@@ -170,10 +167,10 @@ class FleetView:
         return out
 
     def _payload(self, names: Iterable[str], with_id: bool) -> str:
-        """``{"now", "devices", "lines"}`` (and ``"id"``) as JSON text, from the rows encoded once each."""
-        rows = ",".join(self._json[name] for name in names)
-        head = f'{{"id":{_encode(self.event_id)},' if with_id else "{"
-        return f'{head}"now":{_encode(self.clock())},"devices":[{rows}],"lines":{_encode(self.line_rows())}}}'
+        """``{"now", "devices", "lines"}`` (and ``"id"``) as compact JSON: one encoding of the rows named."""
+        payload: dict[str, Any] = {"id": self.event_id} if with_id else {}
+        payload.update(now=self.clock(), devices=[self.rows[name] for name in names], lines=self.line_rows())
+        return _encode(payload)
 
     def snapshot(self) -> dict[str, Any]:
         self._refresh_into_rows()
@@ -185,7 +182,7 @@ class FleetView:
         }
 
     def snapshot_json(self) -> str:
-        """:meth:`snapshot` as JSON text, cheaply: every row was encoded when it changed."""
+        """:meth:`snapshot` as compact JSON text."""
         self._refresh_into_rows()
         return self._payload(self.rows, with_id=True)
 
