@@ -271,7 +271,8 @@ async def device_events(request: web.Request) -> web.Response:
     if after is not None and not (after.isascii() and after.isdigit()):
         return _error(400, f"after={after!r}: not an event id")
     last = int(after) if after is not None else None
-    return await _in_thread(lambda: devices.events(db, name, since, last))
+    profile = get_profile(_server(request).fleet.config.devices_by_name[name].model)
+    return await _in_thread(lambda: devices.events(db, name, since, last, profile=profile))
 
 
 async def device_starts(request: web.Request) -> web.Response:

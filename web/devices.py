@@ -108,13 +108,23 @@ def _open(db: Path) -> HistoryStore:
 
 
 def events(
-    db: Path, device: str, since: float | None, after: int | None = None, limit: int = 500
+    db: Path,
+    device: str,
+    since: float | None,
+    after: int | None = None,
+    limit: int = 500,
+    profile: Profile | None = None,
 ) -> list[dict[str, Any]]:
     """The device's last ``limit`` events (since time ``since``; written after event id ``after``: what a page
-    that shows the events up to ``after`` has not seen, even an event of an earlier time written late)."""
+    that shows the events up to ``after`` has not seen, even an event of an earlier time written late). With the
+    device's ``profile``, a fault has its text in Chinese too (``zh``)."""
     with _open(db) as store:
         rows = store.events(device=device, since=since, after=after, limit=limit)
-    return [_jsonable_event(e) for e in rows]
+    out = [_jsonable_event(e) for e in rows]
+    for event in out:
+        if profile is not None and event["kind"] == "fault" and isinstance(event["code"], int):
+            event["zh"] = f"{event['code']}: {profile.faults.label(event['code']).zh}"
+    return out
 
 
 def _jsonable_event(event: Mapping[str, Any]) -> dict[str, Any]:
@@ -126,6 +136,7 @@ def _jsonable_event(event: Mapping[str, Any]) -> dict[str, Any]:
         "code": event["code"],
         "text": event["text"],
         "actor": detail.get("actor"),
+        "user": detail.get("user"),  # an audit record's: the account of the process that wrote it
         "currents_before": detail.get("currents_before"),
     }
 

@@ -1,5 +1,6 @@
 """The backup part of the web API on the demo fleet: the diff against an uploaded file (and its refusals: too
-large, not UTF-8, not TOML, empty), and a restore's refusals, each with nothing written and nothing audited."""
+large, not UTF-8, not TOML, empty), a restore's refusals (too large among them), each with nothing written and
+nothing audited, and an operator's restore: written, read back, audited and in the device's event log."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import pytest
 
 from starterbus.ops.backup import loads
 from starterbus.ops.throttle import ThrottlePolicy
+from starterbus.testing.conformance import wait_until
 from starterbus.tests.web.harness import Client, WebDemo, web_demo
 from starterbus.web.auth import AuthPolicy
 from starterbus.web.backup_api import MAX_UPLOAD
@@ -98,3 +100,47 @@ def test_a_restore_is_refused_without_an_operator_or_outside_remote_write(site: 
     assert status == 422 and "backup" in body["error"]
     assert len(site.audit_records()) == before  # nothing written, nothing audited
     assert _raw(_backup(site, "conveyor"), "ramp_time") == ramp
+
+
+def test_an_operators_restore_is_written_read_back_audited_and_in_the_event_log(site: WebDemo) -> None:
+    text = _backup(site, "crusher")
+    limit = _raw(text, "current_limit")
+    target = limit - 20 if limit - 20 >= 150 else limit + 20
+    operator = Client(site.url)
+    assert operator.login("olga") == 200
+    _, seen = operator.call("GET", "/api/devices/crusher/events")
+    last = max((e["id"] for e in seen), default=0)
+    status, body = operator.call(
+        "POST", "/api/devices/crusher/restore", {"backup": _with_raw(text, "current_limit", target)}
+    )
+    assert status == 200 and body["ok"], body
+    [outcome] = body["outcomes"]  # only what differs is written
+    assert (outcome["key"], outcome["raw"], outcome["result"]) == ("current_limit", target, "ok")
+    assert outcome["read_back"] == outcome["new"]
+    assert site.demo.starters["crusher"].params["current_limit"] == target
+    record = site.audit_records()[-1]
+    assert (record["actor"], record["action"], record["key"]) == ("web:olga", "write", "current_limit")
+
+    def written() -> list[dict[str, object]]:
+        found = operator.call("GET", f"/api/devices/crusher/events?after={last}")[1]
+        return [e for e in found if e["kind"] == "write"]
+
+    assert wait_until(lambda: len(written()) == 1, 20)  # recorded from the audit log at the next poll
+    [event] = written()
+    assert event["actor"] == "web:olga" and str(event["text"]).startswith("current_limit: ")
+    assert str(event["text"]).endswith(": ok")
+    site.demo.starters["crusher"].params["current_limit"] = limit
+
+
+def test_a_restore_over_256_kb_is_refused_with_413_and_nothing_sent(site: WebDemo) -> None:
+    text = _backup(site, "crusher")
+    padded = text + "#" * (MAX_UPLOAD - len(text.encode()) + 1)  # a comment: still a valid backup, but too large
+    before = len(site.audit_records())
+    assert Client(site.url).call("POST", "/api/devices/crusher/restore", {"backup": padded})[0] == 401  # who first
+    operator = Client(site.url)
+    assert operator.login("olga") == 200
+    status, body = operator.call("POST", "/api/devices/crusher/restore", {"backup": padded})
+    assert status == 413 and body["error"] == "the backup: larger than 256 kB, not a backup file; nothing sent"
+    status, body = operator.call("POST", "/api/devices/crusher/restore", {"backup": "#" * (1024 * 1024)})
+    assert status == 413 and "larger than 1024 kB" in body["error"]  # beyond the server's body limit: JSON too
+    assert len(site.audit_records()) == before

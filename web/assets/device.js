@@ -6,8 +6,31 @@
   let detail = null;
   let startPlot = null, historyPlot = null;
   let refreshing = false;
-
-  function fmt(v) { return v == null ? "–" : typeof v === "number" ? String(v) : v; }
+  const MAX_UPLOAD = 256 * 1024;  // as the API's (a backup file is a few kB)
+  // this page's own texts (the shared ones are SB.t's)
+  const TEXT = {
+    en: {
+      event: "Event", account: "system account", before_trip: "before the trip", no_events: "No event recorded yet.", no_starts: "No start recorded yet.",
+      too_large: "{file}: larger than 256 kB, not a backup file; nothing sent",
+      nothing_differs: "restore: the device already has every value of the backup; nothing written",
+      kinds: { fault: "fault", state: "state", offline: "offline", online: "online", write: "write", command: "command",
+        start: "recorded start", gap: "recording gap" },
+    },
+    zh: {
+      event: "事件", account: "系统账户", before_trip: "跳闸前", no_events: "尚无事件记录。", no_starts: "尚无起动记录。",
+      too_large: "{file}：大于 256 kB，不是备份文件；未发送",
+      nothing_differs: "恢复：设备已具有备份中的全部值；未写入",
+      kinds: { fault: "故障", state: "状态变化", offline: "离线", online: "恢复在线", write: "写入", command: "命令",
+        start: "记录的起动", gap: "记录中断" },
+    },
+  };
+  function tt(key, vars) {
+    let s = (TEXT[SB.lang] || TEXT.en)[key] || TEXT.en[key] || key;
+    for (const [k, v] of Object.entries(vars || {})) s = s.replace("{" + k + "}", v);
+    return s;
+  }
+  function kindText(kind) { return (TEXT[SB.lang] || TEXT.en).kinds[kind] || kind; }
+  function applyLocalTexts() { for (const e of document.querySelectorAll("[data-dt]")) e.textContent = tt(e.dataset.dt); }
 
   function renderStatus() {
     const dl = document.getElementById("status");
@@ -57,6 +80,9 @@
         const button = SB.el("button", { type: "button", text: SB.t("write"), "data-write": p.key });
         input.disabled = button.disabled = !canAct;
         button.addEventListener("click", () => write(p, input.value));
+        input.addEventListener("keydown", (e) => {  // Enter writes; its default would press the dialog's Cancel
+          if (e.key === "Enter") { e.preventDefault(); write(p, input.value); }
+        });
         writeCell.append(input, " ", button);
       } else if (p.writable) {
         writeCell.textContent = SB.t("not_allowed");
@@ -67,7 +93,11 @@
         SB.el("td", { class: "num", text: value }), SB.el("td", { text: p.unit }), SB.el("td", { text: rangeText(p) }),
         certCell, writeCell);
     });
+    const focused = document.activeElement;  // a keyboard user's place survives the re-render
+    const again = focused && tbody.contains(focused) && focused.dataset.write
+      ? "[data-write='" + CSS.escape(focused.dataset.write) + "']" : null;
     tbody.replaceChildren(...rows);
+    if (again) { const b = tbody.querySelector(again); if (b && !b.disabled) b.focus(); }
   }
 
   function showResult(text, ok) {
@@ -80,16 +110,20 @@
     return o.action + ": " + o.before + " → " + o.reached + ": " + o.result + (o.error ? " (" + o.error + ")" : "");
   }
   async function act(path, body, question) {
-    if (!(await SB.confirmDialog(question))) return;
+    const from = document.activeElement;
+    const confirmed = await SB.confirmDialog(question);
+    if (from && from.isConnected && typeof from.focus === "function") from.focus();  // back where the user was
+    if (!confirmed) return;
     showResult(SB.t("sent"), true);
     try {
       const r = await SB.postJSON(base + path, body);
-      showResult(r.outcomes.map(outcomeText).join("; "), r.ok);
+      showResult(r.outcomes.length ? r.outcomes.map(outcomeText).join("; ") : tt("nothing_differs"), r.ok);
     } catch (e) {
       const outs = e.body && e.body.outcomes ? " " + e.body.outcomes.map(outcomeText).join("; ") : "";
       showResult(e.message + outs, false);
     }
     refresh();
+    loadEvents();
   }
   function command(cmd) {
     const label = SB.t(cmd);
@@ -114,15 +148,49 @@
     } finally { refreshing = false; }
   }
 
+  // -- the event log: the last 500, then what the history has written since (GET .../events?after=ID) ----------
+  let events = [], lastEventId = null, eventsBusy = false, eventsAgain = false, eventsAt = 0, eventsFullAt = 0;
   async function loadEvents() {
-    const ul = document.getElementById("events");
+    if (eventsBusy) { eventsAgain = true; return; }
+    eventsBusy = true;
     try {
-      const list = await SB.getJSON(base + "/events");
-      ul.replaceChildren(...list.reverse().map((e) => SB.el("li", { "data-kind": e.kind },
-        new Date(e.time * 1000).toLocaleString() + " · " + e.kind + " · " + e.text + (e.actor ? " · " + e.actor : "") +
-        (e.currents_before && e.currents_before.length ? " · " + SB.t("currents") + ": " +
-          e.currents_before.slice(-3).map((c) => ["a", "b", "c"].filter((k) => c[k] != null).map((k) => c[k]).join("/")).join(", ") : ""))));
-    } catch (e) { ul.replaceChildren(SB.el("li", { class: "muted", text: e.status === 404 ? SB.t("no_history") : e.message })); }
+      do {
+        eventsAgain = false;
+        eventsAt = Date.now();
+        // now and then the whole list again: a history file replaced (its ids start over) is seen too
+        const full = lastEventId == null || eventsAt - eventsFullAt > 60000;
+        const fresh = await SB.getJSON(base + "/events" + (full ? "" : "?after=" + lastEventId));
+        if (full) { eventsFullAt = eventsAt; events = []; }
+        const seen = new Set(events.map((e) => e.id));
+        const added = fresh.filter((e) => !seen.has(e.id));
+        if (full || added.length) {
+          events = events.concat(added).sort((a, b) => a.time - b.time || a.id - b.id).slice(-500);
+          lastEventId = events.reduce((m, e) => Math.max(m, e.id), 0);
+          renderEvents(full ? new Set() : new Set(added.map((e) => e.id)));
+        }
+      } while (eventsAgain);
+    } catch (e) {
+      document.getElementById("events-note").textContent = e.status === 404 ? SB.t("no_history") : e.message;
+    } finally { eventsBusy = false; }
+  }
+  function beforeTrip(e) {
+    const list = (e.currents_before || []).slice(-3);
+    if (!list.length) return null;
+    return tt("before_trip") + ": " + list.map((c) => (c.time != null ? "t" + (c.time - e.time).toFixed(1) + " s " : "") +
+      ["a", "b", "c"].filter((k) => c[k] != null).map((k) => c[k]).join("/") + " A").join(", ");
+  }
+  function renderEvents(fresh) {
+    const rows = events.slice().reverse().map((e) => {
+      const before = beforeTrip(e);
+      return SB.el("tr", { "data-kind": e.kind, "data-id": String(e.id), "data-actor": e.actor || "", class: fresh.has(e.id) ? "fresh" : "" },
+        SB.el("td", { class: "when", text: new Date(e.time * 1000).toLocaleString() }),
+        SB.el("td", { class: "what", text: kindText(e.kind) }),
+        SB.el("td", { class: "text" }, SB.lang === "zh" && e.zh ? e.zh : e.text, before ? SB.el("span", { class: "before", text: before }) : null),
+        SB.el("td", { class: "who", text: e.actor || (e.user ? e.user + " (" + tt("account") + ")" : "–") }));
+    });
+    document.querySelector("#events tbody").replaceChildren(...rows);
+    document.getElementById("events-note").textContent = events.length ? "" : tt("no_events");
+    document.getElementById("events").dataset.loaded = "1";
   }
 
   function chartSize(el) { return { width: Math.max(300, el.clientWidth - 4), height: 300 }; }
@@ -136,6 +204,8 @@
     const keep = select.value;
     select.replaceChildren(...list.slice().reverse().map((e) =>
       SB.el("option", { value: e.id, text: new Date(e.time * 1000).toLocaleString() + " · " + e.text })));
+    document.getElementById("start-pick").hidden = document.getElementById("start-chart").hidden = !list.length;
+    if (!list.length) document.getElementById("start-note").textContent = tt("no_starts");
     if (keep && list.some((e) => String(e.id) === keep)) select.value = keep;
     if (list.length && (!startPlot || select.value !== keep)) plotStart(select.value);
   }
@@ -219,8 +289,15 @@
       renderDiff(r.diff_defaults, "default", SB.t("diff_defaults") + ":");
     } catch (e) { out.textContent = e.message; }
   }
+  function tooLarge(file) { return file.size > MAX_UPLOAD ? tt("too_large", { file: file.name }) : null; }
   async function diffFile(file) {
     const out = document.getElementById("diff");
+    const big = tooLarge(file);
+    if (big) {
+      out.replaceChildren(SB.el("p", { class: "result-bad", role: "alert", text: big }));
+      document.getElementById("diff-file").value = "";
+      return;
+    }
     out.textContent = SB.t("reading");
     try {
       const r = await fetch(base + "/diff?file=" + encodeURIComponent(file.name), {
@@ -234,8 +311,9 @@
   }
 
   async function restoreFile(file) {
-    const text = await file.text();
-    await act("/restore", { backup: text }, SB.t("confirm_restore", { device: name }));
+    const big = tooLarge(file);
+    if (big) showResult(big, false);
+    else await act("/restore", { backup: await file.text() }, SB.t("confirm_restore", { device: name }) + " (" + file.name + ")");
     document.getElementById("restore-file").value = "";
   }
 
@@ -249,7 +327,11 @@
     document.getElementById("history-key").addEventListener("change", plotHistory);
     document.getElementById("history-range").addEventListener("change", plotHistory);
     SB.sessionListeners.push(() => { if (detail) { renderActions(); renderPoints(); } });
-    SB.langListeners.push(() => { if (detail) { renderStatus(); renderActions(); renderPoints(); } });
+    SB.langListeners.push(() => {
+      applyLocalTexts();
+      if (detail) { renderStatus(); renderActions(); renderPoints(); renderEvents(new Set()); }
+    });
+    applyLocalTexts();
     refresh().then(() => { loadEvents(); loadStarts(); loadHistoryKeys(); });
     let last = 0;
     SB.stream(() => null, (msg) => {
@@ -257,8 +339,23 @@
       if (!mine || !detail) return;
       const changed = mine.state !== detail.row.state;
       detail.row = mine; renderStatus();
-      if (changed) { renderActions(); loadEvents(); loadStarts(); }
+      loadEvents();  // a new poll of this device: the history has recorded what happened before it
+      if (changed) { renderActions(); loadStarts(); }
       if (Date.now() - last > 5000) { last = Date.now(); refresh(); }
     });
+    let resizing = null;  // a tablet turned, a window resized: the charts take the new width
+    window.addEventListener("resize", () => {
+      clearTimeout(resizing);
+      resizing = setTimeout(() => {
+        for (const [plot, id] of [[startPlot, "start-chart"], [historyPlot, "history-chart"]]) {
+          if (plot) plot.setSize(chartSize(document.getElementById(id)));
+        }
+      }, 200);
+    });
+    // without updates of this device (offline, or the stream reconnecting), the events are asked for anyway
+    setInterval(() => {
+      const every = Math.max(2, detail ? detail.period : 2) * 1000;
+      if (Date.now() - eventsAt > every) loadEvents();
+    }, 1000);
   });
 })();
