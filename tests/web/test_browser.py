@@ -134,7 +134,7 @@ def test_a_recorded_start_plots(site: WebDemo, page: Any) -> None:
     sync_api.expect(chart.locator("canvas")).to_have_count(1, timeout=WAIT_MS)
     assert int(chart.get_attribute("data-points") or 0) > 1
     sync_api.expect(page.locator("#start-note")).to_contain_text("peak")
-    page.locator("#h-starts").scroll_into_view_if_needed()
+    page.locator("#s-starts").evaluate("e => e.scrollIntoView()")  # the plot and the history chart below it
     _screenshot(page, "web-device.png")
 
 

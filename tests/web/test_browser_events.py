@@ -212,3 +212,9 @@ def test_the_device_page_at_1366x768_shows_the_event_log_on_the_first_screen(sit
     assert page.evaluate("document.activeElement.getAttribute('href')") == "/"
     page.click("nav.jump a[href='#s-params']")  # the jump links reach the parameters
     assert page.evaluate("location.hash") == "#s-params"
+
+
+def test_a_device_without_a_recorded_start_shows_no_empty_chart(site: WebDemo, page: Any) -> None:
+    _open(site, page, "pump-b")  # never started in this module
+    sync_api.expect(page.locator("#start-note")).to_have_text("No start recorded yet.", timeout=WAIT_MS)
+    assert not page.locator("#start-select").is_visible() and not page.locator("#start-chart").is_visible()
