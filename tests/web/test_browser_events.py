@@ -135,7 +135,7 @@ def test_a_cli_command_on_the_same_audit_log_appears_in_the_open_page(site: WebD
     _open(site, page, "mill")
     page.wait_for_selector("#events[data-loaded='1']", timeout=WAIT_MS)  # the log as it was before
     cli = [sys.executable, "-m", "starterbus.cli.main", "stop", "mill", "--fleet", str(fleet), "--yes", "--json"]
-    done = subprocess.run(  # mill is behind a Modbus TCP gateway: the CLI reaches it beside the poller
+    done = subprocess.run(  # mill is behind a Modbus TCP gateway: a command (the control word) beside the poller
         [*cli, "--audit-log", str(site.audit)], check=False, capture_output=True, text=True, timeout=60
     )
     assert done.returncode == 0, done.stderr
