@@ -34,6 +34,7 @@ from starterbus.core.errors import ConfigurationError, StarterbusError
 from starterbus.core.fault_codes import value_text
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
+from starterbus.core.status import Command
 from starterbus.core.supervision import Supervisor
 from starterbus.core.timestamps import parse_iso_time
 from starterbus.core.url import DeviceUrl
@@ -190,13 +191,15 @@ class HistoryRecorder:
         name = self.devices.get(device, device)
         when = _audit_time(entry)
         result = str(entry.get("result", ""))
-        if entry.get("action") == "write":
+        action = str(entry.get("action", "command"))
+        kind = "command" if action in _COMMANDS else action
+        if "key" in entry:
             text = f"{entry.get('key')}: {entry.get('old')} -> {entry.get('new')}: {result}"
-            kind = "write"
-        else:
-            what = entry.get("command", entry.get("action"))
-            text = f"{what}: {entry.get('before')} -> {entry.get('reached')}: {result}"
-            kind = "command" if entry.get("action") == "command" else str(entry.get("action", "command"))
+        elif "before" in entry or "reached" in entry:
+            text = f"{entry.get('command', action)}: {entry.get('before')} -> {entry.get('reached')}: {result}"
+        else:  # refused before anything was sent: not confirmed (the question), a refused DCMD (what it asked)
+            asked = str(entry.get("what") or entry.get("asked") or entry.get("command") or action).rstrip("?")
+            text = f"{asked}: {result}"
         with self._lock:
             self.writer.add([], [{"time": when, "device": name, "kind": kind, "text": text, "detail": dict(entry)}])
 
@@ -233,6 +236,7 @@ def _audit_time(entry: Mapping[str, object]) -> float:
         return time.time()
 
 
+_COMMANDS = {"command", *(c.value for c in Command)}  # a command's record, or a command not confirmed
 _AGE_UNITS = {"s": 1.0, "m": 60.0, "h": 3600.0, "d": 86400.0, "w": 604800.0}
 _SIZE_UNITS = {"kb": 1e3, "mb": 1e6, "gb": 1e9, "kib": 1024.0, "mib": 1024.0**2, "gib": 1024.0**3}
 
