@@ -14,14 +14,14 @@
       too_large: "{file}: larger than 256 kB, not a backup file; nothing sent",
       nothing_differs: "restore: the device already has every value of the backup; nothing written",
       kinds: { fault: "fault", state: "state", offline: "offline", online: "online", write: "write", command: "command",
-        start: "recorded start", gap: "recording gap" },
+        start: "recorded start", gap: "recording gap", dcmd: "MQTT command refused" },
     },
     zh: {
       event: "事件", account: "系统账户", before_trip: "跳闸前", no_events: "尚无事件记录。", no_starts: "尚无起动记录。",
       too_large: "{file}：大于 256 kB，不是备份文件；未发送",
       nothing_differs: "恢复：设备已具有备份中的全部值；未写入",
       kinds: { fault: "故障", state: "状态变化", offline: "离线", online: "恢复在线", write: "写入", command: "命令",
-        start: "记录的起动", gap: "记录中断" },
+        start: "记录的起动", gap: "记录中断", dcmd: "MQTT 命令被拒绝" },
     },
   };
   function tt(key, vars) {
