@@ -52,6 +52,27 @@ def test_the_event_stream_starts_with_a_snapshot_then_updates(site: WebDemo) -> 
     assert events == ["snapshot", "update"]
 
 
+def _first_event(url: str, headers: dict[str, str] | None = None) -> tuple[str, str]:
+    """The id and name of a stream's first event."""
+    request = urllib.request.Request(url, headers=headers or {})
+    with urllib.request.urlopen(request, timeout=20) as stream:
+        fields: dict[str, str] = {}
+        while "event" not in fields or "id" not in fields:
+            line = stream.readline().decode()
+            if ": " in line and line.split(": ", 1)[0] in ("id", "event"):
+                key, value = line.rstrip("\n").split(": ", 1)
+                fields[key] = value
+    return fields["id"], fields["event"]
+
+
+def test_a_page_loaded_from_the_snapshot_continues_the_stream_from_its_id(site: WebDemo) -> None:
+    _, fleet = Client(site.url).call("GET", "/api/fleet")
+    event_id, event = _first_event(site.url + "api/stream?after=" + fleet["id"])
+    assert event == "update" and event_id.split("-")[0] == fleet["id"].split("-")[0]  # not the snapshot again
+    assert _first_event(site.url + "api/stream", {"Last-Event-ID": event_id})[1] == "update"  # a reconnection
+    assert _first_event(site.url + "api/stream", {"Last-Event-ID": "another-process-1"})[1] == "snapshot"
+
+
 def test_a_visitor_reads_a_device_with_every_parameter(site: WebDemo) -> None:
     status, detail = Client(site.url).call("GET", "/api/devices/conveyor")
     assert status == 200

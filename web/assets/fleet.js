@@ -29,8 +29,8 @@
 
   function fmtCurrents(c) {
     const parts = [];
-    for (const k of ["a", "b", "c"]) if (c && c[k] != null) parts.push(k.toUpperCase() + " " + Number(c[k]).toFixed(1));
-    return parts.length ? parts.join(" · ") + " A" : "–";
+    for (const k of ["a", "b", "c"]) if (c && c[k] != null) parts.push(k.toUpperCase() + "\u00a0" + Number(c[k]).toFixed(1));
+    return parts.length ? parts.join(" · ") + "\u00a0A" : "–"; // a narrow screen wraps between phases only
   }
   function ageText(d) {
     const now = Date.now() / 1000 + offset, w = texts();
