@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     from starterbus.core.canframe import CanFrame, annotate_candump, parse_candump
     from starterbus.core.control_log import ControlWrite
     from starterbus.core.device import Device, open_device
+    from starterbus.core.engine import Engine, StreamEngine, Ticket, TicketState, TicketStateError
     from starterbus.core.errors import (
         ChecksumError,
         CodecError,
@@ -49,11 +50,13 @@ if TYPE_CHECKING:
         ReadBackMismatch,
         UncertainValueError,
     )
+    from starterbus.core.media import Driver, StreamDriver, TcpDriver
     from starterbus.core.model import Access, EnumTable, Kind, Label, PointDef, Reading, Value
     from starterbus.core.plugin_options import OptionValues, PluginOption, SimOption, resolve_options
     from starterbus.core.polling import PlannedRequest, PollResult, PollTask, TransportCounters, run_task
     from starterbus.core.profile import Profile, load_profile_file
     from starterbus.core.registry import get_profile, get_transport
+    from starterbus.core.scheduler import Scheduler, SchedulerReentryError
     from starterbus.core.sharing import SharedPool
     from starterbus.core.simulator import ManualClock, SimulatedStarter
     from starterbus.core.status import (
@@ -167,6 +170,16 @@ _LAZY = {
     "run_task": "starterbus.core.polling",
     "PlannedRequest": "starterbus.core.polling",
     "TransportCounters": "starterbus.core.polling",
+    "Engine": "starterbus.core.engine",
+    "StreamEngine": "starterbus.core.engine",
+    "Ticket": "starterbus.core.engine",
+    "TicketState": "starterbus.core.engine",
+    "TicketStateError": "starterbus.core.engine",
+    "Driver": "starterbus.core.media",
+    "StreamDriver": "starterbus.core.media",
+    "TcpDriver": "starterbus.core.media",
+    "Scheduler": "starterbus.core.scheduler",
+    "SchedulerReentryError": "starterbus.core.scheduler",
 }
 
 
@@ -201,7 +214,9 @@ __all__ = [
     "DecodeError",
     "Device",
     "DeviceUrl",
+    "Driver",
     "EncodeError",
+    "Engine",
     "EnumTable",
     "FaultTable",
     "GuardedOperationError",
@@ -227,6 +242,8 @@ __all__ = [
     "Refusal",
     "RemoteDeviceError",
     "RunningSimulator",
+    "Scheduler",
+    "SchedulerReentryError",
     "SharedPool",
     "SimOption",
     "SimulatedStarter",
@@ -234,6 +251,12 @@ __all__ = [
     "StarterbusError",
     "StateRuleError",
     "Status",
+    "StreamDriver",
+    "StreamEngine",
+    "TcpDriver",
+    "Ticket",
+    "TicketState",
+    "TicketStateError",
     "TimeoutError",
     "Transport",
     "TransportCounters",

@@ -13,61 +13,20 @@ None: a pyserial port without a file descriptor) is handed to a thread of its ow
 
 from __future__ import annotations
 
-import math
 import os
-import select
 import threading
 from dataclasses import dataclass
 
 from starterbus.core.errors import StarterbusError, TransportError
 from starterbus.core.polling import PollResult, PollTask
+from starterbus.core.scheduler import FD_SETSIZE, Waiter
 from starterbus.fleet.bus_worker import Attempt, BusWorker, DeviceRuntime, precise_timers
 from starterbus.fleet.poll_context import PollContext
 
 #: longest sleep when nothing is due (a stop or a job wakes the thread at once anyway)
 IDLE = 1.0
-#: select() takes descriptors below this (glibc's FD_SETSIZE)
-FD_SETSIZE = 1024
 
-
-class Waiter:
-    """Waits until registered descriptors are readable, with a timeout to the microsecond: ``select`` (epoll
-    counts whole milliseconds, which would stretch every silent interval by up to one), or ``poll`` (whole
-    milliseconds too) while a descriptor is beyond ``select``'s limit. Neither keeps state in the kernel, so a
-    line reopened under the same descriptor number is watched like the old one."""
-
-    def __init__(self) -> None:
-        self._data: dict[int, _Bus | None] = {}
-        self._fds: list[int] = []
-        self._poll: select.poll | None = None
-
-    def register(self, fd: int, data: _Bus | None) -> None:
-        self._data[fd] = data
-        self._fds = list(self._data)
-        if self._poll is not None:
-            self._poll.register(fd, select.POLLIN)
-        elif fd >= FD_SETSIZE:
-            self._poll = select.poll()
-            for known in self._fds:
-                self._poll.register(known, select.POLLIN)
-
-    def unregister(self, fd: int) -> None:
-        del self._data[fd]
-        self._fds = list(self._data)
-        if self._poll is not None:
-            self._poll.unregister(fd)
-            if not self._fds or max(self._fds) < FD_SETSIZE:
-                self._poll = None
-
-    def wait(self, timeout: float) -> list[_Bus | None]:
-        """The data of the descriptors that are readable (or closed, or failed), after at most ``timeout`` s."""
-        if self._poll is not None:
-            return [self._data[fd] for fd, _ in self._poll.poll(math.ceil(timeout * 1000))]
-        ready = select.select(self._fds, (), (), timeout)[0]
-        return [self._data[fd] for fd in ready]
-
-    def close(self) -> None:
-        self._poll = None
+__all__ = ["FD_SETSIZE", "IDLE", "Multiplexer", "Waiter"]  # Waiter: core.scheduler's, the fleet's before
 
 
 @dataclass(slots=True)
@@ -92,7 +51,7 @@ class Multiplexer:
         self.thread = poller.supervisor.thread("bus-mux", self._run)  # fatal: the loop itself failing stops all
         self._wake_r, self._wake_w = -1, -1  # a pipe from start() to the end of the loop
         self._wake_lock = threading.Lock()  # closing the pipe vs writing to it: never to a reused descriptor
-        self._waiter = Waiter()
+        self._waiter: Waiter[_Bus | None] = Waiter()
         for bus in self.buses:
             bus.worker.notify = self.wake
 

@@ -1,0 +1,392 @@
+"""One per-process scheduler: every driver's descriptor and deadline waited on at once, requests from any thread.
+
+Other threads reach the loop only through its inbox (:meth:`Scheduler.call`, :meth:`Scheduler.submit`; a wake
+pipe interrupts the wait). Whoever waits drives: a thread waiting on a future (:meth:`Scheduler.wait`) while no
+thread runs the loop becomes its leader and runs it in its own thread until its future is done, then hands over
+to the next waiter. A CLI ``read`` or a script thus starts no thread. A service starts the scheduler's own
+thread (:meth:`Scheduler.start`, named ``starterbus-io``), and every other thread waits as a follower. Only the
+leader ever calls a driver or an engine: that is the lock rule, once.
+
+A driver whose step raises fails its own tickets (a :class:`TransportError` for anything not a
+:class:`StarterbusError`); the other drivers go on. A wait has an outer bound only (timeouts belong to the
+engines): past it, a :class:`TimeoutError` says the loop stalled. A blocking wait from inside the loop (a
+callback calling the sync API) would wait on itself and is refused at once (:class:`SchedulerReentryError`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import select
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import Future
+from typing import Any, Generic, Protocol, TypeVar
+
+from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
+
+__all__ = ["FD_SETSIZE", "Scheduler", "SchedulerReentryError", "Served", "Waiter", "precise_timers", "scheduler"]
+
+T = TypeVar("T")
+D = TypeVar("D")
+
+#: select() takes descriptors below this (glibc's FD_SETSIZE)
+FD_SETSIZE = 1024
+#: the longest wait of the scheduler's own thread when nothing is due (a submission wakes it at once anyway)
+IDLE = 1.0
+_PR_SET_TIMERSLACK = 29
+
+
+class SchedulerReentryError(StarterbusError):
+    """A blocking call made from inside the scheduler's loop (its thread, or a leader's callback): it would wait
+    on the loop that has to finish it."""
+
+
+def precise_timers() -> None:
+    """Linux: 1 us timer slack for the calling thread instead of 50 us, so that a wait for a line's silent
+    interval ends when the interval does. Best effort."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0)
+    except (OSError, AttributeError):
+        pass
+
+
+class Waiter(Generic[D]):
+    """Waits until registered descriptors are ready, with a timeout to the microsecond: ``select`` (epoll
+    counts whole milliseconds, which would stretch every silent interval by up to one), or ``poll`` (whole
+    milliseconds too) while a descriptor is beyond ``select``'s limit. Neither keeps state in the kernel, so a
+    line reopened under the same descriptor number is watched like the old one. A descriptor is watched for
+    input, or with ``write=True`` for writability (a connection being made)."""
+
+    def __init__(self) -> None:
+        self._data: dict[int, D] = {}
+        self._fds: list[int] = []
+        self._writers: list[int] = []
+        self._poll: select.poll | None = None
+
+    def register(self, fd: int, data: D, write: bool = False) -> None:
+        self._data[fd] = data
+        if write:
+            self._writers = [*self._writers, fd]
+        else:
+            self._fds = [*self._fds, fd]
+        if self._poll is not None:
+            self._poll.register(fd, select.POLLOUT if write else select.POLLIN)
+        elif fd >= FD_SETSIZE:
+            self._poll = select.poll()
+            for known in self._fds:
+                self._poll.register(known, select.POLLIN)
+            for known in self._writers:
+                self._poll.register(known, select.POLLOUT)
+
+    def unregister(self, fd: int) -> None:
+        del self._data[fd]
+        self._fds = [f for f in self._fds if f != fd]
+        self._writers = [f for f in self._writers if f != fd]
+        if self._poll is not None:
+            self._poll.unregister(fd)
+            if not self._data or max(self._data) < FD_SETSIZE:
+                self._poll = None
+
+    def wait(self, timeout: float) -> list[D]:
+        """The data of the descriptors that are ready (or closed, or failed), after at most ``timeout`` s."""
+        if self._poll is not None:
+            return [self._data[fd] for fd, _ in self._poll.poll(math.ceil(timeout * 1000))]
+        if not self._writers:
+            return [self._data[fd] for fd in select.select(self._fds, (), (), timeout)[0]]
+        readable, writable, _ = select.select(self._fds, self._writers, (), timeout)
+        return [self._data[fd] for fd in (*readable, *writable)]
+
+    def close(self) -> None:
+        self._poll = None
+
+
+class Served(Protocol):
+    """What the scheduler needs of a driver (:class:`starterbus.core.media.driver.Driver` is one)."""
+
+    name: str
+
+    @property
+    def fd(self) -> int:
+        """The descriptor to wait on; -1: none (deadline only)."""
+        ...
+
+    @property
+    def writing(self) -> bool:
+        """Wait for ``fd`` to be writable (a connection being made) rather than readable."""
+        ...
+
+    @property
+    def deadline(self) -> float:
+        """When the driver must be stepped even if ``fd`` stays quiet."""
+        ...
+
+    def step(self, now: float, ready: bool) -> None:
+        """The loop body; ``ready``: ``fd`` was reported ready."""
+        ...
+
+    def submit(self, request: Any, now: float, future: Future[Any]) -> None:
+        """Queue the request on the engine; ``future`` gets its ticket once the ticket ends."""
+        ...
+
+    def crash(self, error: StarterbusError, now: float) -> None:
+        """A step raised: fail every ticket with ``error`` and drop the medium (made again on demand)."""
+        ...
+
+
+class Scheduler:
+    """The loop of every driver of the process (:func:`scheduler` gives the process's one)."""
+
+    def __init__(self, clock: Callable[[], float] = time.monotonic) -> None:
+        self.clock = clock
+        self._lock = threading.Lock()  # the inbox, the leadership
+        self._changed = threading.Condition(self._lock)  # a future ended or the leadership was given back
+        self._inbox: list[Callable[[float], None]] = []
+        self._leader: int | None = None  # the thread running the loop
+        self._thread: threading.Thread | None = None
+        self._stopping = False
+        self._serving = threading.Event()  # the loop's own thread leads
+        self.drivers: list[Served] = []
+        self._due: list[Served] = []  # to step at the next turn (a submission)
+        self._watched: dict[Served, tuple[int, bool]] = {}
+        self._waiter: Waiter[Served | None] = Waiter()
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._waiter.register(self._wake_r, None)
+
+    # -- from any thread ----------------------------------------------------------------------------------------
+
+    def call(self, fn: Callable[[float], T]) -> Future[T]:
+        """Run ``fn(now)`` in the loop; its result (or exception) in the future."""
+        future: Future[T] = Future()
+
+        def run(now: float) -> None:
+            if future.set_running_or_notify_cancel():
+                try:
+                    future.set_result(fn(now))
+                except BaseException as exc:  # the caller's to see, in its own thread
+                    future.set_exception(exc)
+
+        self._post(run)
+        return future
+
+    def submit(self, driver: Served, request: object) -> Future[Any]:
+        """Queue ``request`` on the driver's engine; the future gets the ended ticket."""
+        future: Future[Any] = Future()
+
+        def run(now: float) -> None:
+            future.set_running_or_notify_cancel()
+            try:
+                driver.submit(request, now, future)
+            except Exception as exc:
+                future.set_exception(exc)
+            self._due.append(driver)
+
+        self._post(run)
+        return future
+
+    def _post(self, item: Callable[[float], None]) -> None:
+        with self._lock:
+            self._inbox.append(item)
+            leader = self._leader
+        if leader is not None and leader != threading.get_ident():
+            self.wake()
+
+    def wake(self) -> None:
+        """Interrupt the loop's wait (something was queued for it)."""
+        try:
+            os.write(self._wake_w, b"!")
+        except (BlockingIOError, OSError):  # already woken (the pipe is full), or closed at exit
+            pass
+
+    def wait(self, future: Future[T], bound: float, what: str) -> T:
+        """The future's result, driving the loop while no other thread does. ``bound``: the outer limit (the
+        engines keep the real timeouts); past it a TimeoutError names ``what`` and the stall."""
+        me = threading.get_ident()
+        if self._leader == me:
+            raise SchedulerReentryError(
+                f"{what}: a blocking call from inside the I/O loop would wait on itself (run it in another thread)"
+            )
+        give_up = self.clock() + bound
+        watching = False
+        while not future.done():
+            remaining = give_up - self.clock()
+            if remaining <= 0:
+                raise TimeoutError(
+                    f"{what}: not done within {bound:g} s: the I/O loop stalled "
+                    f"(drivers: {', '.join(d.name for d in self.drivers) or 'none'})"
+                )
+            with self._lock:
+                lead = self._leader is None and self._thread is None
+                if lead:
+                    self._leader = me
+                elif not watching:
+                    watching = True
+                    future.add_done_callback(self._notify)
+                else:
+                    self._changed.wait(remaining)
+            if lead:
+                try:
+                    self._lead(future, give_up)
+                finally:
+                    with self._lock:
+                        self._leader = None
+                        self._changed.notify_all()
+        return future.result()
+
+    def _notify(self, _: Future[Any]) -> None:
+        with self._lock:
+            self._changed.notify_all()
+
+    def start(self) -> None:
+        """Run the loop in a thread of its own (``starterbus-io``) until :meth:`stop`; waiters are followers."""
+        with self._lock:
+            if self._thread is not None:
+                return
+            self._stopping = False
+            self._thread = threading.Thread(target=self._serve, name="starterbus-io", daemon=True)
+            self._serving.clear()
+        self._thread.start()
+        self.wake()  # a caller leading now hands over at its next turn
+        self._serving.wait()
+
+    def stop(self) -> None:
+        """End the loop's own thread (the drivers stay; waiters lead again)."""
+        thread = self._thread
+        if thread is None:
+            return
+        self._stopping = True
+        self.wake()
+        if thread is not threading.current_thread():
+            thread.join()
+
+    @property
+    def running(self) -> bool:
+        """The loop's own thread runs."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def _serve(self) -> None:
+        precise_timers()
+        with self._lock:
+            while self._leader is not None:  # a caller leading now hands over at its next check
+                self._changed.wait()
+            self._leader = threading.get_ident()
+        self._serving.set()
+        try:
+            while not self._stopping:
+                self._turn(self.clock(), self.clock() + IDLE, None)
+        finally:
+            with self._lock:
+                self._leader = None
+                self._thread = None
+                self._stopping = False
+                self._changed.notify_all()
+
+    # -- in the loop --------------------------------------------------------------------------------------------
+
+    def add(self, driver: Served) -> None:
+        """Serve ``driver`` from now on (called in the loop: from :meth:`call`)."""
+        if driver not in self.drivers:
+            self.drivers = [*self.drivers, driver]
+
+    def remove(self, driver: Served) -> None:
+        """Stop serving ``driver`` (called in the loop, before it closes its descriptor)."""
+        self._watch(driver, -1, False)
+        self.drivers = [d for d in self.drivers if d is not driver]
+        self._due = [d for d in self._due if d is not driver]
+
+    def _lead(self, future: Future[Any], give_up: float) -> None:
+        while not future.done() and self._thread is None:
+            now = self.clock()
+            if now >= give_up:
+                return
+            self._turn(now, give_up, future)
+
+    def _turn(self, now: float, until: float, leading: Future[Any] | None) -> None:
+        """One pass: the inbox, the drivers due, one wait on every descriptor, the drivers ready or due (no
+        wait once the future ``leading`` is for is done)."""
+        if self._inbox:
+            with self._lock:
+                items, self._inbox = self._inbox, []
+            for item in items:
+                item(now)
+        if self._due:
+            due, self._due = self._due, []
+            for driver in due:
+                self._step(driver, now, False)
+        wait_until = until
+        for driver in self.drivers:
+            fd, writing = driver.fd, driver.writing
+            if self._watched.get(driver, (-1, False)) != (fd, writing):
+                self._watch(driver, fd, writing)
+            wait_until = min(wait_until, driver.deadline)
+        if leading is not None and leading.done():
+            return
+        if self._inbox or self._due:
+            wait_until = now
+        try:
+            ready = self._waiter.wait(max(0.0, wait_until - self.clock()))
+        except OSError:  # a descriptor closed under the wait: its driver is crashed, the others go on
+            ready = []
+            self._drop_closed()
+        now = self.clock()
+        stepped: list[Served] = []
+        for which in ready:
+            if which is None:
+                self._drain()
+            else:
+                stepped.append(which)
+                self._step(which, now, True)
+        for driver in self.drivers:
+            if driver.deadline <= now and driver not in stepped:
+                self._step(driver, now, False)
+
+    def _step(self, driver: Served, now: float, ready: bool) -> None:
+        try:
+            driver.step(now, ready)
+        except Exception as exc:
+            error = exc if isinstance(exc, StarterbusError) else None
+            driver.crash(error or TransportError(f"{driver.name}: {type(exc).__name__}: {exc}"), self.clock())
+
+    def _watch(self, driver: Served, fd: int, writing: bool) -> None:
+        old = self._watched.pop(driver, None)
+        if old is not None:
+            self._waiter.unregister(old[0])
+        if fd >= 0:
+            self._waiter.register(fd, driver, writing)
+            self._watched[driver] = (fd, writing)
+
+    def _drop_closed(self) -> None:
+        for driver, (fd, _) in list(self._watched.items()):
+            try:
+                os.fstat(fd)
+            except OSError as exc:
+                self._watch(driver, -1, False)
+                driver.crash(TransportError(f"{driver.name}: the descriptor was closed under the wait: {exc}"), 0.0)
+
+    def _drain(self) -> None:
+        try:
+            while os.read(self._wake_r, 512):
+                pass
+        except (BlockingIOError, OSError):
+            pass
+
+
+_default: list[Scheduler] = []  # the process's one, once made
+_default_lock = threading.Lock()
+
+
+def scheduler() -> Scheduler:
+    """The process's scheduler (made at first use)."""
+    if not _default:
+        with _default_lock:
+            if not _default:
+                _default.append(Scheduler())
+    return _default[0]
+
+
+os.register_at_fork(after_in_child=_default.clear)  # a child has no loop thread and must not share the pipe
