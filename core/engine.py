@@ -140,7 +140,7 @@ class Engine(Protocol[Req, Res, Unit]):
         """What to write at once; ``now``: the clock read just before the write."""
         ...
 
-    def take_completed(self) -> list[Ticket[Req, Res]]:
+    def take_completed(self) -> Sequence[Ticket[Req, Res]]:
         """The tickets that ended since the last call, in the order they ended."""
         ...
 

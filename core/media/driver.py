@@ -103,10 +103,12 @@ class Driver(Generic[E]):
         ticket = self.engine.submit(request, now)
         self._futures[ticket] = future
 
-    def cancel(self, tickets: Sequence[Ticket[Any, Any]], now: float) -> None:
-        """Cancel the tickets not yet ended (in the loop: through :meth:`Scheduler.call`)."""
-        for ticket in tickets:
-            if not ticket.ended:
+    def cancel(self, futures: Sequence[Future[Any]], now: float) -> None:
+        """Cancel the tickets of these futures that have not ended (in the loop: through
+        :meth:`Scheduler.call`); their futures get the cancelled tickets."""
+        withdrawn = set(futures)
+        for ticket, future in list(self._futures.items()):
+            if future in withdrawn and not ticket.ended:
                 self.engine.cancel(ticket, now)
         self.complete()
 

@@ -171,7 +171,7 @@ def test_reconnects_after_the_gateway_restarts_and_backs_off_while_it_is_down() 
         connection = device.transport._gateway  # type: ignore[attr-defined]
         assert connection is not None
         sim.close()
-        assert wait_until(lambda: connection._sock is None)  # the reader saw the gateway close the connection
+        assert wait_until(lambda: not connection.check())  # the connection saw the gateway close it
         with pytest.raises(TransportError, match="cannot connect"):
             device.read("ramp_time")
         with pytest.raises(TransportError, match="reconnecting in"):  # no connection attempt before the backoff

@@ -162,4 +162,4 @@ class ModbusTcpTransport(ModbusRtuTransport):
         )
 
     def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
-        return None  # the fleet polls from a thread of the bus; the connection's reader does the waiting
+        return None  # the fleet polls from a thread of the bus, which drives the scheduler while it waits
