@@ -238,6 +238,23 @@ class Scheduler:
                         self._changed.notify_all()
         return future.result()
 
+    def try_turn(self) -> bool:
+        """One turn of the loop without waiting, if no other thread runs it now: for a poller that waits on the
+        drivers' descriptors itself (``fleet/mux.py``). False: another thread leads and serves the inbox."""
+        me = threading.get_ident()
+        with self._lock:
+            if self._leader is not None or self._thread is not None:
+                return False
+            self._leader = me
+        try:
+            now = self.clock()
+            self._turn(now, now, None)
+        finally:
+            with self._lock:
+                self._leader = None
+                self._changed.notify_all()
+        return True
+
     def _notify(self, _: Future[Any]) -> None:
         with self._lock:
             self._changed.notify_all()

@@ -23,10 +23,10 @@ from starterbus.transports.modbus.annotate import exception_meaning
 from starterbus.transports.modbus.client import ModbusRtuTransport
 from starterbus.transports.modbus.config import DEFAULT_RETRIES, ModbusRtuConfig
 from starterbus.transports.modbus.exchange import TransactionPolicy
-from starterbus.transports.modbus.frames import ExceptionResponse, ReadRequest, ReadResponse, Request
+from starterbus.transports.modbus.frames import ExceptionResponse, ReadRequest, ReadResponse, Request, Response
 from starterbus.transports.modbus.link import SerialSettings
 from starterbus.transports.modbus.poll_plan import sort_out
-from starterbus.transports.modbus.tcp_line import MbapConnection
+from starterbus.transports.modbus.tcp_line import MbapConnection, MbapPoll
 from starterbus.transports.modbus.timing import silent_interval
 
 NAME = "modbus-tcp"
@@ -162,4 +162,18 @@ class ModbusTcpTransport(ModbusRtuTransport):
         )
 
     def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
-        return None  # the fleet polls from a thread of the bus, which drives the scheduler while it waits
+        """The poll on the fleet's multiplexer: :meth:`_poll` without blocking."""
+        self._no_broadcast_reads()
+        if self._gateway is None:
+            raise self._not_open()
+        plan = self.poll_plans.get(points, status)
+        exchanges = [self._read_exchange(request) for request in plan.requests]
+
+        def finish(responses: list[Response]) -> PollResult:
+            values: tuple[int, ...] = ()
+            for response in responses:
+                assert isinstance(response, ReadResponse)  # _refuse_exceptions let nothing else through
+                values += response.values
+            return sort_out(plan, values, points, self.profile, self._source, NAME)
+
+        return MbapPoll(self._gateway, exchanges, self._counters, self._refuse_exceptions, finish)

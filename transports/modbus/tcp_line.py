@@ -17,8 +17,9 @@ from concurrent.futures import Future
 from typing import Any
 
 from starterbus.core.engine import TicketState
-from starterbus.core.errors import StarterbusError, TimeoutError
+from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
 from starterbus.core.media import TcpDriver
+from starterbus.core.polling import PollResult, PollTask
 from starterbus.core.scheduler import Scheduler, scheduler
 from starterbus.core.transport import TransportCounters
 from starterbus.transports.modbus.exchange import Exchange
@@ -27,6 +28,8 @@ from starterbus.transports.modbus.mbap import HEADER_LENGTH, MbapEngine, MbapTic
 
 #: the outer bound of a wait beyond the transactions' own timeouts: only a stalled loop gets there
 STALL = 30.0
+#: how soon a poll looks again while another thread runs the loop (that thread serves the poll meanwhile)
+LOOK_AGAIN = 0.001
 
 
 class MbapConnection:
@@ -114,10 +117,13 @@ class MbapConnection:
             out.append(ticket.result)
         return out
 
-    def _withdraw(self, futures: Sequence[Future[Any]]) -> None:
+    def _withdraw(self, futures: Sequence[Future[Any]], wait: bool = True) -> None:
         if futures:
             driver = self._driver
-            self._call(lambda now: driver.cancel(futures, now), "withdraw")
+            if wait:
+                self._call(lambda now: driver.cancel(futures, now), "withdraw")
+            else:
+                self._loop.call(lambda now: driver.cancel(futures, now))
 
     def _count(self, counters: TransportCounters | None, exchange: Exchange, ticket: MbapTicket) -> None:
         if counters is None:
@@ -137,3 +143,73 @@ class MbapConnection:
         # the time the requests and the answer take on the serial line behind the gateway (RTU framing)
         char = exchange.wire / len(exchange.frame)
         counters.wire_time += sent * exchange.wire + (exchange.answer_length * char if received else 0.0)
+
+
+class MbapPoll(PollTask):
+    """A poll's transactions as a :class:`PollTask` for the fleet's multiplexer: submitted at the first
+    :meth:`advance`, each advance one turn of the scheduler without waiting (the multiplexer waits on the
+    connection's descriptor and deadline for it). ``check`` refuses an answer (an exception), ``finish`` makes
+    the poll's result from the answers."""
+
+    def __init__(
+        self,
+        connection: MbapConnection,
+        exchanges: Sequence[Exchange],
+        counters: TransportCounters,
+        check: Callable[[Exchange, Response], None],
+        finish: Callable[[list[Response]], PollResult],
+    ) -> None:
+        self.connection, self.exchanges, self.counters = connection, exchanges, counters
+        self.check, self.finish = check, finish
+        self._futures: list[Future[Any]] | None = None
+        self._responses: list[Response] = []
+        self._result: PollResult | None = None
+        self._error: StarterbusError | None = None
+
+    def advance(self, now: float) -> None:
+        if self.done:
+            return
+        connection = self.connection
+        loop, driver = connection._loop, connection._driver
+        if self._futures is None:
+            self._futures = [loop.submit(driver, exchange) for exchange in self.exchanges]
+        if loop.try_turn():
+            self.fd, self.wake_at = driver.fd, driver.deadline
+        else:
+            self.fd, self.wake_at = -1, now + LOOK_AGAIN
+        futures = self._futures
+        while len(self._responses) < len(futures) and futures[len(self._responses)].done():
+            index = len(self._responses)
+            exchange = self.exchanges[index]
+            ticket: MbapTicket = futures[index].result()
+            connection._count(self.counters, exchange, ticket)
+            try:
+                response = ticket.outcome()
+                self.check(exchange, response)
+            except StarterbusError as exc:
+                self._end(exc, futures[index + 1 :])
+                return
+            self._responses.append(response)
+        if len(self._responses) == len(futures):
+            try:
+                self._result = self.finish(self._responses)
+            except StarterbusError as exc:
+                self._error = exc
+            self.done = True
+
+    def _end(self, error: StarterbusError, rest: Sequence[Future[Any]]) -> None:
+        self._error = error
+        self.done = True
+        self.connection._withdraw(rest, wait=False)
+        self.connection._loop.try_turn()  # the withdrawal made now, unless another thread leads (it makes it)
+
+    def result(self) -> PollResult:
+        if self._error is not None:
+            raise self._error
+        if self._result is None:
+            raise TransportError(f"{self.connection.name}: the poll was cancelled")
+        return self._result
+
+    def cancel(self) -> None:
+        if not self.done:
+            self._end(TransportError(f"{self.connection.name}: the poll was cancelled"), self._futures or [])
