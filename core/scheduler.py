@@ -224,11 +224,11 @@ class Scheduler:
                 lead = self._leader is None and self._thread is None
                 if lead:
                     self._leader = me
-                elif not watching:
-                    watching = True
-                    future.add_done_callback(self._notify)
-                else:
+                elif watching and not future.done():  # not done: its callback notifies after this wait began
                     self._changed.wait(remaining)
+            if not lead and not watching:
+                watching = True
+                future.add_done_callback(self._notify)  # outside the lock: a done future calls it at once
             if lead:
                 try:
                     self._lead(future, give_up)

@@ -192,3 +192,27 @@ def test_a_tcp_connection_is_made_on_demand_and_backs_off_when_refused(scheduler
     assert "reconnecting in 0.1 s (cannot connect" in str(backing_off.error)
     scheduler.wait(scheduler.call(driver.close), 5, "close")
     assert "is closed" in str(ask(scheduler, driver, b"closed").error)
+
+
+def test_threads_sharing_a_driver_each_get_their_own_answers(scheduler: Scheduler) -> None:
+    """Four threads, no loop thread: leadership passes between them as their tickets end; every answer goes to
+    the request it answers, and nobody waits for the outer bound."""
+    driver, peer = driver_with_peer(scheduler, outstanding=3, timeout=5.0)
+    wrong: list[tuple[bytes, bytes | None]] = []
+
+    def work(name: str) -> None:
+        for n in range(100):
+            request = f"{name}{n}".encode()
+            ticket = ask(scheduler, driver, request)
+            if ticket.result != request.upper():
+                wrong.append((request, ticket.result))
+
+    workers = [threading.Thread(target=work, args=(name,)) for name in "abcd"]
+    try:
+        for worker in workers:
+            worker.start()
+        for worker in workers:
+            worker.join(30)
+        assert not any(w.is_alive() for w in workers) and not wrong and driver.pending == 0
+    finally:
+        peer.close()
