@@ -28,6 +28,7 @@ from starterbus.ops.throttle import ThrottlePolicy
 from starterbus.testing.conformance import wait_until
 from starterbus.tests.web.harness import PASSWORD, WebDemo, web_demo
 from starterbus.tests.web.test_backup_api import _raw, _with_raw
+from starterbus.transports.profibus_pkw.station_lock import LOCK_DIR_ENV
 from starterbus.web.auth import AuthPolicy
 from starterbus.web.backup_api import MAX_UPLOAD
 
@@ -135,8 +136,12 @@ def test_a_cli_command_on_the_same_audit_log_appears_in_the_open_page(site: WebD
     _open(site, page, "mill")
     page.wait_for_selector("#events[data-loaded='1']", timeout=WAIT_MS)  # the log as it was before
     cli = [sys.executable, "-m", "starterbus.cli.main", "stop", "mill", "--fleet", str(fleet), "--yes", "--json"]
-    done = subprocess.run(  # mill is behind a Modbus TCP gateway: a command (the control word) beside the poller
-        [*cli, "--audit-log", str(site.audit)], check=False, capture_output=True, text=True, timeout=60
+    # mill is behind a Modbus TCP gateway, which this machine's serve holds (one master per station: the CLI is
+    # refused). The CLI here stands in for a master on another machine, which no lock of this one sees: a stop is
+    # the control word only, and its status reads are PZD words, never a PKW answer to take for another's.
+    elsewhere = {**os.environ, LOCK_DIR_ENV: str(tmp_path / "another-machine")}
+    done = subprocess.run(
+        [*cli, "--audit-log", str(site.audit)], check=False, capture_output=True, text=True, timeout=60, env=elsewhere
     )
     assert done.returncode == 0, done.stderr
     actor = f"cli:{getpass.getuser()}"

@@ -32,6 +32,7 @@ from starterbus.core.errors import (
 from starterbus.core.sharing import SharedPool
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
+from starterbus.transports.profibus_pkw.station_lock import hold_station, release_station
 from starterbus.transports.profibus_pkw.telegram import Ppo
 
 __all__ = [
@@ -245,7 +246,12 @@ class GatewayChannel(Channel):
         self.host, self.port, self.ppo = host, port, ppo
         self.out, self.inp, self.unit, self.input_function = out, inp, unit, input_function
         self._key = (host, port)
-        self._conn = GATEWAYS.acquire(self._key, lambda: GatewayConnection(host, port, timeout))
+        self._station = hold_station(host, port, unit, out, f"station at gateway {host}:{port} unit {unit} out={out}")
+        try:
+            self._conn = GATEWAYS.acquire(self._key, lambda: GatewayConnection(host, port, timeout))
+        except BaseException:
+            release_station(self._station)
+            raise
         self._closed = False
 
     @property
@@ -281,6 +287,7 @@ class GatewayChannel(Channel):
         if not self._closed:
             self._closed = True
             GATEWAYS.release(self._key)
+            release_station(self._station)
 
     def describe(self) -> str:
         fc = "FC04 input" if self.input_function == 4 else "FC03 holding"
