@@ -25,6 +25,7 @@ from starterbus.transports.modbus.config import DEFAULT_RETRIES, ModbusRtuConfig
 from starterbus.transports.modbus.exchange import TransactionPolicy
 from starterbus.transports.modbus.frames import ExceptionResponse, ReadRequest, ReadResponse, Request, Response
 from starterbus.transports.modbus.link import SerialSettings
+from starterbus.transports.modbus.mbap import encode_adu
 from starterbus.transports.modbus.poll_plan import sort_out
 from starterbus.transports.modbus.tcp_line import MbapConnection, MbapPoll
 from starterbus.transports.modbus.timing import silent_interval
@@ -122,6 +123,12 @@ class ModbusTcpTransport(ModbusRtuTransport):
         if self._gateway is not None:
             self._gateway = self._line = None
             GATEWAYS.release(self.tcp.line_key)
+
+    def _frame_text(self, request: Request) -> str:
+        """The MBAP ADU ``request`` goes out as; its transaction id is given when it is sent (``TT TT`` here)."""
+        pdu = request.encode()[1:-2]  # the RTU frame less its unit id and CRC
+        adu = encode_adu(0, request.unit, pdu).hex(" ").upper()
+        return f"TT TT{adu[5:]}  (MBAP; TT TT: the transaction id, given when sent)"
 
     def _remote_error(self, request: Request, response: ExceptionResponse) -> StarterbusError:
         """The device's own refusal, in the words of its manual (the gateway's 0x0A / 0x0B never get here)."""
