@@ -15,93 +15,28 @@ callback calling the sync API) would wait on itself and is refused at once (:cla
 
 from __future__ import annotations
 
-import math
 import os
-import select
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future
-from typing import Any, Generic, Protocol, TypeVar
+from typing import Any, Protocol, TypeVar
 
+from starterbus.core.engine import Ticket, TicketState
 from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
+from starterbus.core.media.waiter import FD_SETSIZE, Waiter, precise_timers
 
 __all__ = ["FD_SETSIZE", "Scheduler", "SchedulerReentryError", "Served", "Waiter", "precise_timers", "scheduler"]
 
 T = TypeVar("T")
-D = TypeVar("D")
 
-#: select() takes descriptors below this (glibc's FD_SETSIZE)
-FD_SETSIZE = 1024
 #: the longest wait of the scheduler's own thread when nothing is due (a submission wakes it at once anyway)
 IDLE = 1.0
-_PR_SET_TIMERSLACK = 29
 
 
 class SchedulerReentryError(StarterbusError):
     """A blocking call made from inside the scheduler's loop (its thread, or a leader's callback): it would wait
     on the loop that has to finish it."""
-
-
-def precise_timers() -> None:
-    """Linux: 1 us timer slack for the calling thread instead of 50 us, so that a wait for a line's silent
-    interval ends when the interval does. Best effort."""
-    try:
-        import ctypes
-
-        ctypes.CDLL(None).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0)
-    except (OSError, AttributeError):
-        pass
-
-
-class Waiter(Generic[D]):
-    """Waits until registered descriptors are ready, with a timeout to the microsecond: ``select`` (epoll
-    counts whole milliseconds, which would stretch every silent interval by up to one), or ``poll`` (whole
-    milliseconds too) while a descriptor is beyond ``select``'s limit. Neither keeps state in the kernel, so a
-    line reopened under the same descriptor number is watched like the old one. A descriptor is watched for
-    input, or with ``write=True`` for writability (a connection being made)."""
-
-    def __init__(self) -> None:
-        self._data: dict[int, D] = {}
-        self._fds: list[int] = []
-        self._writers: list[int] = []
-        self._poll: select.poll | None = None
-
-    def register(self, fd: int, data: D, write: bool = False) -> None:
-        self._data[fd] = data
-        if write:
-            self._writers = [*self._writers, fd]
-        else:
-            self._fds = [*self._fds, fd]
-        if self._poll is not None:
-            self._poll.register(fd, select.POLLOUT if write else select.POLLIN)
-        elif fd >= FD_SETSIZE:
-            self._poll = select.poll()
-            for known in self._fds:
-                self._poll.register(known, select.POLLIN)
-            for known in self._writers:
-                self._poll.register(known, select.POLLOUT)
-
-    def unregister(self, fd: int) -> None:
-        del self._data[fd]
-        self._fds = [f for f in self._fds if f != fd]
-        self._writers = [f for f in self._writers if f != fd]
-        if self._poll is not None:
-            self._poll.unregister(fd)
-            if not self._data or max(self._data) < FD_SETSIZE:
-                self._poll = None
-
-    def wait(self, timeout: float) -> list[D]:
-        """The data of the descriptors that are ready (or closed, or failed), after at most ``timeout`` s."""
-        if self._poll is not None:
-            return [self._data[fd] for fd, _ in self._poll.poll(math.ceil(timeout * 1000))]
-        if not self._writers:
-            return [self._data[fd] for fd in select.select(self._fds, (), (), timeout)[0]]
-        readable, writable, _ = select.select(self._fds, self._writers, (), timeout)
-        return [self._data[fd] for fd in (*readable, *writable)]
-
-    def close(self) -> None:
-        self._poll = None
 
 
 class Served(Protocol):
@@ -128,8 +63,19 @@ class Served(Protocol):
         """The loop body; ``ready``: ``fd`` was reported ready."""
         ...
 
-    def submit(self, request: Any, now: float, future: Future[Any]) -> None:
-        """Queue the request on the engine; ``future`` gets its ticket once the ticket ends."""
+    def submit(
+        self, requests: Sequence[Any], now: float, futures: Sequence[Future[Any] | None]
+    ) -> list[Ticket[Any, Any]]:
+        """Queue the requests on the engine as one batch (the first to fail withdraws the others); each future
+        (None: its waiter leads) gets its ticket once the ticket ends."""
+        ...
+
+    def withdraw(self, tickets: Sequence[Ticket[Any, Any]], now: float) -> None:
+        """Cancel those of the tickets that have not ended."""
+        ...
+
+    def cancel(self, futures: Sequence[Future[Any]], now: float) -> None:
+        """Cancel the tickets of these futures that have not ended."""
         ...
 
     def crash(self, error: StarterbusError, now: float) -> None:
@@ -176,18 +122,27 @@ class Scheduler:
 
     def submit(self, driver: Served, request: object) -> Future[Any]:
         """Queue ``request`` on the driver's engine; the future gets the ended ticket."""
-        future: Future[Any] = Future()
+        return self.submit_all(driver, [request])[0]
+
+    def submit_all(self, driver: Served, requests: Sequence[object]) -> list[Future[Any]]:
+        """Queue the requests as one batch (the first to fail withdraws the others); a future per request."""
+        futures: list[Future[Any]] = [Future() for _ in requests]
 
         def run(now: float) -> None:
-            future.set_running_or_notify_cancel()
+            live = [f for f in futures if f.set_running_or_notify_cancel()]  # not withdrawn before the loop
+            if len(live) < len(futures):
+                for future in live:
+                    future.set_exception(TransportError(f"{driver.name}: withdrawn before it was sent"))
+                return
             try:
-                driver.submit(request, now, future)
-            except Exception as exc:
-                future.set_exception(exc)
+                driver.submit(requests, now, futures)
+            except Exception as exc:  # a defect: the callers' to see
+                for future in futures:
+                    future.set_exception(exc)
             self._due.append(driver)
 
         self._post(run)
-        return future
+        return futures
 
     def _post(self, item: Callable[[float], None]) -> None:
         with self._lock:
@@ -203,6 +158,60 @@ class Scheduler:
         except (BlockingIOError, OSError):  # already woken (the pipe is full), or closed at exit
             pass
 
+    def run(self, driver: Served, requests: Sequence[object], bound: float, what: str) -> list[Ticket[Any, Any]]:
+        """Submit the requests to the driver and wait until each ticket has ended, or one has ended other than
+        DONE: those after it are then withdrawn (cancelled, or never sent). The tickets, in the order of the
+        requests (up to the first that failed, when the caller followed another thread's lead). Led by the caller
+        when it can (no inbox, no future: the sync API's usual case)."""
+        if not requests:
+            return []
+        me = threading.get_ident()
+        with self._lock:
+            lead = self._leader is None and self._thread is None
+            if lead:
+                self._leader = me
+        if not lead:
+            return self._follow(driver, requests, bound, what)
+        try:
+            now = self.clock()
+            tickets = driver.submit(requests, now, [None] * len(requests))
+            self._due.append(driver)
+
+            def over() -> bool:
+                return all(t.ended for t in tickets)
+
+            self._lead(over, now + bound)
+            if not over():
+                driver.withdraw(tickets, self.clock())
+                raise self._stalled(what, bound)
+        finally:
+            with self._lock:
+                self._leader = None
+                self._changed.notify_all()
+        return tickets
+
+    def _follow(self, driver: Served, requests: Sequence[object], bound: float, what: str) -> list[Ticket[Any, Any]]:
+        futures = self.submit_all(driver, requests)
+        tickets: list[Ticket[Any, Any]] = []
+        for index, future in enumerate(futures):
+            try:
+                ticket: Ticket[Any, Any] = self.wait(future, bound, what)
+            except BaseException:
+                self._withdraw(driver, futures[index:])
+                raise
+            tickets.append(ticket)
+            if ticket.state is not TicketState.DONE:
+                break  # the loop has withdrawn the batch's others
+        return tickets
+
+    def _withdraw(self, driver: Served, futures: Sequence[Future[Any]]) -> None:
+        """Cancel the tickets of these futures (without waiting: the loop does it at its next turn)."""
+
+        if futures:
+            for future in futures:  # not yet submitted: never will be
+                future.cancel()
+            self.call(lambda now: driver.cancel(futures, now))
+
     def wait(self, future: Future[T], bound: float, what: str) -> T:
         """The future's result, driving the loop while no other thread does. ``bound``: the outer limit (the
         engines keep the real timeouts); past it a TimeoutError names ``what`` and the stall."""
@@ -216,10 +225,7 @@ class Scheduler:
         while not future.done():
             remaining = give_up - self.clock()
             if remaining <= 0:
-                raise TimeoutError(
-                    f"{what}: not done within {bound:g} s: the I/O loop stalled "
-                    f"(drivers: {', '.join(d.name for d in self.drivers) or 'none'})"
-                )
+                raise self._stalled(what, bound)
             with self._lock:
                 lead = self._leader is None and self._thread is None
                 if lead:
@@ -231,7 +237,7 @@ class Scheduler:
                 future.add_done_callback(self._notify)  # outside the lock: a done future calls it at once
             if lead:
                 try:
-                    self._lead(future, give_up)
+                    self._lead(future.done, give_up)
                 finally:
                     with self._lock:
                         self._leader = None
@@ -254,6 +260,10 @@ class Scheduler:
                 self._leader = None
                 self._changed.notify_all()
         return True
+
+    def _stalled(self, what: str, bound: float) -> TimeoutError:
+        names = ", ".join(d.name for d in self.drivers) or "none"
+        return TimeoutError(f"{what}: not done within {bound:g} s: the I/O loop stalled (drivers: {names})")
 
     def _notify(self, _: Future[Any]) -> None:
         with self._lock:
@@ -316,16 +326,16 @@ class Scheduler:
         self.drivers = [d for d in self.drivers if d is not driver]
         self._due = [d for d in self._due if d is not driver]
 
-    def _lead(self, future: Future[Any], give_up: float) -> None:
-        while not future.done() and self._thread is None:
+    def _lead(self, done: Callable[[], bool], give_up: float) -> None:
+        while not done() and self._thread is None:
             now = self.clock()
             if now >= give_up:
                 return
-            self._turn(now, give_up, future)
+            self._turn(now, give_up, done)
 
-    def _turn(self, now: float, until: float, leading: Future[Any] | None) -> None:
+    def _turn(self, now: float, until: float, done: Callable[[], bool] | None) -> None:
         """One pass: the inbox, the drivers due, one wait on every descriptor, the drivers ready or due (no
-        wait once the future ``leading`` is for is done)."""
+        wait once what the leader waits for is ``done``)."""
         if self._inbox:
             with self._lock:
                 items, self._inbox = self._inbox, []
@@ -341,7 +351,7 @@ class Scheduler:
             if self._watched.get(driver, (-1, False)) != (fd, writing):
                 self._watch(driver, fd, writing)
             wait_until = min(wait_until, driver.deadline)
-        if leading is not None and leading.done():
+        if done is not None and done():
             return
         if self._inbox or self._due:
             wait_until = now

@@ -1,5 +1,6 @@
 """The drivers of the media engines run on (docs/engine.md): the one loop body (:class:`Driver`), a byte stream
-with a descriptor (:class:`StreamDriver`), a TCP client connection (:class:`TcpDriver`). Protocol-neutral."""
+with a descriptor (:class:`StreamDriver`), a TCP client connection (:class:`TcpDriver`); ``waiter.py`` waits on
+their descriptors. Protocol-neutral."""
 
 from starterbus.core.media.driver import Driver, Stream, StreamDriver
 from starterbus.core.media.tcp import TcpDriver

@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from typing import Any, Generic, Protocol, TypeVar
 
-from starterbus.core.engine import Engine, Ticket
+from starterbus.core.engine import Engine, Ticket, TicketState
 from starterbus.core.errors import StarterbusError, TransportError
 
 __all__ = ["Driver", "Stream", "StreamDriver"]
@@ -44,7 +44,8 @@ class Driver(Generic[E]):
         self.name = name
         self._make_engine = make_engine
         self.engine: E = make_engine()
-        self._futures: dict[Ticket[Any, Any], Future[Any]] = {}
+        self._futures: dict[Ticket[Any, Any], Future[Any] | None] = {}  # None: its waiter leads, no future
+        self._batches: dict[Ticket[Any, Any], list[Ticket[Any, Any]]] = {}
         self.crashes = 0
 
     # -- what the scheduler reads ---------------------------------------------------------------------------
@@ -75,10 +76,11 @@ class Driver(Generic[E]):
             engine = self.engine
             if now >= engine.deadline:
                 engine.advance(now)
+            self.complete(now)  # a batch that failed is withdrawn before its next request could go out
             out = engine.take_output(now)
             if out:
                 self.write(out, now)
-        self.complete()
+        self.complete(now)
 
     def take_input(self, now: float) -> None:
         """Read what is ready and give it to the engine (the medium's own)."""
@@ -91,17 +93,46 @@ class Driver(Generic[E]):
         """Put ``units`` on the medium."""
         raise NotImplementedError
 
-    def complete(self) -> None:
-        for ticket in self.engine.take_completed():
-            future = self._futures.pop(ticket, None)
-            if future is not None:
-                future.set_result(ticket)
+    def complete(self, now: float) -> None:
+        """End the futures of the ended tickets; a ticket of a batch that ended other than DONE withdraws the
+        batch's tickets that have not ended (cancelled: never sent, or forgotten)."""
+        done = self.engine.take_completed()
+        while done:
+            withdrawn = False
+            for ticket in done:
+                future = self._futures.pop(ticket, None)
+                batch = self._batches.pop(ticket, None)
+                if batch is not None and ticket.state is not TicketState.DONE:
+                    for other in batch:
+                        if not other.ended:
+                            self.engine.cancel(other, now)
+                            withdrawn = True
+                if future is not None:
+                    future.set_result(ticket)
+            done = self.engine.take_completed() if withdrawn else []
 
     # -- what the scheduler calls -------------------------------------------------------------------------------
 
-    def submit(self, request: Any, now: float, future: Future[Any]) -> None:
-        ticket = self.engine.submit(request, now)
-        self._futures[ticket] = future
+    def submit(
+        self, requests: Sequence[Any], now: float, futures: Sequence[Future[Any] | None]
+    ) -> list[Ticket[Any, Any]]:
+        """Queue the requests as one batch (the first to fail withdraws the others); each future (None: its
+        waiter leads and watches the ticket) gets its ticket once it ends."""
+        engine = self.engine
+        tickets: list[Ticket[Any, Any]] = [engine.submit(request, now) for request in requests]
+        for ticket, future in zip(tickets, futures, strict=True):
+            self._futures[ticket] = future
+        if len(tickets) > 1:
+            for ticket in tickets:
+                self._batches[ticket] = tickets
+        return tickets
+
+    def withdraw(self, tickets: Sequence[Ticket[Any, Any]], now: float) -> None:
+        """Cancel those of the tickets that have not ended (in the loop)."""
+        for ticket in tickets:
+            if not ticket.ended:
+                self.engine.cancel(ticket, now)
+        self.complete(now)
 
     def cancel(self, futures: Sequence[Future[Any]], now: float) -> None:
         """Cancel the tickets of these futures that have not ended (in the loop: through
@@ -110,16 +141,18 @@ class Driver(Generic[E]):
         for ticket, future in list(self._futures.items()):
             if future in withdrawn and not ticket.ended:
                 self.engine.cancel(ticket, now)
-        self.complete()
+        self.complete(now)
 
     def crash(self, error: StarterbusError, now: float) -> None:
         """A step raised: every ticket handed out fails with ``error``; the next ones go to a fresh engine."""
         self.crashes += 1
         futures, self._futures = self._futures, {}
+        self._batches.clear()
         for ticket, future in futures.items():
             if not ticket.ended:
                 ticket.failed(error, now)
-            future.set_result(ticket)
+            if future is not None:
+                future.set_result(ticket)
         self.drop_medium()
         self.engine = self._make_engine()
 

@@ -85,7 +85,7 @@ class TcpDriver(StreamDriver[E]):
         error = TransportError(f"{self.name} is closed")
         self.engine.lost(error, now)
         self.engine.refuse(error, now)
-        self.complete()
+        self.complete(now)
 
     def check(self, now: float) -> bool:
         """Whether the connection is up, after taking what is waiting on it (a close by the peer is seen)."""

@@ -216,3 +216,18 @@ def test_threads_sharing_a_driver_each_get_their_own_answers(scheduler: Schedule
         assert not any(w.is_alive() for w in workers) and not wrong and driver.pending == 0
     finally:
         peer.close()
+
+
+def test_run_leads_and_withdraws_what_follows_a_failure(scheduler: Scheduler) -> None:
+    """``run``: the caller leads without a future; ``a`` goes unanswered (timeout), so ``b``, queued behind it,
+    is withdrawn in the step that failed ``a``, never sent; a's late answer is stale, the next run's are theirs."""
+    driver, peer = driver_with_peer(scheduler, held=b"a", timeout=0.05, attempts=1)
+    try:
+        a, b = scheduler.run(driver, [b"a", b"b"], 5, "a then b")
+        assert a.state is TicketState.FAILED and isinstance(a.error, TimeoutError)
+        assert b.state is TicketState.CANCELLED and b.attempts == 0 and driver.pending == 0
+        peer.release.set()  # the answer to a comes now, late: stale, before c's
+        assert [t.outcome() for t in scheduler.run(driver, [b"c", b"d"], 5, "c, d")] == [b"C", b"D"]
+        assert b"B" not in peer.seen and driver.engine.stale == 1 and not scheduler.running
+    finally:
+        peer.close()

@@ -99,31 +99,24 @@ class MbapConnection:
         """The transactions, up to ``outstanding`` on the wire at once; answers in the order of ``exchanges``.
         A failed attempt is repeated on its own, within its policy; the first failure for good raises (the
         transactions after it are withdrawn: those not sent never are)."""
-        loop, driver = self._loop, self._driver
-        futures = [loop.submit(driver, exchange) for exchange in exchanges]
+        if not exchanges:
+            return []
         bound = STALL + self._connect_timeout + sum(e.policy.timeout * e.attempts for e in exchanges)
-        out: list[Response] = []
-        for index, (exchange, future) in enumerate(zip(exchanges, futures, strict=True)):
-            try:
-                ticket: MbapTicket = loop.wait(future, bound, f"{self.name}: unit {exchange.request.unit}")
-            except BaseException:
-                self._withdraw(futures[index:])
-                raise
-            self._count(counters, exchange, ticket)
-            if ticket.state is not TicketState.DONE:
-                self._withdraw(futures[index + 1 :])
-                ticket.outcome()  # raises the ticket's error
-            assert ticket.result is not None
-            out.append(ticket.result)
-        return out
+        what = f"{self.name}: unit {exchanges[0].request.unit}"
+        tickets: list[MbapTicket] = self._loop.run(self._driver, exchanges, bound, what)  # type: ignore[assignment]
+        for exchange, ticket in zip(exchanges, tickets, strict=False):
+            if ticket.state is not TicketState.CANCELLED:  # withdrawn after another one's failure
+                self._count(counters, exchange, ticket)
+        for ticket in tickets:
+            if ticket.state is TicketState.FAILED:
+                ticket.outcome()  # raises its error
+        return [ticket.outcome() for ticket in tickets]
 
-    def _withdraw(self, futures: Sequence[Future[Any]], wait: bool = True) -> None:
+    def _withdraw(self, futures: Sequence[Future[Any]]) -> None:
+        """Cancel these futures' transactions (without waiting: the loop does it at its next turn)."""
         if futures:
             driver = self._driver
-            if wait:
-                self._call(lambda now: driver.cancel(futures, now), "withdraw")
-            else:
-                self._loop.call(lambda now: driver.cancel(futures, now))
+            self._loop.call(lambda now: driver.cancel(futures, now))
 
     def _count(self, counters: TransportCounters | None, exchange: Exchange, ticket: MbapTicket) -> None:
         if counters is None:
@@ -172,7 +165,7 @@ class MbapPoll(PollTask):
         connection = self.connection
         loop, driver = connection._loop, connection._driver
         if self._futures is None:
-            self._futures = [loop.submit(driver, exchange) for exchange in self.exchanges]
+            self._futures = loop.submit_all(driver, self.exchanges)
         if loop.try_turn():
             self.fd, self.wake_at = driver.fd, driver.deadline
         else:
@@ -200,7 +193,7 @@ class MbapPoll(PollTask):
     def _end(self, error: StarterbusError, rest: Sequence[Future[Any]]) -> None:
         self._error = error
         self.done = True
-        self.connection._withdraw(rest, wait=False)
+        self.connection._withdraw(rest)
         self.connection._loop.try_turn()  # the withdrawal made now, unless another thread leads (it makes it)
 
     def result(self) -> PollResult:
