@@ -15,12 +15,16 @@ it; the browser is another process) per second of wall time, web minus baseline,
 no row falls behind).
 
 Load time (goal < 1 s): the page is loaded ``--loads`` times, each in a fresh browser context (empty cache, as a
-first visit), Chromium itself started once before (its start, ``browser_start_s``, is not the page's). ``load_s``
-is from ``page.goto`` until Playwright sees every row built (``body[data-ready]``; it waits for the layout);
-``breakdown_ms`` are the page's own timings from navigation start (the median over the loads): ``html`` (the
-response's end), ``snapshot`` (the snapshot's arrival: the ``/api/fleet`` response, or the stream's first event for
-a page that has no such request), ``scripts`` (DOMContentLoaded), ``built`` (every row in the DOM), ``painted``
-(the first frame after, laid out and painted). ``reload_s`` is a reload of the last page (scripts cached).
+first visit), Chromium itself started once before and warmed up by one small page (its start,
+``browser_start_s``, is not the page's). ``load_s`` is from ``page.goto`` until Playwright sees every row built
+(``body[data-ready]``; it waits for the layout; its own polling included); ``breakdown_ms`` are the page's own
+timings from navigation start (the median over the loads): ``html`` (the response's end), ``snapshot`` (the
+snapshot's arrival: the ``/api/fleet`` response, or the stream's first event for a page that has no such
+request), ``scripts`` (DOMContentLoaded), ``built`` (every row in the DOM), ``painted`` (the first frame after,
+laid out and painted). ``reload_s`` is a reload of the last page (scripts cached).
+
+The page's own work at 1 Hz: ``page_main_thread_core``, the renderer's main thread busy (Chrome's
+``Performance.getMetrics``: all tasks, script, layout) per second while the CPU is measured, in cores.
 """
 
 from __future__ import annotations
@@ -178,6 +182,9 @@ def browse(box: dict[str, Any], done: threading.Event, seconds: float, loads: in
         t0 = time.monotonic()
         browser = p.chromium.launch(executable_path=chromium, args=["--no-sandbox"])
         started = time.monotonic() - t0
+        warm_up = browser.new_context()  # Chromium's first page starts its network service: not the fleet page's
+        warm_up.new_page().goto(box["url"] + "api/session")
+        warm_up.close()
         times, parts = [], []
         for i in range(loads):
             context, page, load, breakdown = _load(browser, box["url"])
@@ -190,7 +197,12 @@ def browse(box: dict[str, Any], done: threading.Event, seconds: float, loads: in
         page.wait_for_selector("body[data-ready='1']", timeout=30_000)
         box["reload_s"] = time.monotonic() - t1
         box["ready"].set()
+        cdp = page.context.new_cdp_session(page)
+        cdp.send("Performance.enable")
+        m0, w0 = _metrics(cdp), time.monotonic()
         time.sleep(seconds + 1.0)
+        m1, wall = _metrics(cdp), time.monotonic() - w0
+        busy = {k: round((m1[k] - m0[k]) / wall, 4) for k in ("TaskDuration", "ScriptDuration", "LayoutDuration")}
         oldest = page.evaluate(
             """() => { let worst = 0;
                 for (const td of document.querySelectorAll('tr[data-device] td.num:last-child')) {
@@ -201,7 +213,18 @@ def browse(box: dict[str, Any], done: threading.Event, seconds: float, loads: in
         browser.close()
     done.set()
     breakdown = {k: round(statistics.median(p[k] for p in parts if p[k] is not None), 1) for k in parts[0]}
-    return {"start": started, "loads": times, "breakdown": breakdown, "oldest_row_s": oldest, "rows": rows}
+    return {
+        "start": started,
+        "loads": times,
+        "breakdown": breakdown,
+        "oldest_row_s": oldest,
+        "rows": rows,
+        "page": busy,
+    }
+
+
+def _metrics(cdp: Any) -> dict[str, float]:
+    return {m["name"]: float(m["value"]) for m in cdp.send("Performance.getMetrics")["metrics"]}
 
 
 def main() -> None:
@@ -236,6 +259,7 @@ def main() -> None:
                 "reload_s": round(box["reload_s"], 3),
                 "rows": result["rows"],
                 "oldest_row_s": result["oldest_row_s"],
+                "page_main_thread_core": result["page"],
                 "event_streams": box.get("clients"),
             }
         )
