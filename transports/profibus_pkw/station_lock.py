@@ -4,11 +4,10 @@ A PKW request carries no master id, and its answer does not say which data area 
 writing the same station's output words (a `starterbus read` beside a running `serve`) gets the answer to the
 other's task, e.g. a measurement for the parameter of the same number (seen: `current_limit` read as 0 % while
 `serve` polled the currents). Nothing on the wire can tell, so programs on one machine keep out of each other's
-way: the first to open a station holds an exclusive ``flock`` on ``STARTERBUS_LOCK_DIR`` (default
-``$TMPDIR/starterbus-stations``) ``/pkw-HOST-PORT-uUNIT-oOUT.lock``, and another program's open is refused with
-one line naming the holder's pid. Channels in one process share the hold (the fleet and its jobs share a device;
-a process that opens one station twice is its own business). A master on another machine (a PLC, a second
-gateway client) is not seen; see docs/profibus.md.
+way: the first to open a station holds an exclusive ``flock`` on ``pkw-HOST-PORT-uUNIT-oOUT.lock`` in
+:func:`lock_dir`, and another program's open is refused with one line naming the holder's pid. Channels in one
+process share the hold (the fleet and its jobs share a device; a process that opens one station twice is its
+own business). A master on another machine (a PLC, a second gateway client) is not seen; see docs/profibus.md.
 """
 
 from __future__ import annotations
@@ -32,7 +31,12 @@ _guard = threading.Lock()
 
 
 def lock_dir() -> Path:
-    return Path(os.environ.get(LOCK_DIR_ENV) or Path(tempfile.gettempdir()) / "starterbus-stations")
+    """``$STARTERBUS_LOCK_DIR``, else ``/dev/shm/starterbus-stations`` (one place for every user and service: a
+    systemd unit's ``PrivateTmp`` hides /tmp, not /dev/shm), else ``$TMPDIR/starterbus-stations``."""
+    if os.environ.get(LOCK_DIR_ENV):
+        return Path(os.environ[LOCK_DIR_ENV])
+    shm = Path("/dev/shm")
+    return (shm if shm.is_dir() else Path(tempfile.gettempdir())) / "starterbus-stations"
 
 
 def station_name(host: str, port: int, unit: int, out: int) -> str:
@@ -55,8 +59,10 @@ def hold_station(host: str, port: int, unit: int, out: int, what: str) -> str | 
             _held[key] = (fd, count + 1)
             return key
         try:
-            path.parent.mkdir(mode=0o1777, parents=True, exist_ok=True)
+            _shared_folder(path.parent)
             fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+            if os.fstat(fd).st_uid == os.getuid():
+                os.fchmod(fd, 0o666)  # another user's program must be able to open it to ask (the umask took w)
         except OSError as exc:
             log.warning("%s: cannot check that no other program on this machine uses it (%s: %s)", what, path, exc)
             return None
@@ -74,6 +80,15 @@ def hold_station(host: str, port: int, unit: int, out: int, what: str) -> str | 
         os.pwrite(fd, f"pid {os.getpid()}".encode(), 0)
         _held[key] = (fd, 1)
         return key
+
+
+def _shared_folder(folder: Path) -> None:
+    """The lock folder, made for every user (mode 1777 whatever the umask) if it is not there."""
+    try:
+        folder.mkdir(parents=True)
+    except FileExistsError:
+        return
+    os.chmod(folder, 0o1777)
 
 
 def release_station(key: str | None) -> None:
