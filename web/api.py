@@ -97,13 +97,16 @@ async def fleet(request: web.Request) -> web.Response:
 async def stream(request: web.Request) -> web.StreamResponse:
     """Server-sent events: ``snapshot`` first, then ``update`` with the changed rows every interval. A page that
     has the rows as of an event id (``?after=ID``, or ``Last-Event-ID`` when the browser reconnects) starts with
-    only the rows changed since."""
+    only the rows changed since; ``?device=NAME`` (a device page) carries that device's row only."""
     view = _server(request).view
+    device = request.query.get("device")
+    if device is not None and device not in view.rows:
+        return _error(404, f"no device {device!r} in the fleet")
     response = web.StreamResponse(
         headers={"Content-Type": "text/event-stream", "Cache-Control": "no-cache", "X-Accel-Buffering": "no"}
     )
     await response.prepare(request)
-    queue = view.subscribe(request.headers.get("Last-Event-ID") or request.query.get("after"))
+    queue = view.subscribe(request.headers.get("Last-Event-ID") or request.query.get("after"), device)
     try:
         await response.write(b"retry: 2000\n\n")
         while True:

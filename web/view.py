@@ -94,6 +94,7 @@ class FleetView:
         self._dirty: set[str] = set()
         self._profiles: dict[str, Profile | None] = {}
         self._clients: set[asyncio.Queue[bytes | None]] = set()
+        self._watching: dict[asyncio.Queue[bytes | None], str] = {}  # a device page's queue -> its device
         self.events_sent = 0
         self.clients_dropped = 0
         self.epoch = secrets.token_hex(4)  # event ids of another process (a restarted server) are not ours
@@ -193,14 +194,22 @@ class FleetView:
     def _broadcast(self, changed: list[str]) -> None:
         if not self._clients:
             return
-        message = sse("update", self._payload(changed, with_id=False), self.event_id)
+        messages: dict[str | None, bytes] = {}  # one encoding for the fleet pages, one per device watched
+
+        def message(device: str | None) -> bytes:
+            if device not in messages:
+                names = changed if device is None else [device] if device in changed else []
+                messages[device] = sse("update", self._payload(names, with_id=False), self.event_id)
+            return messages[device]
+
         self.events_sent += 1
         for queue in list(self._clients):
             try:
-                queue.put_nowait(message)
+                queue.put_nowait(message(self._watching.get(queue)))
             except asyncio.QueueFull:
                 self.clients_dropped += 1
                 self._clients.discard(queue)
+                self._watching.pop(queue, None)
                 with contextlib.suppress(asyncio.QueueFull):
                     queue.get_nowait()
                     queue.put_nowait(None)  # tells the stream to end; the page reconnects from its last event id
@@ -230,21 +239,29 @@ class FleetView:
                 names |= changed
         return sorted(names)
 
-    def subscribe(self, after: str | None = None) -> asyncio.Queue[bytes | None]:
+    def subscribe(self, after: str | None = None, device: str | None = None) -> asyncio.Queue[bytes | None]:
         """A new page: its queue starts with the snapshot or, for a page that has the rows as of event ``after``
-        (from ``/api/fleet``, or its stream's last event before a reconnection), with only what changed since."""
+        (from ``/api/fleet``, or its stream's last event before a reconnection), with only what changed since.
+        ``device`` (a device page): only that device's row, in the snapshot and in every update (an update with
+        no row when it did not change: the line utilisation, and a heartbeat)."""
+        if device is not None and device not in self.rows:
+            raise KeyError(device)
         self._refresh_into_rows()
         queue: asyncio.Queue[bytes | None] = asyncio.Queue(self.queue_size)
         changed = self.changed_since(after) if after else None
+        names = list(self.rows) if device is None else [device]
         if changed is None:
-            queue.put_nowait(sse("snapshot", self._payload(self.rows, with_id=True), self.event_id))
-        elif changed:
+            queue.put_nowait(sse("snapshot", self._payload(names, with_id=True), self.event_id))
+        elif changed := [name for name in changed if name in names]:
             queue.put_nowait(sse("update", self._payload(changed, with_id=False), self.event_id))
         self._clients.add(queue)
+        if device is not None:
+            self._watching[queue] = device
         return queue
 
     def unsubscribe(self, queue: asyncio.Queue[bytes | None]) -> None:
         self._clients.discard(queue)
+        self._watching.pop(queue, None)
 
     @property
     def clients(self) -> int:

@@ -73,6 +73,15 @@ def test_a_page_loaded_from_the_snapshot_continues_the_stream_from_its_id(site: 
     assert _first_event(site.url + "api/stream", {"Last-Event-ID": "another-process-1"})[1] == "snapshot"
 
 
+def test_a_device_pages_stream_carries_that_device_only(site: WebDemo) -> None:
+    with urllib.request.urlopen(site.url + "api/stream?device=mill", timeout=20) as stream:
+        while not (line := stream.readline().decode()).startswith("data: "):
+            pass
+    assert [d["name"] for d in json.loads(line[6:])["devices"]] == ["mill"]
+    status, body = Client(site.url).call("GET", "/api/stream?device=nothing")
+    assert status == 404 and "no device 'nothing'" in body["error"]
+
+
 def test_a_visitor_reads_a_device_with_every_parameter(site: WebDemo) -> None:
     status, detail = Client(site.url).call("GET", "/api/devices/conveyor")
     assert status == 200

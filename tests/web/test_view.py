@@ -100,3 +100,33 @@ def test_an_id_the_view_cannot_continue_from_gets_a_snapshot() -> None:
     recent = f"{view.epoch}-{view.seq - 1}"
     [(_, event, data)] = _events(view.subscribe(recent))
     assert event == "update" and [d["name"] for d in data["devices"]] == ["a2"]
+
+
+def test_a_device_pages_stream_carries_its_device_only() -> None:
+    """A device page's stream (``?device=NAME``): the snapshot and every update hold that device's row only (an
+    update without it when it did not change); a fleet page beside it still gets every changed row."""
+    view = _view()
+    fleet = view.subscribe()
+    page = view.subscribe(device="a2")
+    (_, kind, snap), *_ = _events(page)
+    assert kind == "snapshot" and [d["name"] for d in snap["devices"]] == ["a2"]
+    _events(fleet)
+    view.observe(_sample("a1"))
+    view.observe(_sample("a2", word=0x2201))
+    view.flush()
+    assert [[d["name"] for d in data["devices"]] for _, _, data in _events(page)] == [["a2"]]
+    assert [sorted(d["name"] for d in data["devices"]) for _, _, data in _events(fleet)] == [["a1", "a2"]]
+    view.observe(_sample("b1"))
+    view.flush()
+    ((_, kind, data),) = _events(page)
+    assert (
+        kind == "update" and data["devices"] == [] and [line["name"] for line in data["lines"]] == ["line-a", "line-b"]
+    )
+    (last_id, _, _), *_ = [(view.event_id, "", {})]
+    view.observe(_sample("a1", word=0x2201))
+    view.flush()
+    again = view.subscribe(after=last_id, device="a2")  # reconnecting: a2 did not change since
+    assert _events(again) == []
+    view.unsubscribe(page)
+    view.unsubscribe(again)
+    assert view.clients == 1

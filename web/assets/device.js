@@ -334,7 +334,7 @@
     applyLocalTexts();
     refresh().then(() => { loadEvents(); loadStarts(); loadHistoryKeys(); });
     let last = 0;
-    SB.stream(() => null, (msg) => {
+    SB.stream(() => null, (msg) => {  // this device's row only (not the fleet's: a tablet on a 1,000-device plant)
       const mine = msg.devices.find((d) => d.name === name);
       if (!mine || !detail) return;
       const changed = mine.state !== detail.row.state;
@@ -342,7 +342,7 @@
       loadEvents();  // a new poll of this device: the history has recorded what happened before it
       if (changed) { renderActions(); loadStarts(); }
       if (Date.now() - last > 5000) { last = Date.now(); refresh(); }
-    });
+    }, "/api/stream?device=" + encodeURIComponent(name));
     let resizing = null;  // a tablet turned, a window resized: the charts take the new width
     window.addEventListener("resize", () => {
       clearTimeout(resizing);
