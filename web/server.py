@@ -158,6 +158,8 @@ async def _headers(request: web.Request, handler: Handler) -> web.StreamResponse
     response = await handler(request)
     for name, value in SECURITY_HEADERS.items():
         response.headers.setdefault(name, value)
+    if request.path.startswith("/assets/"):  # revalidated (ETag: a 304): after an upgrade, never an old script
+        response.headers.setdefault("Cache-Control", "no-cache")
     if request.app[SERVER].settings.tls:
         response.headers.setdefault("Strict-Transport-Security", "max-age=31536000")
     return response

@@ -82,6 +82,12 @@ def test_a_device_pages_stream_carries_that_device_only(site: WebDemo) -> None:
     assert status == 404 and "no device 'nothing'" in body["error"]
 
 
+def test_the_pages_assets_are_revalidated(site: WebDemo) -> None:
+    """After an upgrade a browser never runs an old script: every asset is revalidated (its ETag: a 304)."""
+    with urllib.request.urlopen(site.url + "assets/fleet.js", timeout=20) as response:
+        assert response.headers["Cache-Control"] == "no-cache" and response.headers["ETag"]
+
+
 def test_a_visitor_reads_a_device_with_every_parameter(site: WebDemo) -> None:
     status, detail = Client(site.url).call("GET", "/api/devices/conveyor")
     assert status == 200
