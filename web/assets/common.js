@@ -9,6 +9,7 @@ const SB = (() => {
       currents: "Currents", last_poll: "Last poll", offline_for: "offline for", utilisation: "line use",
       devices_shown: "{shown} of {total} devices shown; {online} online, {faults} in fault",
       live: "live", reconnecting: "reconnecting…", read_only: "read-only", ago: "{t} ago",
+      "role_read-only": "read-only", role_operator: "operator",
       login_failed: "Login refused: wrong user name or password, or too many attempts.",
       parameters: "Parameters", measurements: "Measurements", status: "Status", events: "Events",
       starts: "Recorded starts", history: "History", backup: "Backup", actions: "Actions",
@@ -31,6 +32,7 @@ const SB = (() => {
       device: "设备", model: "型号", state: "状态", fault: "故障", currents: "电流", last_poll: "上次轮询",
       offline_for: "离线", utilisation: "线路占用", devices_shown: "显示 {shown}/{total} 台；{online} 台在线，{faults} 台故障",
       live: "实时", reconnecting: "重新连接…", read_only: "只读", ago: "{t} 前",
+      "role_read-only": "只读", role_operator: "操作员",
       login_failed: "登录被拒绝：用户名或密码错误，或尝试次数过多。",
       parameters: "参数", measurements: "测量值", status: "状态", events: "事件", starts: "记录的起动",
       history: "历史", backup: "备份", actions: "操作", start: "起动", stop: "停车", reset: "故障复位", write: "写入",
@@ -121,7 +123,7 @@ const SB = (() => {
   }
   function renderSession() {
     const who = document.getElementById("who");
-    if (who) who.textContent = session.user ? session.user + " (" + session.role + ")" : t("read_only");
+    if (who) who.textContent = session.user ? session.user + " (" + t("role_" + session.role) + ")" : t("read_only");
     const inB = document.getElementById("login-button"), outB = document.getElementById("logout-button");
     if (inB) inB.hidden = !!session.user || !session.logins;
     if (outB) outB.hidden = !session.user;
