@@ -209,7 +209,7 @@ def _in_use(fd: int) -> bool:
 
 
 def test_the_waiter_takes_descriptors_beyond_select_s_limit() -> None:
-    waiter = Waiter()
+    waiter: Waiter[object] = Waiter()
     low_r, low_w = os.pipe()
     high_r, high_w = os.pipe()
     far = next(fd for fd in range(FD_SETSIZE + 500, FD_SETSIZE + 600) if not _in_use(fd))
@@ -218,7 +218,7 @@ def test_the_waiter_takes_descriptors_beyond_select_s_limit() -> None:
     try:
         waiter.register(low_r, None)
         assert waiter.wait(0.0) == []
-        waiter.register(far, marker)  # type: ignore[arg-type]
+        waiter.register(far, marker)
         assert waiter.wait(0.0) == []
         os.write(high_w, b"x")
         assert waiter.wait(5.0) == [marker]

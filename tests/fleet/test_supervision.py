@@ -124,7 +124,7 @@ def broken_selector(monkeypatch: pytest.MonkeyPatch, at_call: int) -> None:
     calls = [0]
     original = Waiter.wait
 
-    def wait(self: Waiter, timeout: float) -> list[Any]:
+    def wait(self: Waiter[Any], timeout: float) -> list[Any]:
         calls[0] += 1
         if calls[0] == at_call:
             raise RuntimeError("the selector broke")
