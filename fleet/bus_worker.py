@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
+from starterbus.core.media.waiter import precise_timers
 from starterbus.core.model import PointDef, Value
 from starterbus.core.polling import PollResult
 from starterbus.core.status import Status
@@ -40,19 +41,6 @@ from starterbus.fleet.plan import poll_points
 from starterbus.fleet.poll_context import PollContext
 from starterbus.fleet.probing import ProbeBudget, backoff
 from starterbus.fleet.sample import Sample
-
-_PR_SET_TIMERSLACK = 29
-
-
-def precise_timers() -> None:
-    """Linux: 1 us timer slack for the calling polling thread instead of 50 us, so that a wait for the line's silent
-    interval ends when the interval does (a line's throughput is a chain of such waits). Best effort."""
-    try:
-        import ctypes
-
-        ctypes.CDLL(None).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0)
-    except (OSError, AttributeError):
-        pass
 
 
 @dataclass
