@@ -16,10 +16,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol, runtime_checkable
 
+from starterbus.core import AddressSpace, Label, Profile
 from starterbus.core import settings_check as check
-from starterbus.core.address_space import AddressSpace
-from starterbus.core.model import Label
-from starterbus.core.profile import Profile
 
 SPACE_NAME = "modbus"
 MAX_READ_REGISTERS = 125  # Modbus application protocol limit for FC03

@@ -16,13 +16,13 @@ from starterbus.core import (
     Command,
     ConfigurationError,
     ManualClock,
+    Phase,
     RemoteDeviceError,
     SimulatedStarter,
     TimeoutError,
     get_profile,
     open_device,
 )
-from starterbus.core.simulator import Phase
 from starterbus.testing import wait_until
 
 MODEL = "example_canopen_starter"
