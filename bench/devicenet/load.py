@@ -23,12 +23,12 @@ import uuid
 
 import can
 
-from starterbus.core.registry import get_profile
-from starterbus.core.simulator import SimulatedStarter
-from starterbus.transports.devicenet.assemblies import AssemblySet
-from starterbus.transports.devicenet.scanner import LinkConfig, Scanner, ScannerConfig, ScannerState, SlaveLink
+from starterbus.core import SimulatedStarter, get_profile
+from starterbus.transports.devicenet.codec.assemblies import AssemblySet
+from starterbus.transports.devicenet.driver.scanner import Scanner, SlaveLink
+from starterbus.transports.devicenet.master.link import LinkConfig, ScannerConfig, ScannerState
 from starterbus.transports.devicenet.simulator import DeviceNetSimulator
-from starterbus.transports.devicenet.transport import timing_for_period
+from starterbus.transports.devicenet.url import timing_for_period
 
 FOREIGN = [
     can.Message(arbitration_id=can_id, data=bytes.fromhex(data), is_extended_id=False)

@@ -29,12 +29,11 @@ from functools import partial
 
 import can
 
-from starterbus.core.registry import get_profile
-from starterbus.core.simulator import SimulatedStarter
-from starterbus.transports.devicenet.assemblies import AssemblySet
-from starterbus.transports.devicenet.ids import poll_command_id, poll_response_id
-from starterbus.transports.devicenet.master_link import ANSWER_GUARD
-from starterbus.transports.devicenet.scanner import LinkConfig, LinkState, Scanner, ScannerConfig
+from starterbus.core import SimulatedStarter, get_profile
+from starterbus.transports.devicenet.codec.assemblies import AssemblySet
+from starterbus.transports.devicenet.codec.ids import poll_command_id, poll_response_id
+from starterbus.transports.devicenet.driver.scanner import Scanner
+from starterbus.transports.devicenet.master.link import ANSWER_GUARD, LinkConfig, LinkState, ScannerConfig
 from starterbus.transports.devicenet.simulator import DeviceNetSimulator
 
 

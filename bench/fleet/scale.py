@@ -61,9 +61,9 @@ from starterbus.bench.fleet.scale_fleet import (
     start_fleet,
 )
 from starterbus.bench.fleet.scale_report import DEVICENET_BITRATE, report
-from starterbus.core.registry import get_profile
+from starterbus.core import get_profile
 from starterbus.fleet.poller import FleetPoller, Sample
-from starterbus.transports.devicenet.scanner import Scanner
+from starterbus.transports.devicenet.driver.scanner import Scanner
 from starterbus.transports.devicenet.transport import DeviceNetTransport
 from starterbus.transports.modbus.client import ModbusRtuTransport
 from starterbus.transports.modbus.line import RtuLine

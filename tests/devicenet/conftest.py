@@ -9,9 +9,9 @@ import can
 import pytest
 from can.interfaces import virtual
 
+from starterbus.core import CanFrame
 from starterbus.testing import wait_until
-from starterbus.transports.devicenet.canbus import from_message
-from starterbus.transports.devicenet.frames import CanFrame
+from starterbus.transports.devicenet.driver.canbus import from_message
 from starterbus.transports.devicenet.transport import SCANNERS
 
 

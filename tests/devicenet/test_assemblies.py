@@ -6,10 +6,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from starterbus.core.errors import EncodeError
-from starterbus.core.profile import Profile
-from starterbus.core.status import CW_BUS_CONTROL, Command, ControlWordState, MotorState
-from starterbus.transports.devicenet.assemblies import (
+from starterbus.core import CW_BUS_CONTROL, Command, ControlWordState, EncodeError, MotorState, Profile
+from starterbus.transports.devicenet.codec.assemblies import (
     AssemblySet,
     InputAssembly,
     OutputAssembly,
@@ -17,7 +15,7 @@ from starterbus.transports.devicenet.assemblies import (
     decode_output,
     output_for_word,
 )
-from starterbus.transports.devicenet.cip import FrameTooLongError, FrameTooShortError, UnexpectedFrameError
+from starterbus.transports.devicenet.codec.cip import FrameTooLongError, FrameTooShortError, UnexpectedFrameError
 
 # (hex, assembly) - bit 0 fault, 1 warning, 2 running, 3 starting, 4 stopping, 5 network control, 7 at reference
 INPUTS = [

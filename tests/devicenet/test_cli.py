@@ -17,9 +17,7 @@ from can.interfaces import virtual
 
 from starterbus.cli import simulate as simulate_command
 from starterbus.cli.main import main
-from starterbus.core.device import open_device
-from starterbus.core.profile import Profile
-from starterbus.core.simulator import Phase, SimulatedStarter
+from starterbus.core import Phase, Profile, SimulatedStarter, open_device
 from starterbus.transports.devicenet.simulator import DeviceNetSlaveSimulator
 
 FAST = "dup_mac_wait=0.05&epr=50&poll=10"

@@ -6,16 +6,16 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from starterbus.core.errors import DecodeError, EncodeError, RemoteDeviceError
-from starterbus.transports.devicenet import cip
-from starterbus.transports.devicenet.cip import (
+from starterbus.core import DecodeError, EncodeError, RemoteDeviceError
+from starterbus.transports.devicenet.codec import cip
+from starterbus.transports.devicenet.codec.cip import (
     CipStatus,
     FrameTooShortError,
     Service,
     UnexpectedFrameError,
     UnknownServiceError,
 )
-from starterbus.transports.devicenet.explicit import (
+from starterbus.transports.devicenet.codec.explicit import (
     ErrorResponse,
     ExplicitRequest,
     ExplicitResponse,

@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from starterbus.transports.devicenet.cip import FragmentError, FrameTooShortError, UnexpectedFrameError
-from starterbus.transports.devicenet.fragmentation import (
+from starterbus.transports.devicenet.codec.cip import FragmentError, FrameTooShortError, UnexpectedFrameError
+from starterbus.transports.devicenet.codec.fragmentation import (
     AckStatus,
     Fragmenter,
     FragmentOverflowError,

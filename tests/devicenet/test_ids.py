@@ -7,9 +7,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from starterbus.core.errors import DecodeError, EncodeError
-from starterbus.transports.devicenet import ids
-from starterbus.transports.devicenet.ids import DeviceNetId, Group, build_id, parse_id
+from starterbus.core import DecodeError, EncodeError
+from starterbus.transports.devicenet.codec import ids
+from starterbus.transports.devicenet.codec.ids import DeviceNetId, Group, build_id, parse_id
 
 # (identifier, group, message id, MAC) - docs/manuals.md#can-identifiers and the predefined set for slave 5
 VECTORS = [

@@ -10,11 +10,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from starterbus.core.profile import Profile
-from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
-from starterbus.transports.devicenet.frames import CanFrame, parse_candump
-from starterbus.transports.devicenet.ids import poll_command_id, poll_response_id
-from starterbus.transports.devicenet.master_link import (
+from starterbus.core import CanFrame, ManualClock, Phase, Profile, SimulatedStarter
+from starterbus.transports.devicenet.codec.frames import parse_candump
+from starterbus.transports.devicenet.codec.ids import poll_command_id, poll_response_id
+from starterbus.transports.devicenet.codec.transcript import Wire, expected, parse_transcript, replay
+from starterbus.transports.devicenet.master.link import (
     CommunicationFaultError,
     DuplicateResponderError,
     InputSample,
@@ -24,12 +24,12 @@ from starterbus.transports.devicenet.master_link import (
     ScannerConfig,
     ScannerState,
 )
-from starterbus.transports.devicenet.master_node import RESET_BACKOFF, MasterNode
-from starterbus.transports.devicenet.master_polling import CLEAR_POLLS
+from starterbus.transports.devicenet.master.node import RESET_BACKOFF, MasterNode
+from starterbus.transports.devicenet.master.polling import CLEAR_POLLS
 from starterbus.transports.devicenet.settings import profile_identity
 from starterbus.transports.devicenet.simulator import StarterApplication
-from starterbus.transports.devicenet.slave_node import NodeState, SlaveNode
-from starterbus.transports.devicenet.transcript import Wire, expected, parse_transcript, replay
+from starterbus.transports.devicenet.slave.node import SlaveNode
+from starterbus.transports.devicenet.slave.state import NodeState
 
 SERIAL = 0x12345678
 FOREIGN_RESPONSE = "407#80341278563412"  # a duplicate MAC ID response for MAC 0 (vendor 0x1234)

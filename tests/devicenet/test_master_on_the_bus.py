@@ -10,13 +10,9 @@ from collections.abc import Callable, Iterator
 import can
 import pytest
 
-from starterbus.core.device import Device, open_device
-from starterbus.core.profile import Profile
-from starterbus.core.simulator import ManualClock, SimulatedStarter
-from starterbus.core.status import MotorState
-from starterbus.transports.devicenet.ids import poll_command_id, poll_response_id
-from starterbus.transports.devicenet.master_link import CommunicationFaultError, DuplicateResponderError
-from starterbus.transports.devicenet.scanner import ScannerState
+from starterbus.core import Device, ManualClock, MotorState, Profile, SimulatedStarter, open_device
+from starterbus.transports.devicenet.codec.ids import poll_command_id, poll_response_id
+from starterbus.transports.devicenet.master.link import CommunicationFaultError, DuplicateResponderError, ScannerState
 from starterbus.transports.devicenet.simulator import DeviceNetSlaveSimulator
 from starterbus.transports.devicenet.transport import DeviceNetTransport
 

@@ -6,12 +6,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from starterbus.core.errors import DecodeError, EncodeError
-from starterbus.core.profile import Profile
-from starterbus.transports.devicenet.cip import FrameTooLongError, FrameTooShortError, UnexpectedFrameError
-from starterbus.transports.devicenet.dupmac import DuplicateMacCheck, decode_duplicate_mac, is_duplicate_mac
-from starterbus.transports.devicenet.frames import CanFrame, parse_candump
-from starterbus.transports.devicenet.identity import Identity, decode_attribute, decode_identity
+from starterbus.core import CanFrame, DecodeError, EncodeError, Profile
+from starterbus.transports.devicenet.codec.cip import FrameTooLongError, FrameTooShortError, UnexpectedFrameError
+from starterbus.transports.devicenet.codec.dupmac import DuplicateMacCheck, decode_duplicate_mac, is_duplicate_mac
+from starterbus.transports.devicenet.codec.frames import parse_candump
+from starterbus.transports.devicenet.codec.identity import Identity, decode_attribute, decode_identity
 from starterbus.transports.devicenet.settings import profile_identity
 
 

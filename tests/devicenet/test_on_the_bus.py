@@ -7,24 +7,29 @@ from collections.abc import Callable, Iterator
 
 import pytest
 
-from starterbus.core.device import Device, open_device
-from starterbus.core.errors import (
+from starterbus.core import (
+    Command,
     ConfigurationError,
+    Device,
+    ManualClock,
+    MotorState,
+    Phase,
+    Profile,
     RemoteDeviceError,
+    SimulatedStarter,
     TimeoutError,
     TransportError,
     UnsupportedOperationError,
+    open_device,
 )
-from starterbus.core.profile import Profile
-from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
-from starterbus.core.status import Command, MotorState
 from starterbus.testing import wait_until
-from starterbus.transports.devicenet.assemblies import AssemblySet
-from starterbus.transports.devicenet.cip import Service
-from starterbus.transports.devicenet.explicit import ExplicitRequest
-from starterbus.transports.devicenet.scanner import LinkConfig, LinkState, Scanner, ScannerConfig, ScannerState
+from starterbus.transports.devicenet.codec.assemblies import AssemblySet
+from starterbus.transports.devicenet.codec.cip import Service
+from starterbus.transports.devicenet.codec.explicit import ExplicitRequest
+from starterbus.transports.devicenet.driver.scanner import Scanner
+from starterbus.transports.devicenet.master.link import LinkConfig, LinkState, ScannerConfig, ScannerState
 from starterbus.transports.devicenet.simulator import DeviceNetSimulator, DeviceNetSlaveSimulator
-from starterbus.transports.devicenet.slave_node import NodeState
+from starterbus.transports.devicenet.slave.state import NodeState
 from starterbus.transports.devicenet.transport import SCANNERS, ControlConflictError, DeviceNetTransport
 
 FAST = "dup_mac_wait=0.05&timeout=0.5&epr=50&poll=10&control=open"  # polled I/O from the open

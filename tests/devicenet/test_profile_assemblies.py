@@ -10,7 +10,7 @@ from starterbus.core.device import open_device
 from starterbus.core.errors import ConfigurationError
 from starterbus.core.profile import Profile, load_profile_text
 from starterbus.core.simulator import ManualClock, SimulatedStarter
-from starterbus.transports.devicenet.assemblies import AssemblySet
+from starterbus.transports.devicenet.codec.assemblies import AssemblySet
 from starterbus.transports.devicenet.settings import profile_identity
 from starterbus.transports.devicenet.simulator import DeviceNetSlaveSimulator
 

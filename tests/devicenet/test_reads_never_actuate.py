@@ -19,7 +19,7 @@ from starterbus.fleet.crosscheck import crosscheck
 from starterbus.fleet.poller import FleetPoller
 from starterbus.fleet.sample import Sample
 from starterbus.ops.backup import take_backup
-from starterbus.transports.devicenet.ids import poll_command_id
+from starterbus.transports.devicenet.codec.ids import poll_command_id
 from starterbus.transports.devicenet.simulator import DeviceNetSlaveSimulator
 from starterbus.transports.devicenet.transport import ControlConflictError
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator

@@ -13,7 +13,7 @@ import pytest
 from starterbus.cli.main import main
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
-from starterbus.transports.devicenet.ids import poll_command_id
+from starterbus.transports.devicenet.codec.ids import poll_command_id
 from starterbus.transports.devicenet.simulator import DeviceNetSimulator
 
 FAST = "dup_mac_wait=0.05"

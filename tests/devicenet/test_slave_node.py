@@ -5,14 +5,16 @@ from __future__ import annotations
 
 import pytest
 
+from starterbus.core import CanFrame
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
-from starterbus.transports.devicenet.connection import ConnectionState
-from starterbus.transports.devicenet.frames import CanFrame, parse_candump
+from starterbus.transports.devicenet.codec.connection import ConnectionState
+from starterbus.transports.devicenet.codec.frames import parse_candump
+from starterbus.transports.devicenet.codec.transcript import expected, parse_transcript, replay
 from starterbus.transports.devicenet.settings import profile_identity
 from starterbus.transports.devicenet.simulator import StarterApplication
-from starterbus.transports.devicenet.slave_node import NodeState, SlaveNode
-from starterbus.transports.devicenet.transcript import expected, parse_transcript, replay
+from starterbus.transports.devicenet.slave.node import SlaveNode
+from starterbus.transports.devicenet.slave.state import NodeState
 
 SERIAL = 0x20110105
 

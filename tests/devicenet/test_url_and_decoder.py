@@ -10,7 +10,8 @@ from starterbus.core.registry import get_transport
 from starterbus.core.status import Command
 from starterbus.core.url import DeviceUrl
 from starterbus.transports.devicenet.decoder import annotate_frames
-from starterbus.transports.devicenet.transport import DeviceNetTransport, parse_url
+from starterbus.transports.devicenet.transport import DeviceNetTransport
+from starterbus.transports.devicenet.url import parse_url
 
 
 def test_url_defaults(jjr8000: Profile) -> None:

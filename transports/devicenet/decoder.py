@@ -12,21 +12,17 @@ from __future__ import annotations
 import struct
 from collections.abc import Iterable
 
-from starterbus.core.canframe import annotate_candump
-from starterbus.core.errors import StarterbusError
-from starterbus.core.model import Kind
-from starterbus.core.profile import Profile
-from starterbus.core.transport import Annotation
-from starterbus.transports.devicenet import cip
-from starterbus.transports.devicenet.assemblies import (
+from starterbus.core import Annotation, CanFrame, Kind, Profile, StarterbusError, annotate_candump
+from starterbus.transports.devicenet.codec import cip
+from starterbus.transports.devicenet.codec.assemblies import (
     INPUT_SIZES,
     OUTPUT_SIZES,
     InputAssembly,
     decode_input,
     decode_output,
 )
-from starterbus.transports.devicenet.cip import ObjectClass, Service
-from starterbus.transports.devicenet.connection import (
+from starterbus.transports.devicenet.codec.cip import ObjectClass, Service
+from starterbus.transports.devicenet.codec.connection import (
     CONNECTION_ATTRIBUTE_NAMES,
     DEVICENET_ATTRIBUTE_NAMES,
     ConnectionAttribute,
@@ -34,18 +30,17 @@ from starterbus.transports.devicenet.connection import (
     DeviceNetAttribute,
     describe_choice,
 )
-from starterbus.transports.devicenet.dupmac import decode_duplicate_mac
-from starterbus.transports.devicenet.explicit import (
+from starterbus.transports.devicenet.codec.dupmac import decode_duplicate_mac
+from starterbus.transports.devicenet.codec.explicit import (
     ErrorResponse,
     ExplicitRequest,
     ExplicitResponse,
     decode_header,
     decode_message,
 )
-from starterbus.transports.devicenet.fragmentation import FragmentType, Reassembler, decode_fragment, is_fragment
-from starterbus.transports.devicenet.frames import CanFrame
-from starterbus.transports.devicenet.identity import ATTRIBUTE_NAMES, decode_attribute
-from starterbus.transports.devicenet.ids import Group, Group1, Group2, parse_id
+from starterbus.transports.devicenet.codec.fragmentation import FragmentType, Reassembler, decode_fragment, is_fragment
+from starterbus.transports.devicenet.codec.identity import ATTRIBUTE_NAMES, decode_attribute
+from starterbus.transports.devicenet.codec.ids import Group, Group1, Group2, parse_id
 
 Field = tuple[str, str, str]
 _BAUDS = {0: "125 kbit/s", 1: "250 kbit/s", 2: "500 kbit/s"}

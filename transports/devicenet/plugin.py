@@ -8,15 +8,22 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
-from starterbus.core.errors import ConfigurationError
-from starterbus.core.plugin_options import PluginOption, resolve_options
-from starterbus.core.profile import Profile
-from starterbus.core.transport import Annotation, Capability, RunningSimulator, Transport, TransportPlugin
-from starterbus.core.url import DeviceUrl
+from starterbus.core import (
+    Annotation,
+    Capability,
+    ConfigurationError,
+    DeviceUrl,
+    PluginOption,
+    Profile,
+    RunningSimulator,
+    Transport,
+    TransportPlugin,
+    resolve_options,
+)
 from starterbus.transports.devicenet.settings import DeviceNetSettings, devicenet_settings
 
 if TYPE_CHECKING:
-    from starterbus.core.simulator import SimulatedStarter
+    from starterbus.core import SimulatedStarter
 
 
 class DeviceNetPlugin(TransportPlugin):
@@ -82,10 +89,8 @@ class DeviceNetPlugin(TransportPlugin):
             if values.integers("mac") or values.text("bridge"):
                 raise ConfigurationError("--mac and --devicenet-bridge need --devicenet INTERFACE:CHANNEL")
             return []
-        from starterbus.core.canbridge import parse_bridge_address
-        from starterbus.core.canbus import parse_bus_spec
-        from starterbus.transports.devicenet.assemblies import AssemblySet
-        from starterbus.transports.devicenet.bridge import devicenet_bridge
+        from starterbus.core import LoopbackBridge, parse_bridge_address, parse_bus_spec
+        from starterbus.transports.devicenet.codec.assemblies import AssemblySet
         from starterbus.transports.devicenet.simulator import DeviceNetSimulator
 
         for starter in starters.values():
@@ -122,7 +127,9 @@ class DeviceNetPlugin(TransportPlugin):
                 simulator.add_node(starter, mac, assemblies=assemblies)
             simulator.start()
             if bridge_address is not None:
-                running.append(devicenet_bridge(interface, channel, *bridge_address))
+                host, port = bridge_address
+                label, client_url = "devicenet bridge", "devicenet://remote/{address}?mac=N"
+                running.append(LoopbackBridge(interface, channel, host, port, label=label, client_url=client_url))
         except BaseException:
             for item in running:
                 item.close()

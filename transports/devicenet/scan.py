@@ -15,9 +15,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from starterbus.core.errors import StarterbusError, TimeoutError
-from starterbus.core.profile import Profile
-from starterbus.core.url import DeviceUrl
+from starterbus.core import DeviceUrl, Profile, StarterbusError, TimeoutError
 from starterbus.transports.devicenet.settings import profile_identity
 from starterbus.transports.devicenet.transport import SCANNERS, DeviceNetTransport
 from starterbus.transports.devicenet.url import NAME
@@ -68,7 +66,7 @@ def scan_bus(
         raise StarterbusError(f"{url.text}: not a DeviceNet bus")
     first = DeviceNetTransport(node_url(url, macs[0], timeout), profiles[0])
     key = (first.scanner_config.interface, first.scanner_config.channel)
-    from starterbus.transports.devicenet.scanner import Scanner
+    from starterbus.transports.devicenet.driver.scanner import Scanner
 
     config = first.scanner_config
     SCANNERS.acquire(key, lambda: Scanner(config))  # one scanner (one duplicate MAC check) for the whole scan

@@ -2,7 +2,7 @@
 
 ``input_assemblies`` / ``output_assemblies`` are the instance numbers of the model's two assembly sets, in
 the order ``[basic, extended]`` (the JJR8000: inputs 1 and 101, outputs 2 and 102; manual 3.2.4, PRO type
-P1/M1 and P3/M2). The layouts of the two sets are this plugin's codec (assemblies.py); the numbers a device
+P1/M1 and P3/M2). The layouts of the two sets are this plugin's codec (codec/assemblies.py); the numbers a device
 gives them are the profile's.
 """
 
@@ -12,12 +12,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from starterbus.core import ConfigurationError, EncodeError, Profile
 from starterbus.core import settings_check as check
-from starterbus.core.errors import ConfigurationError, EncodeError
-from starterbus.core.profile import Profile
-from starterbus.transports.devicenet.assemblies import AssemblySet
-from starterbus.transports.devicenet.identity import Identity
-from starterbus.transports.devicenet.ids import MAX_MAC
+from starterbus.transports.devicenet.codec.assemblies import AssemblySet
+from starterbus.transports.devicenet.codec.identity import Identity
+from starterbus.transports.devicenet.codec.ids import MAX_MAC
 
 NAME = "devicenet"
 BITRATES = (125000, 250000, 500000)

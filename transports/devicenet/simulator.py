@@ -8,7 +8,7 @@ Programmatic use (in-process, e.g. on python-can's ``virtual`` bus)::
     sim.close()
 
 Several nodes share one simulator (one python-can bus, one thread): ``DeviceNetSimulator(bus).add_node(...)``.
-The node logic is :class:`~starterbus.transports.devicenet.slave_node.SlaveNode` (sans-IO); this module is its
+The node logic is :class:`~starterbus.transports.devicenet.slave.node.SlaveNode` (sans-IO); this module is its
 driver plus the JJR8000 application: input assemblies 1/101 from the starter's state, output assemblies 2/102
 written as the control word with bit 3 (bus control) set, since DeviceNet is the network control path and the
 JJR8000 obeys commands only with bit 3 = 1. When the polled connection times out (4 x expected packet rate),
@@ -27,25 +27,36 @@ from typing import TypeVar
 
 import can
 
-from starterbus.core.canbus import open_bus, shutdown
-from starterbus.core.errors import ConfigurationError, Refusal, SimulatorRefusal
-from starterbus.core.model import Kind, PointDef
-from starterbus.core.simulator import SimulatedStarter
-from starterbus.core.status import CW_BUS_CONTROL, SW_FAULT, SW_RUNNING, SW_STARTING, SW_STOPPING
-from starterbus.core.transport import RunningSimulator
-from starterbus.transports.devicenet.assemblies import (
+from starterbus.core import (
+    CW_BUS_CONTROL,
+    SW_FAULT,
+    SW_RUNNING,
+    SW_STARTING,
+    SW_STOPPING,
+    CanFrame,
+    ConfigurationError,
+    Kind,
+    PointDef,
+    Refusal,
+    RunningSimulator,
+    SimulatedStarter,
+    SimulatorRefusal,
+    open_bus,
+    shutdown_bus,
+)
+from starterbus.transports.devicenet.codec.assemblies import (
     OUTPUT_SIZES,
     AssemblySet,
     InputBit,
     decode_output,
 )
-from starterbus.transports.devicenet.cip import PROTOCOL
-from starterbus.transports.devicenet.dupmac import DEFAULT_WAIT
-from starterbus.transports.devicenet.frames import CanFrame
-from starterbus.transports.devicenet.identity import Identity
-from starterbus.transports.devicenet.ids import MAX_MAC, poll_command_id, poll_response_id
+from starterbus.transports.devicenet.codec.cip import PROTOCOL
+from starterbus.transports.devicenet.codec.dupmac import DEFAULT_WAIT
+from starterbus.transports.devicenet.codec.identity import Identity
+from starterbus.transports.devicenet.codec.ids import MAX_MAC, poll_command_id, poll_response_id
 from starterbus.transports.devicenet.settings import devicenet_settings, profile_identity
-from starterbus.transports.devicenet.slave_node import NodeState, SlaveNode
+from starterbus.transports.devicenet.slave.node import SlaveNode
+from starterbus.transports.devicenet.slave.state import NodeState
 
 log = logging.getLogger(__name__)
 SimulatorT = TypeVar("SimulatorT", bound="DeviceNetSimulator")
@@ -283,7 +294,7 @@ class DeviceNetSimulator(RunningSimulator):
             self._thread.join(2.0)
             self._thread = None
         if self._owns_bus:
-            shutdown(self.bus)
+            shutdown_bus(self.bus)
 
     def __enter__(self: SimulatorT) -> SimulatorT:
         return self.start()

@@ -37,19 +37,25 @@ import threading
 import time
 from collections.abc import Sequence
 
-from starterbus.core.errors import (
+from starterbus.core import (
+    CW_RESET,
+    CW_START,
+    Capability,
+    Command,
     ConfigurationError,
     ControlSourceError,
+    ControlWordState,
     DecodeError,
+    DeviceUrl,
+    PointDef,
+    Profile,
+    Reading,
+    SharedPool,
+    Status,
     TimeoutError,
+    Transport,
 )
-from starterbus.core.model import PointDef, Reading
-from starterbus.core.profile import Profile
-from starterbus.core.sharing import SharedPool
-from starterbus.core.status import CW_RESET, CW_START, Command, ControlWordState, Status
-from starterbus.core.transport import Capability, Transport
-from starterbus.core.url import DeviceUrl
-from starterbus.transports.devicenet.assemblies import (
+from starterbus.transports.devicenet.codec.assemblies import (
     CURRENT_RESOLUTION_A,
     AssemblySet,
     InputAssembly,
@@ -58,30 +64,18 @@ from starterbus.transports.devicenet.assemblies import (
     decode_input,
     output_for_word,
 )
-from starterbus.transports.devicenet.cip import ObjectClass, Service
-from starterbus.transports.devicenet.explicit import ExplicitRequest
-from starterbus.transports.devicenet.identity import ATTRIBUTE_NAMES, decode_identity
-from starterbus.transports.devicenet.ids import poll_command_id
-from starterbus.transports.devicenet.master_polling import POLL_RESPONSE_TIMEOUT
-from starterbus.transports.devicenet.master_sequence import input_request
-from starterbus.transports.devicenet.scanner import (
-    InputSample,
-    LinkState,
-    Scanner,
-    SlaveLink,
-)
+from starterbus.transports.devicenet.codec.cip import ObjectClass, Service
+from starterbus.transports.devicenet.codec.explicit import ExplicitRequest
+from starterbus.transports.devicenet.codec.identity import ATTRIBUTE_NAMES, decode_identity
+from starterbus.transports.devicenet.codec.ids import poll_command_id
+from starterbus.transports.devicenet.driver.scanner import Scanner, SlaveLink
+from starterbus.transports.devicenet.master.link import InputSample, LinkState
+from starterbus.transports.devicenet.master.polling import POLL_RESPONSE_TIMEOUT
+from starterbus.transports.devicenet.master.sequence import input_request
 from starterbus.transports.devicenet.settings import devicenet_settings
-from starterbus.transports.devicenet.url import NAME, URL_PARAMETERS, parse_url, timing_for_period
+from starterbus.transports.devicenet.url import NAME, parse_url
 
-__all__ = [
-    "NAME",
-    "SCANNERS",
-    "URL_PARAMETERS",
-    "ControlConflictError",
-    "DeviceNetTransport",
-    "parse_url",
-    "timing_for_period",
-]
+__all__ = ["SCANNERS", "ControlConflictError", "DeviceNetTransport"]
 
 #: one scanner per (interface, channel) in this process
 SCANNERS: SharedPool[Scanner] = SharedPool("devicenet scanners")

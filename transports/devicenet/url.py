@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import math
 
-from starterbus.core.errors import ConfigurationError
-from starterbus.core.profile import Profile
-from starterbus.core.url import DeviceUrl
-from starterbus.transports.devicenet.assemblies import AssemblySet
-from starterbus.transports.devicenet.ids import MAX_MAC
-from starterbus.transports.devicenet.master_link import LinkConfig, ScannerConfig
+from starterbus.core import ConfigurationError, DeviceUrl, Profile
+from starterbus.transports.devicenet.codec.assemblies import AssemblySet
+from starterbus.transports.devicenet.codec.ids import MAX_MAC
+from starterbus.transports.devicenet.master.link import LinkConfig, ScannerConfig
 from starterbus.transports.devicenet.settings import devicenet_settings
 
 NAME = "devicenet"

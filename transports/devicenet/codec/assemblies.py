@@ -23,11 +23,8 @@ import struct
 import time
 from dataclasses import dataclass
 
-from starterbus.core.errors import EncodeError
-from starterbus.core.model import PointDef, Value
-from starterbus.core.profile import Profile
-from starterbus.core.status import CW_BUS_CONTROL, CW_RESET, CW_START, Status
-from starterbus.transports.devicenet.cip import FrameTooLongError, FrameTooShortError, UnexpectedFrameError
+from starterbus.core import CW_BUS_CONTROL, CW_RESET, CW_START, EncodeError, PointDef, Profile, Status, Value
+from starterbus.transports.devicenet.codec.cip import FrameTooLongError, FrameTooShortError, UnexpectedFrameError
 
 CURRENT_RESOLUTION_A = 1.0
 SOURCE = "devicenet"

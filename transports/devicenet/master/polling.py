@@ -1,4 +1,4 @@
-"""Scan scheduling of the DeviceNet master (sans-IO; a base of :class:`~.master_node.MasterNode`).
+"""Scan scheduling of the DeviceNet master (sans-IO; a base of :class:`~.node.MasterNode`).
 
 Each established slave is polled at its own interval, or at once while a reader or a command waits
 (``urgent``), with at most ``WINDOW`` poll commands in flight. An answer is published only when no second
@@ -19,10 +19,10 @@ import heapq
 import math
 from collections import deque
 
-from starterbus.transports.devicenet.frames import CanFrame
-from starterbus.transports.devicenet.ids import poll_command_id
-from starterbus.transports.devicenet.master_link import DuplicateResponderError, InputSample, MasterLink
-from starterbus.transports.devicenet.master_sequence import ConnectionSequence
+from starterbus.core import CanFrame
+from starterbus.transports.devicenet.codec.ids import poll_command_id
+from starterbus.transports.devicenet.master.link import DuplicateResponderError, InputSample, MasterLink
+from starterbus.transports.devicenet.master.sequence import ConnectionSequence
 
 WINDOW = 8  # poll commands in flight at once
 POLL_RESPONSE_TIMEOUT = 0.05  # seconds a poll command waits for its answer

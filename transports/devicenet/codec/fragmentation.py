@@ -14,15 +14,15 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from starterbus.core.errors import EncodeError
-from starterbus.transports.devicenet.cip import (
+from starterbus.core import EncodeError
+from starterbus.transports.devicenet.codec.cip import (
     CipStatus,
     FragmentError,
     FrameTooShortError,
     GeneralStatus,
     UnexpectedFrameError,
 )
-from starterbus.transports.devicenet.explicit import FRAGMENT_BIT, MAX_UNFRAGMENTED
+from starterbus.transports.devicenet.codec.explicit import FRAGMENT_BIT, MAX_UNFRAGMENTED
 
 FRAGMENT_PAYLOAD = 6
 COUNT_MASK = 0x3F

@@ -16,7 +16,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from starterbus.core.errors import DecodeError, EncodeError
+from starterbus.core import DecodeError, EncodeError
 
 MAX_MAC = 63
 

@@ -1,25 +1,24 @@
 """The master's explicit messaging (sans-IO; the base of the master machine): explicit transactions are
 queued per slave and sent one at a time, fragmented or reassembled as needed. The connection sequence built
-on them is in :mod:`~starterbus.transports.devicenet.master_sequence`."""
+on them is in :mod:`~starterbus.transports.devicenet.master.sequence`."""
 
 from __future__ import annotations
 
-from starterbus.core.errors import TimeoutError, TransportError
-from starterbus.transports.devicenet.cip import DeviceNetDecodeError, ObjectClass, Service
-from starterbus.transports.devicenet.connection import (
+from starterbus.core import CanFrame, TimeoutError, TransportError
+from starterbus.transports.devicenet.codec.cip import DeviceNetDecodeError, ObjectClass, Service
+from starterbus.transports.devicenet.codec.connection import (
     EXPLICIT_AND_POLLED,
 )
-from starterbus.transports.devicenet.explicit import (
+from starterbus.transports.devicenet.codec.explicit import (
     ErrorResponse,
     ExplicitRequest,
     Response,
     check_response,
     decode_response,
 )
-from starterbus.transports.devicenet.fragmentation import Fragmenter, decode_fragment, frames_for, is_fragment
-from starterbus.transports.devicenet.frames import CanFrame
-from starterbus.transports.devicenet.ids import explicit_request_id, unconnected_request_id
-from starterbus.transports.devicenet.master_link import MasterLink, ScannerConfig, Transaction
+from starterbus.transports.devicenet.codec.fragmentation import Fragmenter, decode_fragment, frames_for, is_fragment
+from starterbus.transports.devicenet.codec.ids import explicit_request_id, unconnected_request_id
+from starterbus.transports.devicenet.master.link import MasterLink, ScannerConfig, Transaction
 
 
 class ExplicitMessaging:

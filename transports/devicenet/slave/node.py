@@ -27,26 +27,31 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from starterbus.transports.devicenet import cip
-from starterbus.transports.devicenet.assemblies import OUTPUT_SIZES
-from starterbus.transports.devicenet.cip import CipStatus, DeviceNetDecodeError, ObjectClass, Service
-from starterbus.transports.devicenet.connection import (
+from starterbus.core import CanFrame
+from starterbus.transports.devicenet.codec import cip
+from starterbus.transports.devicenet.codec.assemblies import OUTPUT_SIZES
+from starterbus.transports.devicenet.codec.cip import CipStatus, DeviceNetDecodeError, ObjectClass, Service
+from starterbus.transports.devicenet.codec.connection import (
     AllocationChoice,
     ConnectionInstance,
     ConnectionState,
     WatchdogAction,
 )
-from starterbus.transports.devicenet.dupmac import DuplicateMacCheck, decode_duplicate_mac
-from starterbus.transports.devicenet.explicit import ErrorResponse, ExplicitResponse, decode_header, decode_request
-from starterbus.transports.devicenet.fragmentation import (
+from starterbus.transports.devicenet.codec.dupmac import DuplicateMacCheck, decode_duplicate_mac
+from starterbus.transports.devicenet.codec.explicit import (
+    ErrorResponse,
+    ExplicitResponse,
+    decode_header,
+    decode_request,
+)
+from starterbus.transports.devicenet.codec.fragmentation import (
     Fragmenter,
     FragmentOverflowError,
     decode_fragment,
     frames_for,
     is_fragment,
 )
-from starterbus.transports.devicenet.frames import CanFrame
-from starterbus.transports.devicenet.ids import (
+from starterbus.transports.devicenet.codec.ids import (
     duplicate_mac_id,
     explicit_request_id,
     explicit_response_id,
@@ -54,20 +59,18 @@ from starterbus.transports.devicenet.ids import (
     poll_response_id,
     unconnected_request_id,
 )
-from starterbus.transports.devicenet.slave_objects import SlaveObjects
-from starterbus.transports.devicenet.slave_state import (
+from starterbus.transports.devicenet.slave.objects import SlaveObjects
+from starterbus.transports.devicenet.slave.state import (
     FRAGMENT_ACK_TIMEOUT,
     FRAGMENT_RETRIES,
     CheckProgress,
     Connection,
-    NodeCounters,
     NodeState,
     PendingResponse,
     RequestRefused,
-    SlaveApplication,
 )
 
-__all__ = ["Connection", "NodeCounters", "NodeState", "SlaveApplication", "SlaveNode"]
+__all__ = ["SlaveNode"]
 
 
 class SlaveNode(SlaveObjects):

@@ -1,14 +1,14 @@
 """Explicit messages in the DeviceNet 8/8 body format: requests, success responses and error responses.
 
 A *message* here is the header byte followed by the body, exactly as one unfragmented CAN frame carries it
-(or as :mod:`~starterbus.transports.devicenet.fragmentation` reassembles it)::
+(or as :mod:`~starterbus.transports.devicenet.codec.fragmentation` reassembles it)::
 
     header   bit 7 fragmented, bit 6 transaction id (XID), bits 5-0 MAC id (the master's, both directions)
     request  [header][service][class][instance][attribute, Get/Set_Attribute_Single only][data...]
     response [header][service | 0x80][data...]
     error    [header][0x94][general status][additional status, 0xFF = none]
 
-Pure functions, no I/O. Decoders raise :class:`~starterbus.transports.devicenet.cip.DeviceNetDecodeError`
+Pure functions, no I/O. Decoders raise :class:`~starterbus.transports.devicenet.codec.cip.DeviceNetDecodeError`
 subclasses that name the bytes and the CIP status a server answers with.
 """
 
@@ -16,8 +16,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from starterbus.core.errors import EncodeError, RemoteDeviceError
-from starterbus.transports.devicenet.cip import (
+from starterbus.core import EncodeError, RemoteDeviceError
+from starterbus.transports.devicenet.codec.cip import (
     ATTRIBUTE_SERVICES,
     NO_ADDITIONAL,
     CipStatus,

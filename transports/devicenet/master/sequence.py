@@ -23,10 +23,10 @@ from __future__ import annotations
 import struct
 from collections.abc import Callable
 
-from starterbus.core.errors import ConfigurationError, StarterbusError, TimeoutError, TransportError
-from starterbus.transports.devicenet.assemblies import AssemblySet
-from starterbus.transports.devicenet.cip import GeneralStatus, ObjectClass, Service
-from starterbus.transports.devicenet.connection import (
+from starterbus.core import ConfigurationError, StarterbusError, TimeoutError, TransportError
+from starterbus.transports.devicenet.codec.assemblies import AssemblySet
+from starterbus.transports.devicenet.codec.cip import GeneralStatus, ObjectClass, Service
+from starterbus.transports.devicenet.codec.connection import (
     DEFAULT_EXPLICIT_EPR_MS,
     EXPLICIT_AND_POLLED,
     AllocationChoice,
@@ -34,9 +34,9 @@ from starterbus.transports.devicenet.connection import (
     ConnectionInstance,
     describe_choice,
 )
-from starterbus.transports.devicenet.explicit import ExplicitRequest
-from starterbus.transports.devicenet.master_connection import ExplicitMessaging
-from starterbus.transports.devicenet.master_link import IoPhase, LinkState, MasterLink, Transaction
+from starterbus.transports.devicenet.codec.explicit import ExplicitRequest
+from starterbus.transports.devicenet.master.connection import ExplicitMessaging
+from starterbus.transports.devicenet.master.link import IoPhase, LinkState, MasterLink, Transaction
 
 
 class ConnectionSequence(ExplicitMessaging):

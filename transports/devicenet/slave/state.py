@@ -1,8 +1,8 @@
 """A DeviceNet slave node's state (:class:`SlaveState`) and its parts: the connections, the counters and what
 the node needs from the device behind it (:class:`SlaveApplication`).
 
-The node's behaviour builds on it in two layers: ``slave_objects`` (the objects a master reads and the
-allocation of the connection set) and ``slave_node`` (the bus side: duplicate MAC ID check, timers, I/O,
+The node's behaviour builds on it in two layers: ``slave.objects`` (the objects a master reads and the
+allocation of the connection set) and ``slave.node`` (the bus side: duplicate MAC ID check, timers, I/O,
 explicit messaging; its docstring lists the decisions). Sans-IO like them: no clock, no bus.
 """
 
@@ -12,9 +12,9 @@ import enum
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from starterbus.transports.devicenet.assemblies import AssemblySet
-from starterbus.transports.devicenet.cip import CipStatus
-from starterbus.transports.devicenet.connection import (
+from starterbus.transports.devicenet.codec.assemblies import AssemblySet
+from starterbus.transports.devicenet.codec.cip import CipStatus
+from starterbus.transports.devicenet.codec.connection import (
     DEFAULT_EXPLICIT_EPR_MS,
     UNALLOCATED_MASTER,
     AllocationChoice,
@@ -24,9 +24,9 @@ from starterbus.transports.devicenet.connection import (
     describe_choice,
     inactivity_timeout,
 )
-from starterbus.transports.devicenet.dupmac import DEFAULT_WAIT
-from starterbus.transports.devicenet.fragmentation import Fragmenter, Reassembler
-from starterbus.transports.devicenet.identity import STATUS_OWNED, Identity
+from starterbus.transports.devicenet.codec.dupmac import DEFAULT_WAIT
+from starterbus.transports.devicenet.codec.fragmentation import Fragmenter, Reassembler
+from starterbus.transports.devicenet.codec.identity import STATUS_OWNED, Identity
 
 EXPLICIT_CONNECTION_SIZE = 64  # bytes the explicit connection produces/consumes at most (fragmented)
 FRAGMENT_ACK_TIMEOUT = 1.0  # seconds a fragmented response waits for each acknowledgement

@@ -1,7 +1,7 @@
 """The DeviceNet master's driver: one thread and one python-can bus around a sans-IO :class:`MasterNode`.
 
 The protocol (duplicate MAC ID check, connection sequence, keep-alive, fragmentation, scan scheduling, the
-communication fault and duplicate responders) lives in :mod:`~starterbus.transports.devicenet.master_node`.
+communication fault and duplicate responders) lives in :mod:`~starterbus.transports.devicenet.master.node`.
 This module only moves frames and times: the thread receives, drops at once every frame the master has no use
 for (one set lookup; CAN filters on interfaces that filter in hardware or in the kernel), feeds the rest to
 the machine and runs its timers when due. User threads call the machine under the same lock and send what it
@@ -19,14 +19,9 @@ from collections.abc import Callable
 
 import can
 
-from starterbus.core.canbus import open_bus, shutdown
-from starterbus.core.errors import StarterbusError, TimeoutError
-from starterbus.transports.devicenet.explicit import ExplicitRequest, ExplicitResponse
-from starterbus.transports.devicenet.frames import CanFrame
-from starterbus.transports.devicenet.master_link import (
-    CommunicationFaultError,
-    DuplicateResponderError,
-    InputSample,
+from starterbus.core import CanFrame, StarterbusError, TimeoutError, open_bus, shutdown_bus
+from starterbus.transports.devicenet.codec.explicit import ExplicitRequest, ExplicitResponse
+from starterbus.transports.devicenet.master.link import (
     IoPhase,
     LinkConfig,
     LinkState,
@@ -35,21 +30,9 @@ from starterbus.transports.devicenet.master_link import (
     ScannerState,
     Transaction,
 )
-from starterbus.transports.devicenet.master_node import MasterNode
+from starterbus.transports.devicenet.master.node import MasterNode
 
-__all__ = [
-    "VIRTUAL_HINT",
-    "CommunicationFaultError",
-    "DuplicateResponderError",
-    "InputSample",
-    "IoPhase",
-    "LinkConfig",
-    "LinkState",
-    "Scanner",
-    "ScannerConfig",
-    "ScannerState",
-    "SlaveLink",
-]
+__all__ = ["VIRTUAL_HINT", "Scanner", "SlaveLink"]
 
 log = logging.getLogger(__name__)
 
@@ -269,7 +252,7 @@ class Scanner:
             self.machine.close()
             self.changed.notify_all()
         if self._owns_bus:
-            shutdown(self.bus)
+            shutdown_bus(self.bus)
 
     def _not_online(self) -> Exception:
         return self.machine.not_online()

@@ -1,7 +1,7 @@
 """The DeviceNet master as a sans-IO state machine: frames and times in, frames out.
 
 :class:`MasterNode` goes on line with the duplicate MAC ID check, runs the connection sequence of every
-attached slave (:mod:`~starterbus.transports.devicenet.master_connection`), polls each established slave at its
+attached slave (:mod:`~starterbus.transports.devicenet.master.connection`), polls each established slave at its
 own interval (up to ``WINDOW`` poll commands in flight) and keeps the latest input assembly of each. Nothing
 here reads a clock, locks or touches a bus: the driver calls :meth:`start`, :meth:`handle` for every frame
 that :meth:`wants`, :meth:`tick` when :attr:`deadline` is due, passing the time, and sends :meth:`take`.
@@ -24,14 +24,13 @@ from __future__ import annotations
 
 from collections import deque
 
-from starterbus.core.errors import ConfigurationError, TimeoutError, TransportError
-from starterbus.transports.devicenet.cip import DeviceNetDecodeError, ObjectClass, Service
-from starterbus.transports.devicenet.connection import AllocationChoice, inactivity_timeout
-from starterbus.transports.devicenet.dupmac import DuplicateMacCheck, decode_duplicate_mac
-from starterbus.transports.devicenet.frames import CanFrame
-from starterbus.transports.devicenet.ids import duplicate_mac_id, explicit_response_id
-from starterbus.transports.devicenet.ids import poll_response_id as _poll_response_id
-from starterbus.transports.devicenet.master_link import (
+from starterbus.core import CanFrame, ConfigurationError, TimeoutError, TransportError
+from starterbus.transports.devicenet.codec.cip import DeviceNetDecodeError, ObjectClass, Service
+from starterbus.transports.devicenet.codec.connection import AllocationChoice, inactivity_timeout
+from starterbus.transports.devicenet.codec.dupmac import DuplicateMacCheck, decode_duplicate_mac
+from starterbus.transports.devicenet.codec.ids import duplicate_mac_id, explicit_response_id
+from starterbus.transports.devicenet.codec.ids import poll_response_id as _poll_response_id
+from starterbus.transports.devicenet.master.link import (
     CommunicationFaultError,
     IoPhase,
     LinkConfig,
@@ -41,7 +40,7 @@ from starterbus.transports.devicenet.master_link import (
     ScannerState,
     Transaction,
 )
-from starterbus.transports.devicenet.master_polling import PollScheduler
+from starterbus.transports.devicenet.master.polling import PollScheduler
 
 RESET_BACKOFF = (1.0, 60.0)  # first and longest wait before leaving the communication fault
 STABLE_ONLINE = 600.0  # seconds on line after which the backoff starts over

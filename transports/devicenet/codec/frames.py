@@ -7,10 +7,10 @@ python-can's ``Message`` appears only in the drivers (scanner, simulator). Text 
 
 from __future__ import annotations
 
-from starterbus.core.canframe import CanFrame
-from starterbus.core.canframe import parse_candump as _parse_candump
+from starterbus.core import CanFrame
+from starterbus.core import parse_candump as _parse_candump
 
-__all__ = ["CanFrame", "parse_candump"]
+__all__ = ["parse_candump"]
 
 
 def parse_candump(text: str) -> CanFrame:

@@ -11,8 +11,8 @@ import struct
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
-from starterbus.core.errors import EncodeError
-from starterbus.transports.devicenet.cip import FrameTooLongError, FrameTooShortError
+from starterbus.core import EncodeError
+from starterbus.transports.devicenet.codec.cip import FrameTooLongError, FrameTooShortError
 
 ATTRIBUTE_NAMES: dict[int, str] = {
     1: "vendor_id",

@@ -10,10 +10,9 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from starterbus.core.errors import EncodeError
-from starterbus.transports.devicenet.cip import FrameTooLongError, FrameTooShortError, UnexpectedFrameError
-from starterbus.transports.devicenet.frames import CanFrame
-from starterbus.transports.devicenet.ids import Group, Group2, duplicate_mac_id, parse_id
+from starterbus.core import CanFrame, EncodeError
+from starterbus.transports.devicenet.codec.cip import FrameTooLongError, FrameTooShortError, UnexpectedFrameError
+from starterbus.transports.devicenet.codec.ids import Group, Group2, duplicate_mac_id, parse_id
 
 DUP_MAC_LENGTH = 7
 RESPONSE_FLAG = 0x80

@@ -1,14 +1,14 @@
 """The objects a DeviceNet slave node serves over explicit messaging (Identity, Message Router, DeviceNet,
 Assembly, Connection) and the allocation of the Predefined Master/Slave Connection Set, sans-IO. The decisions
-where the specification leaves room are listed in ``slave_node``'s docstring."""
+where the specification leaves room are listed in ``slave.node``'s docstring."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
 
-from starterbus.transports.devicenet import cip
-from starterbus.transports.devicenet.cip import CipStatus, GeneralStatus, ObjectClass, Service
-from starterbus.transports.devicenet.connection import (
+from starterbus.transports.devicenet.codec import cip
+from starterbus.transports.devicenet.codec.cip import CipStatus, GeneralStatus, ObjectClass, Service
+from starterbus.transports.devicenet.codec.connection import (
     BAUD_CODES,
     SUPPORTED_CHOICE,
     AllocationChoice,
@@ -22,14 +22,14 @@ from starterbus.transports.devicenet.connection import (
     round_epr,
     uint,
 )
-from starterbus.transports.devicenet.explicit import ExplicitRequest
-from starterbus.transports.devicenet.ids import (
+from starterbus.transports.devicenet.codec.explicit import ExplicitRequest
+from starterbus.transports.devicenet.codec.ids import (
     explicit_request_id,
     explicit_response_id,
     poll_command_id,
     poll_response_id,
 )
-from starterbus.transports.devicenet.slave_state import EXPLICIT_CONNECTION_SIZE, Connection, RequestRefused, SlaveState
+from starterbus.transports.devicenet.slave.state import EXPLICIT_CONNECTION_SIZE, Connection, RequestRefused, SlaveState
 
 
 def _const(data: bytes) -> Callable[[], bytes]:
@@ -37,7 +37,7 @@ def _const(data: bytes) -> Callable[[], bytes]:
 
 
 class SlaveObjects(SlaveState):
-    """The explicit-message object model of :class:`~starterbus.transports.devicenet.slave_node.SlaveNode`."""
+    """The explicit-message object model of :class:`~starterbus.transports.devicenet.slave.node.SlaveNode`."""
 
     __slots__ = ()
 

@@ -10,7 +10,7 @@ import enum
 import math
 import struct
 
-from starterbus.core.errors import EncodeError
+from starterbus.core import EncodeError
 
 
 class AllocationChoice(enum.IntFlag):

@@ -1,13 +1,13 @@
 """Where python-can meets the codec: CanFrame <-> can.Message (buses are opened by starterbus.core.canbus).
 
-Everything else in the transport sees :class:`~starterbus.transports.devicenet.frames.CanFrame` only.
+Everything else in the transport sees :class:`~starterbus.core.CanFrame` only.
 """
 
 from __future__ import annotations
 
 import can
 
-from starterbus.transports.devicenet.frames import CanFrame
+from starterbus.core import CanFrame
 
 
 def to_message(frame: CanFrame) -> can.Message:

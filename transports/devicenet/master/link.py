@@ -1,7 +1,7 @@
 """The DeviceNet master's view of one slave, and the master's own states, settings and errors.
 
-Plain data for the sans-IO :class:`~starterbus.transports.devicenet.master_node.MasterNode`: nothing here
-reads a clock, locks or touches a bus. The driver (:mod:`~starterbus.transports.devicenet.scanner`) reads
+Plain data for the sans-IO :class:`~starterbus.transports.devicenet.master.node.MasterNode`: nothing here
+reads a clock, locks or touches a bus. The driver (:mod:`~starterbus.transports.devicenet.driver.scanner`) reads
 these objects under its lock.
 """
 
@@ -13,12 +13,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from starterbus.core.errors import TransportError
-from starterbus.transports.devicenet.assemblies import AssemblySet, OutputAssembly
-from starterbus.transports.devicenet.connection import DEFAULT_EXPLICIT_EPR_MS, inactivity_timeout
-from starterbus.transports.devicenet.dupmac import DEFAULT_WAIT
-from starterbus.transports.devicenet.explicit import ExplicitRequest, ExplicitResponse
-from starterbus.transports.devicenet.fragmentation import Fragmenter, Reassembler
+from starterbus.core import TransportError
+from starterbus.transports.devicenet.codec.assemblies import AssemblySet, OutputAssembly
+from starterbus.transports.devicenet.codec.connection import DEFAULT_EXPLICIT_EPR_MS, inactivity_timeout
+from starterbus.transports.devicenet.codec.dupmac import DEFAULT_WAIT
+from starterbus.transports.devicenet.codec.explicit import ExplicitRequest, ExplicitResponse
+from starterbus.transports.devicenet.codec.fragmentation import Fragmenter, Reassembler
 
 ANSWER_GUARD = 0.002  # seconds an answer waits for a second one (a duplicate responder) before it is published
 KEEPALIVE = 2.5  # longest time between explicit keep-alive reads (the default inactivity timeout is 10 s)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from starterbus.core.errors import DecodeError, RemoteDeviceError
+from starterbus.core import DecodeError, RemoteDeviceError
 
 PROTOCOL = "devicenet"
 NO_ADDITIONAL = 0xFF  # "additional code: none"

@@ -3,8 +3,8 @@
 A transcript line is ``> 42E#004B03010300`` (a frame the node receives), ``< 42B#00CB00`` (a frame the node
 must send in answer), ``@ 1.25`` (the time moves to 1.25 s: the node's timers run) or a comment (``#`` at the
 start) / blank line. :func:`replay` feeds the received frames to a sans-IO node (the slave's
-:class:`~starterbus.transports.devicenet.slave_node.SlaveNode` or the master's
-:class:`~starterbus.transports.devicenet.master_node.MasterNode`) and returns what it sent, so a test compares
+:class:`~starterbus.transports.devicenet.slave.node.SlaveNode` or the master's
+:class:`~starterbus.transports.devicenet.master.node.MasterNode`) and returns what it sent, so a test compares
 that with the ``<`` lines; the frames can be interleaved with garbage (frames for other nodes, malformed
 frames) that must not change the answers.
 
@@ -19,8 +19,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from starterbus.core.errors import DecodeError
-from starterbus.transports.devicenet.frames import CanFrame, parse_candump
+from starterbus.core import CanFrame, DecodeError
+from starterbus.transports.devicenet.codec.frames import parse_candump
 
 
 class Node(Protocol):
