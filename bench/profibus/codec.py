@@ -25,7 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypedDict
 
-from starterbus.transports.profibus_pkw.telegram import (
+from starterbus.transports.profibus_pkw.codec.telegram import (
     Ppo1Out,
     decode_ppo1_in,
     decode_ppo1_out,

@@ -32,11 +32,12 @@ from collections.abc import Callable
 from starterbus.core.device import Device, open_device
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
-from starterbus.transports.profibus_pkw.channels import attach_slave, detach_slave
-from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
-from starterbus.transports.profibus_pkw.handshake import Limits
-from starterbus.transports.profibus_pkw.link import CyclicLink
-from starterbus.transports.profibus_pkw.telegram import TaskCode, pkw_request
+from starterbus.transports.profibus_pkw.codec.codes import TaskCode
+from starterbus.transports.profibus_pkw.codec.telegram import pkw_request
+from starterbus.transports.profibus_pkw.driver.channels import attach_slave, detach_slave
+from starterbus.transports.profibus_pkw.driver.link import CyclicLink
+from starterbus.transports.profibus_pkw.master.handshake import Limits
+from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 from starterbus.transports.profibus_pkw.transport import ProfibusPkwTransport
 
 READ_P3 = pkw_request(TaskCode.READ_PARAMETER, 3)

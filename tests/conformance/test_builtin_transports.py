@@ -29,7 +29,7 @@ class TestProfibusPpo1(TransportConformance):
 
     @contextlib.contextmanager
     def serve(self, starter: SimulatedStarter) -> Iterator[str]:
-        from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
+        from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 
         with ProfibusGatewaySimulator(starter, ppo=1, cycle=0.002) as sim:
             yield sim.client_urls()[1] + "&timeout=2"
@@ -38,7 +38,7 @@ class TestProfibusPpo1(TransportConformance):
 class TestProfibusPpo3(TestProfibusPpo1):
     @contextlib.contextmanager
     def serve(self, starter: SimulatedStarter) -> Iterator[str]:
-        from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
+        from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 
         with ProfibusGatewaySimulator(starter, ppo=3, cycle=0.002) as sim:
             yield sim.client_urls()[1] + "&timeout=2"

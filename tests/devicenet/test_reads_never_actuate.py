@@ -23,7 +23,7 @@ from starterbus.transports.devicenet.codec.ids import poll_command_id
 from starterbus.transports.devicenet.simulator import DeviceNetSlaveSimulator
 from starterbus.transports.devicenet.transport import ControlConflictError
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
-from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
+from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 
 FAST = "dup_mac_wait=0.05&timeout=0.5"
 

@@ -20,7 +20,7 @@ CHANNEL = f"crosscheck-{os.getpid()}"
 def three_paths() -> Iterator[tuple[list[str], SimulatedStarter, SimulatedStarter]]:
     from starterbus.transports.devicenet.simulator import DeviceNetSimulator
     from starterbus.transports.modbus.simulator import ModbusRtuSimulator
-    from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
+    from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 
     profile = get_profile("jjr8000")
     clock = ManualClock()  # the motor changes only when the test says so: every path sees one state

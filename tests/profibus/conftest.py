@@ -18,19 +18,10 @@ import pytest
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import ManualClock, SimulatedStarter
-from starterbus.transports.profibus_pkw.channels import GATEWAYS, attached_slaves, detach_slave
-from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
-from starterbus.transports.profibus_pkw.telegram import (
-    Direction,
-    Part,
-    PkwRequest,
-    PkwResponse,
-    PzdIn,
-    PzdOut,
-    ResponseCode,
-    TaskCode,
-    Telegram,
-)
+from starterbus.transports.profibus_pkw.codec.codes import Direction, Part, ResponseCode, TaskCode
+from starterbus.transports.profibus_pkw.codec.telegram import PkwRequest, PkwResponse, PzdIn, PzdOut, Telegram
+from starterbus.transports.profibus_pkw.driver.channels import GATEWAYS, attached_slaves, detach_slave
+from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 
 
 def h(text: str) -> bytes:

@@ -16,7 +16,7 @@ import pytest
 from starterbus.cli.main import main
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import Phase, SimulatedStarter
-from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
+from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 
 Factory = type[ProfibusGatewaySimulator]
 

@@ -9,20 +9,24 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from starterbus.core.errors import CodecError, DecodeError, EncodeError
-from starterbus.transports.profibus_pkw.telegram import (
-    NO_TASK,
+from starterbus.transports.profibus_pkw.codec.codes import (
     Direction,
     Part,
+    Ppo,
+    ResponseCode,
+    TaskCode,
+    UnknownCode,
+    response_code,
+    task_code,
+)
+from starterbus.transports.profibus_pkw.codec.telegram import (
+    NO_TASK,
     PkwRequest,
     PkwResponse,
-    Ppo,
     Ppo1In,
     Ppo1Out,
     PzdIn,
     PzdOut,
-    ResponseCode,
-    TaskCode,
-    UnknownCode,
     decode,
     decode_part,
     decode_ppo1_in,
@@ -35,8 +39,6 @@ from starterbus.transports.profibus_pkw.telegram import (
     pkw_response,
     ppo1_in,
     ppo1_out,
-    response_code,
-    task_code,
     telegram_type,
 )
 

@@ -17,11 +17,11 @@ from starterbus.core.errors import ConfigurationError, RemoteDeviceError, StateR
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.core.status import Status
-from starterbus.transports.profibus_pkw.channels import GATEWAYS, GatewayChannel
-from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
-from starterbus.transports.profibus_pkw.handshake import PkwError
+from starterbus.transports.profibus_pkw.codec.codes import Ppo
+from starterbus.transports.profibus_pkw.driver.channels import GATEWAYS, GatewayChannel
+from starterbus.transports.profibus_pkw.master.handshake import PkwError
+from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
-from starterbus.transports.profibus_pkw.telegram import Ppo
 
 Factory = type[ProfibusGatewaySimulator]
 

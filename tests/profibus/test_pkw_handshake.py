@@ -9,17 +9,16 @@ import pytest
 
 from starterbus.core.errors import DecodeError, RemoteDeviceError, TimeoutError, TransportError
 from starterbus.core.profile import Profile
-from starterbus.transports.profibus_pkw.handshake import JobState, Limits, PkwEngine, PkwError, PkwJob
-from starterbus.transports.profibus_pkw.telegram import (
+from starterbus.transports.profibus_pkw.codec.codes import ResponseCode, TaskCode
+from starterbus.transports.profibus_pkw.codec.telegram import (
     NO_RESPONSE,
     NO_TASK,
     PkwRequest,
     PkwResponse,
-    ResponseCode,
-    TaskCode,
     pkw_request,
     pkw_response,
 )
+from starterbus.transports.profibus_pkw.master.handshake import JobState, Limits, PkwEngine, PkwError, PkwJob
 
 READ_P3 = pkw_request(TaskCode.READ_PARAMETER, 3)
 WRITE_P3 = pkw_request(TaskCode.WRITE_PARAMETER, 3, 20)

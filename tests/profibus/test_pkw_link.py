@@ -10,11 +10,12 @@ import pytest
 from starterbus.core.errors import TimeoutError, TransportError
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
-from starterbus.transports.profibus_pkw.channels import Channel, SimChannel, Snapshot
-from starterbus.transports.profibus_pkw.handshake import Limits, PkwEngine
-from starterbus.transports.profibus_pkw.link import CyclicLink
+from starterbus.transports.profibus_pkw.codec.codes import Ppo, TaskCode
+from starterbus.transports.profibus_pkw.codec.telegram import pkw_request
+from starterbus.transports.profibus_pkw.driver.channels import Channel, SimChannel, Snapshot
+from starterbus.transports.profibus_pkw.driver.link import CyclicLink
+from starterbus.transports.profibus_pkw.master.handshake import Limits, PkwEngine
 from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
-from starterbus.transports.profibus_pkw.telegram import Ppo, TaskCode, pkw_request
 
 READ_P3 = pkw_request(TaskCode.READ_PARAMETER, 3)
 

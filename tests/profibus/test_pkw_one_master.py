@@ -16,8 +16,8 @@ from starterbus.core.device import open_device
 from starterbus.core.errors import TransportError
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
-from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
-from starterbus.transports.profibus_pkw.station_lock import LOCK_DIR_ENV
+from starterbus.transports.profibus_pkw.driver.station_lock import LOCK_DIR_ENV
+from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 
 HOLDER = """
 import sys

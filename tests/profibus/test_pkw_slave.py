@@ -11,6 +11,7 @@ import pytest
 from starterbus.core.errors import ConfigurationError, DecodeError, Refusal
 from starterbus.core.profile import Profile, load_profile_text
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
+from starterbus.transports.profibus_pkw.codec.codes import Ppo, ResponseCode
 from starterbus.transports.profibus_pkw.settings import UNSUPPORTED_TASK
 from starterbus.transports.profibus_pkw.slave import (
     REFUSAL_ANSWERS,
@@ -18,7 +19,6 @@ from starterbus.transports.profibus_pkw.slave import (
     SimulatedDpSlave,
     refusal_answers,
 )
-from starterbus.transports.profibus_pkw.telegram import Ppo, ResponseCode
 
 if TYPE_CHECKING:
     from starterbus.tests.profibus.conftest import RunningStarter

@@ -12,12 +12,13 @@ from starterbus.core.model import Kind as PointKind
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.url import DeviceUrl
-from starterbus.transports.profibus_pkw.channels import Channel, SimChannel, Snapshot
-from starterbus.transports.profibus_pkw.handshake import Limits, PkwEngine
-from starterbus.transports.profibus_pkw.link import CyclicLink
+from starterbus.transports.profibus_pkw.codec.codes import TaskCode
+from starterbus.transports.profibus_pkw.codec.telegram import PkwRequest, pkw_request
+from starterbus.transports.profibus_pkw.driver.channels import Channel, SimChannel, Snapshot
+from starterbus.transports.profibus_pkw.driver.link import CyclicLink
+from starterbus.transports.profibus_pkw.master.handshake import Limits, PkwEngine
 from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
-from starterbus.transports.profibus_pkw.telegram import PkwRequest, TaskCode, pkw_request
-from starterbus.transports.profibus_pkw.transport import LinkSettings
+from starterbus.transports.profibus_pkw.url import LinkSettings
 
 READ_P3 = pkw_request(TaskCode.READ_PARAMETER, 3)
 READ_M3 = pkw_request(TaskCode.READ_MEASUREMENT, 3)

@@ -13,16 +13,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from starterbus.core.errors import DecodeError, TimeoutError
-from starterbus.transports.profibus_pkw.handshake import JobState, Limits, PkwEngine, PkwError, PkwJob
-from starterbus.transports.profibus_pkw.telegram import (
+from starterbus.transports.profibus_pkw.codec.codes import TaskCode
+from starterbus.transports.profibus_pkw.codec.telegram import (
     NO_RESPONSE,
     NO_TASK,
     PkwRequest,
     PkwResponse,
-    TaskCode,
     pkw_request,
     pkw_response,
 )
+from starterbus.transports.profibus_pkw.master.handshake import JobState, Limits, PkwEngine, PkwError, PkwJob
 
 READ_P3 = pkw_request(TaskCode.READ_PARAMETER, 3)
 READ_M3 = pkw_request(TaskCode.READ_MEASUREMENT, 3)

@@ -21,12 +21,13 @@ from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.core.status import Command, MotorState
 from starterbus.core.transport import Capability
 from starterbus.core.url import DeviceUrl
-from starterbus.transports.profibus_pkw.channels import Channel, SimChannel, Snapshot, attach_slave, get_slave
-from starterbus.transports.profibus_pkw.handshake import PkwError
+from starterbus.transports.profibus_pkw.codec.codes import Ppo, ResponseCode
+from starterbus.transports.profibus_pkw.driver.channels import Channel, SimChannel, Snapshot, attach_slave, get_slave
+from starterbus.transports.profibus_pkw.master.handshake import PkwError
 from starterbus.transports.profibus_pkw.plugin import PLUGIN
 from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
-from starterbus.transports.profibus_pkw.telegram import Ppo, ResponseCode
-from starterbus.transports.profibus_pkw.transport import LinkSettings, ProfibusPkwTransport
+from starterbus.transports.profibus_pkw.transport import ProfibusPkwTransport
+from starterbus.transports.profibus_pkw.url import LinkSettings
 
 
 @pytest.fixture

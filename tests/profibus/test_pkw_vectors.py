@@ -11,18 +11,14 @@ from starterbus.core.model import Kind, Value
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, SimulatedStarter
 from starterbus.core.status import decode_status_word
-from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
-from starterbus.transports.profibus_pkw.telegram import (
-    Direction,
-    Part,
+from starterbus.transports.profibus_pkw.codec.codes import Direction, Part, Ppo, TaskCode
+from starterbus.transports.profibus_pkw.codec.telegram import (
     PkwRequest,
     PkwResponse,
-    Ppo,
     Ppo1In,
     Ppo1Out,
     PzdIn,
     PzdOut,
-    TaskCode,
     decode,
     decode_part,
     decode_ppo1_in,
@@ -31,6 +27,7 @@ from starterbus.transports.profibus_pkw.telegram import (
     encode_ppo1,
     error_label,
 )
+from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
 
 if TYPE_CHECKING:
     from starterbus.tests.profibus.conftest import Pair, RunningStarter, Vector

@@ -28,7 +28,7 @@ from starterbus.ops.throttle import ThrottlePolicy
 from starterbus.testing.conformance import wait_until
 from starterbus.tests.web.harness import PASSWORD, WebDemo, web_demo
 from starterbus.tests.web.test_backup_api import _raw, _with_raw
-from starterbus.transports.profibus_pkw.station_lock import LOCK_DIR_ENV
+from starterbus.transports.profibus_pkw.driver.station_lock import LOCK_DIR_ENV
 from starterbus.web.auth import AuthPolicy
 from starterbus.web.backup_api import MAX_UPLOAD
 

@@ -10,33 +10,43 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from starterbus.core.errors import CodecError, DecodeError, ValidationError
-from starterbus.core.model import Kind, PointDef, Value
-from starterbus.core.profile import Profile
-from starterbus.core.status import FaultTable, decode_status_word, describe_control_word
-from starterbus.core.textinput import parse_hex
-from starterbus.core.transport import Annotation
-from starterbus.transports.profibus_pkw.settings import profibus_settings
-from starterbus.transports.profibus_pkw.telegram import (
+from starterbus.core import (
+    Annotation,
+    CodecError,
+    DecodeError,
+    FaultTable,
+    Kind,
+    PointDef,
+    Profile,
+    ValidationError,
+    Value,
+    decode_status_word,
+    describe_control_word,
+    parse_hex,
+)
+from starterbus.transports.profibus_pkw.codec.codes import (
     PROTOCOL,
     RESPONSE_TEXT,
     TASK_TEXT,
     Direction,
     Part,
+    Ppo,
+    ResponseCode,
+    TaskCode,
+)
+from starterbus.transports.profibus_pkw.codec.telegram import (
     PkwRequest,
     PkwResponse,
-    Ppo,
     Ppo1In,
     Ppo1Out,
     PzdIn,
     PzdOut,
-    ResponseCode,
-    TaskCode,
     decode_part,
     error_label,
     hex_text,
     telegram_type,
 )
+from starterbus.transports.profibus_pkw.settings import profibus_settings
 
 ACT_SCALE = 0.1
 

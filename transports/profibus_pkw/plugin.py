@@ -5,18 +5,26 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from starterbus.core.errors import ConfigurationError
-from starterbus.core.model import Kind
-from starterbus.core.plugin_options import PluginOption, resolve_options
-from starterbus.core.profile import Profile
-from starterbus.core.simulator import SimulatedStarter
-from starterbus.core.textinput import parse_host_port
-from starterbus.core.transport import Annotation, Capability, RunningSimulator, Transport, TransportPlugin
-from starterbus.core.url import DeviceUrl
+from starterbus.core import (
+    Annotation,
+    Capability,
+    ConfigurationError,
+    DeviceUrl,
+    Kind,
+    PluginOption,
+    Profile,
+    RunningSimulator,
+    SimulatedStarter,
+    Transport,
+    TransportPlugin,
+    parse_host_port,
+    resolve_options,
+)
+from starterbus.transports.profibus_pkw.codec.codes import PROTOCOL, Direction, Part, Ppo
 from starterbus.transports.profibus_pkw.decoder import annotate_hex
 from starterbus.transports.profibus_pkw.settings import ProfibusSettings, profibus_settings
-from starterbus.transports.profibus_pkw.telegram import PROTOCOL, Direction, Part, Ppo
-from starterbus.transports.profibus_pkw.transport import LinkSettings, ProfibusPkwTransport
+from starterbus.transports.profibus_pkw.transport import ProfibusPkwTransport
+from starterbus.transports.profibus_pkw.url import LinkSettings
 
 
 class ProfibusPkwPlugin(TransportPlugin):
@@ -75,7 +83,7 @@ class ProfibusPkwPlugin(TransportPlugin):
         target = values.text("gateway")
         if not target:
             return []
-        from starterbus.transports.profibus_pkw.gateway_sim import ProfibusGatewaySimulator
+        from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 
         for station, starter in starters.items():
             profile = starter.profile

@@ -6,11 +6,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from starterbus.core import ConfigurationError, Label, Profile, Refusal
 from starterbus.core import settings_check as check
-from starterbus.core.errors import ConfigurationError, Refusal
-from starterbus.core.model import Label
-from starterbus.core.profile import Profile
-from starterbus.transports.profibus_pkw.telegram import PROTOCOL
+from starterbus.transports.profibus_pkw.codec.codes import PROTOCOL
 
 #: the refusal key of a task the simulated slave does not support (next to the core's ``Refusal`` names)
 UNSUPPORTED_TASK = "unsupported_task"

@@ -19,20 +19,10 @@ from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from starterbus.core.errors import ConfigurationError, DecodeError, Refusal, SimulatorRefusal
-from starterbus.core.model import Kind
-from starterbus.core.profile import Profile
-from starterbus.core.simulator import SimulatedStarter
+from starterbus.core import ConfigurationError, DecodeError, Kind, Profile, Refusal, SimulatedStarter, SimulatorRefusal
+from starterbus.transports.profibus_pkw.codec.codes import PROTOCOL, Ppo, ResponseCode, TaskCode
+from starterbus.transports.profibus_pkw.codec.telegram import NO_RESPONSE, PkwRequest, PkwResponse
 from starterbus.transports.profibus_pkw.settings import RESPONSE_2, UNSUPPORTED_TASK, profibus_settings
-from starterbus.transports.profibus_pkw.telegram import (
-    NO_RESPONSE,
-    PROTOCOL,
-    PkwRequest,
-    PkwResponse,
-    Ppo,
-    ResponseCode,
-    TaskCode,
-)
 
 #: key for the answer to a task code the slave does not know (INDH 4-255 from the master)
 

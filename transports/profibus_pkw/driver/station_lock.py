@@ -20,7 +20,7 @@ import tempfile
 import threading
 from pathlib import Path
 
-from starterbus.core.errors import TransportError
+from starterbus.core import TransportError
 
 LOCK_DIR_ENV = "STARTERBUS_LOCK_DIR"
 

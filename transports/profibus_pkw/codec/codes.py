@@ -2,7 +2,7 @@
 
 docs/manuals.md#3-profibus-dp-pkw-and-pzd-telegrams (tables 1.1 / 1.2 and 2.2 / 2.3). INDH values the manual
 does not define decode to :class:`UnknownCode` (an ``int`` that says so), never an error. The telegrams built
-from these are in ``telegram.py``, which also exports every name here.
+from these are in ``telegram.py``.
 """
 
 from __future__ import annotations

@@ -45,14 +45,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from starterbus.transports.profibus_pkw.telegram import (
-    NO_TASK,
-    PkwRequest,
-    PkwResponse,
-    ResponseCode,
-    TaskCode,
-    hex_text,
-)
+from starterbus.transports.profibus_pkw.codec.codes import ResponseCode, TaskCode
+from starterbus.transports.profibus_pkw.codec.telegram import NO_TASK, PkwRequest, PkwResponse, hex_text
 
 
 class Mark(NamedTuple):

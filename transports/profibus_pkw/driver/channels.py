@@ -22,18 +22,18 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from starterbus.core.errors import (
+from starterbus.core import (
     ConfigurationError,
     DecodeError,
     RemoteDeviceError,
+    SharedPool,
+    SimulatedStarter,
     StarterbusError,
     TransportError,
 )
-from starterbus.core.sharing import SharedPool
-from starterbus.core.simulator import SimulatedStarter
+from starterbus.transports.profibus_pkw.codec.codes import Ppo
+from starterbus.transports.profibus_pkw.driver.station_lock import hold_station, release_station
 from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
-from starterbus.transports.profibus_pkw.station_lock import hold_station, release_station
-from starterbus.transports.profibus_pkw.telegram import Ppo
 
 __all__ = [
     "GATEWAYS",

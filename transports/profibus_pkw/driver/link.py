@@ -22,20 +22,18 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from starterbus.core.errors import EncodeError, StarterbusError, TimeoutError
-from starterbus.core.status import CW_RESET, SW_FAULT, SW_RUNNING, SW_STARTING
-from starterbus.transports.profibus_pkw.channels import Channel, channel_error
-from starterbus.transports.profibus_pkw.handshake import PkwEngine, PkwJob
-from starterbus.transports.profibus_pkw.telegram import (
+from starterbus.core import CW_RESET, SW_FAULT, SW_RUNNING, SW_STARTING, EncodeError, StarterbusError, TimeoutError
+from starterbus.transports.profibus_pkw.codec.codes import PROTOCOL, Ppo
+from starterbus.transports.profibus_pkw.codec.telegram import (
     NO_TASK,
-    PROTOCOL,
     PkwRequest,
     PkwResponse,
-    Ppo,
     Ppo1In,
     PzdIn,
     from_words,
 )
+from starterbus.transports.profibus_pkw.driver.channels import Channel, channel_error
+from starterbus.transports.profibus_pkw.master.handshake import PkwEngine, PkwJob
 
 Clock = Callable[[], float]
 

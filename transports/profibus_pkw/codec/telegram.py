@@ -25,13 +25,9 @@ import struct
 from collections.abc import Mapping, Sequence
 from typing import NamedTuple, TypeVar
 
-from starterbus.core.errors import DecodeError, EncodeError
-from starterbus.core.model import Label
-from starterbus.transports.profibus_pkw.codes import (
-    PROTOCOL,
-    RESPONSE_TEXT,
+from starterbus.core import DecodeError, EncodeError, Label
+from starterbus.transports.profibus_pkw.codec.codes import (
     RESPONSES,
-    TASK_TEXT,
     TASKS,
     Direction,
     Part,
@@ -39,27 +35,16 @@ from starterbus.transports.profibus_pkw.codes import (
     ResponseCode,
     TaskCode,
     UnknownCode,
-    response_code,
-    task_code,
 )
 
 __all__ = [
-    "PROTOCOL",
-    "RESPONSE_TEXT",
-    "TASK_TEXT",
-    "Direction",
-    "Part",
     "PkwRequest",
     "PkwResponse",
-    "Ppo",
     "Ppo1In",
     "Ppo1Out",
     "PzdIn",
     "PzdOut",
-    "ResponseCode",
-    "TaskCode",
     "Telegram",
-    "UnknownCode",
     "decode",
     "decode_part",
     "decode_ppo1_in",
@@ -69,8 +54,6 @@ __all__ = [
     "from_words",
     "pkw_request",
     "pkw_response",
-    "response_code",
-    "task_code",
     "telegram_type",
 ]
 

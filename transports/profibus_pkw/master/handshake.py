@@ -42,22 +42,17 @@ from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
-from starterbus.core.errors import DecodeError, RemoteDeviceError, StarterbusError, TimeoutError
-from starterbus.core.model import Label
-from starterbus.transports.profibus_pkw.freshness import DEFAULT_INHERITED, Freshness, Mark, answers, pkw_bytes
-from starterbus.transports.profibus_pkw.telegram import (
+from starterbus.core import DecodeError, Label, RemoteDeviceError, StarterbusError, TimeoutError
+from starterbus.transports.profibus_pkw.codec.codes import PROTOCOL, RESPONSE_TEXT, TASK_TEXT, ResponseCode, TaskCode
+from starterbus.transports.profibus_pkw.codec.telegram import (
     NO_TASK,
-    PROTOCOL,
-    RESPONSE_TEXT,
-    TASK_TEXT,
     PkwRequest,
     PkwResponse,
-    ResponseCode,
-    TaskCode,
     error_label,
     hex_text,
     pkw_request,
 )
+from starterbus.transports.profibus_pkw.master.freshness import DEFAULT_INHERITED, Freshness, Mark, answers, pkw_bytes
 
 MAX_INHERITED = 254  # the start chain reads inherited + 1 INDLs, all different from the task's
 

@@ -25,11 +25,9 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
-from starterbus.core.errors import ConfigurationError, TransportError
-from starterbus.core.simulator import SimulatedStarter
-from starterbus.core.transport import RunningSimulator
+from starterbus.core import ConfigurationError, RunningSimulator, SimulatedStarter, TransportError
+from starterbus.transports.profibus_pkw.codec.codes import PROTOCOL, Ppo
 from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
-from starterbus.transports.profibus_pkw.telegram import PROTOCOL, Ppo
 
 _ILLEGAL_ADDRESS = 2
 
