@@ -70,3 +70,39 @@ def test_a_late_import_that_closes_a_circle_breaks_the_acyclic_contract(copy: Pa
     result = lint_imports(copy, pythonpath=copy)
     assert result.returncode == 1, result.stdout
     assert "No cycles are allowed in starterbus.fleet" in result.stdout
+
+
+def test_a_transport_importing_a_core_module_breaks_the_public_core_contract(copy: Path) -> None:
+    """A built-in transport imports the public starterbus.core only, as a plugin must: the offender is named, with
+    its line."""
+    url = copy / "starterbus" / "transports" / "devicenet" / "url.py"
+    line = len(url.read_text(encoding="utf-8").splitlines()) + 2
+    append(url, "from starterbus.core.errors import DecodeError  # noqa")
+    result = lint_imports(copy, pythonpath=copy)
+    assert result.returncode == 1, result.stdout
+    said = " ".join(result.stdout.split())  # lint-imports wraps its lines
+    assert f"starterbus.transports.devicenet.url -> starterbus.core.errors (l.{line})" in said
+    assert "import the public starterbus.core, none of its modules BROKEN" in said
+
+
+def test_a_codec_importing_its_transport_breaks_the_protocol_layout(copy: Path) -> None:
+    append(
+        copy / "starterbus" / "transports" / "profibus_pkw" / "codec" / "codes.py",
+        "import starterbus.transports.profibus_pkw.transport  # noqa",
+    )
+    result = lint_imports(copy, pythonpath=copy)
+    assert result.returncode == 1, result.stdout
+    said = " ".join(result.stdout.split())
+    assert "profibus_pkw.codec is not allowed to import starterbus.transports.profibus_pkw.transport" in said
+    assert "starterbus.transports.profibus_pkw.codec.codes -> starterbus.transports.profibus_pkw.transport" in said
+
+
+def test_a_module_outside_the_layout_breaks_it(copy: Path) -> None:
+    """Every module of a protocol package is one of the parts of docs/architecture.md (the contract is exhaustive)."""
+    (copy / "starterbus" / "transports" / "devicenet" / "helpers.py").write_text(
+        '"""Odds and ends."""\n', encoding="utf-8"
+    )
+    result = lint_imports(copy, pythonpath=copy)
+    assert result.returncode == 1, result.stdout
+    said = " ".join(result.stdout.split())
+    assert "The following modules are not listed as layers: - starterbus.transports.devicenet.helpers" in said
