@@ -19,8 +19,9 @@ from dataclasses import dataclass
 
 from starterbus.core.errors import StarterbusError, TransportError
 from starterbus.core.polling import PollResult, PollTask
+from starterbus.core.media.waiter import precise_timers
 from starterbus.core.scheduler import FD_SETSIZE, Waiter
-from starterbus.fleet.bus_worker import Attempt, BusWorker, DeviceRuntime, precise_timers
+from starterbus.fleet.bus_worker import Attempt, BusWorker, DeviceRuntime
 from starterbus.fleet.poll_context import PollContext
 
 #: longest sleep when nothing is due (a stop or a job wakes the thread at once anyway)
