@@ -18,8 +18,8 @@ import threading
 from dataclasses import dataclass
 
 from starterbus.core.errors import StarterbusError, TransportError
-from starterbus.core.polling import PollResult, PollTask
 from starterbus.core.media.waiter import precise_timers
+from starterbus.core.polling import PollResult, PollTask
 from starterbus.core.scheduler import FD_SETSIZE, Waiter
 from starterbus.fleet.bus_worker import Attempt, BusWorker, DeviceRuntime
 from starterbus.fleet.poll_context import PollContext
