@@ -15,7 +15,6 @@ until the line has been silent for 3.5 characters since the last byte of the req
 
 from __future__ import annotations
 
-import ctypes
 import functools
 import os
 import select
@@ -28,6 +27,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from starterbus.core.errors import ConfigurationError, DecodeError
+from starterbus.core.media.waiter import precise_timers
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.transport import RunningSimulator
 from starterbus.transports.modbus.frames import AnyRequest, ExceptionResponse, Response
@@ -37,16 +37,6 @@ from starterbus.transports.modbus.slave import TRANSPORT, SlaveLogic
 from starterbus.transports.modbus.timing import silent_interval
 
 Trace = Callable[[str, bytes], None]  # ("rx" | "tx" | "drop", bytes)
-_PR_SET_TIMERSLACK = 29
-
-
-def _precise_timers() -> None:
-    """Linux: 1 us timer slack for the calling (serving) thread instead of 50 us, so the slave answers close to
-    exactly 3.5 characters after a request. Best effort; only the simulator's own threads are affected."""
-    try:
-        ctypes.CDLL(None).prctl(_PR_SET_TIMERSLACK, 1, 0, 0, 0)
-    except (OSError, AttributeError):
-        pass
 
 
 @dataclass(frozen=True, slots=True)
@@ -287,7 +277,7 @@ class ModbusRtuSimulator(RunningSimulator):
             self._spawn(functools.partial(self._serve, endpoint), f"modbus-rtu tcp client {endpoint.name}")
 
     def _serve(self, ep: _Endpoint) -> None:
-        _precise_timers()
+        precise_timers()
         silence = self.settings.silence
         receiver = RequestReceiver()
         last_rx = 0.0
