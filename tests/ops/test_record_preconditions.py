@@ -145,7 +145,10 @@ def test_a_line_error_after_the_start_saves_what_was_sampled(
     captured = capsys.readouterr()
     summary = json.loads(captured.out)
     assert summary["ended"] == "sampling failed: no answer from unit 2" and summary["samples"] > 0
-    assert Path(summary["files"]["csv"]).read_text(encoding="utf-8").count("starting") == summary["samples"]
+    rows = Path(summary["files"]["csv"]).read_text(encoding="utf-8").strip().splitlines()[1:]
+    assert len(rows) == summary["samples"]
+    # the phase is looked at before the status is read: the read may already see the motor running, once
+    assert sum("starting" in row for row in rows) >= len(rows) - 1
     assert "stop it with: starterbus stop" in captured.err
 
 
