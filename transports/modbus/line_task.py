@@ -1,45 +1,112 @@
-"""A poll's transactions on one RTU line as a :class:`~starterbus.core.polling.PollTask`: what
-:meth:`RtuLine.run <starterbus.transports.modbus.line.RtuLine.run>` does, without blocking.
+"""A poll's transactions on one RTU line as a :class:`~starterbus.core.polling.PollTask`: the
+:class:`~starterbus.transports.modbus.rtu_engine.RtuEngine` on the line's descriptor (:class:`RtuDriver`, a
+:class:`~starterbus.core.media.StreamDriver`), for the fleet's multiplexer (``fleet/mux.py``) until the fleet
+runs on the scheduler (docs/engine.md, step 4).
 
-One poller thread can then keep many lines busy (``fleet/mux.py``): it waits on every line's descriptor and
-timer at once and advances the task whose input or time has come. The rules are the same sans-IO parts the
-blocking driver uses, fed the same way: the :class:`~starterbus.transports.modbus.guard.LineGuard` says when a
-request may start (silence, input discarded just before, quarantine) and whether an answer may be delivered
-(not sooner than the wire allows, followed by silence); the :class:`~starterbus.transports.modbus.exchange.
-Exchange` and the :class:`~starterbus.transports.modbus.receiver.ResponseReceiver` decode it or name what is
-wrong; failures quarantine the line and are retried within the policy; the line's lock is held from a
-request's start to its answer's delivery, so blocking users of the same line in this process wait their turn.
+The rules are the engine's, that is the :class:`~starterbus.transports.modbus.guard.LineGuard`'s, which the
+blocking :meth:`RtuLine.run <starterbus.transports.modbus.line.RtuLine.run>` shares: one guard per line. The
+line's lock is held from a request's start to its answer's delivery, so blocking users of the same line in this
+process wait their turn (and the task looks again after :data:`LOCK_RETRY` while one holds it).
 
-Times: a request counts as started at a clock reading taken before it is written; an answer as complete at a
-reading taken after its last byte was read; the silence after it from then on. A task advanced late reads
-what arrived meanwhile before it decides on a timeout (bytes after the request belong to it or to nobody: the
-quarantine rules out earlier requests), and takes bytes found in the input after the silence as trailing
-(the answer is dropped: an error, never a wrong value).
+Times: the driver reads the line's clock just before a write (the request counts as started then), and just
+after a read (an answer is complete then). It looks at the input before every step, so a task advanced late
+reads what arrived meanwhile before the engine decides on a timeout, and the silence before a request is
+checked on input found empty just before it.
 """
 
 from __future__ import annotations
 
-import enum
+import weakref
 from collections.abc import Callable, Sequence
+from typing import Any, cast
 
-from starterbus.core.errors import DecodeError, StarterbusError, TimeoutError, TransportError
+from starterbus.core.engine import TicketState
+from starterbus.core.errors import StarterbusError, TransportError
+from starterbus.core.media import StreamDriver
 from starterbus.core.polling import PollResult, PollTask
 from starterbus.core.transport import TransportCounters
 from starterbus.transports.modbus.exchange import Exchange
 from starterbus.transports.modbus.frames import Response
 from starterbus.transports.modbus.line import RtuLine
-from starterbus.transports.modbus.receiver import NEED_DATA, ResponseReceiver
+from starterbus.transports.modbus.rtu_engine import RtuEngine, RtuTicket
 
 #: how soon a task looks again at a line that another thread holds
 LOCK_RETRY = 0.001
 
+__all__ = ["LOCK_RETRY", "LineTask", "RtuDriver"]
 
-class _Step(enum.Enum):
-    START = "start"  # take the line, then send now or wait for it to fall silent
-    QUIET = "quiet"  # waiting for the silence (or the quarantine) before the request
-    ANSWER = "answer"  # request written, reading the answer
-    TRAIL = "trail"  # answer complete, watching the silence that must follow it
-    OVER = "over"
+
+class RtuDriver(StreamDriver[RtuEngine]):
+    """An :class:`RtuEngine` on a line's link (a serial port or pty, a TCP connection to a device server):
+    reads exactly what the engine wants, with the line's clock read after each read and before each write."""
+
+    def __init__(self, line: RtuLine) -> None:
+        super().__init__(line.name, lambda: RtuEngine(line.guard, line.name))
+        self.line = line
+
+    @property
+    def fd(self) -> int:
+        return self.line.link.fd
+
+    def usable(self, now: float) -> bool:
+        return True
+
+    def take_input(self, now: float) -> None:
+        self.look()
+
+    def look(self) -> float:
+        """Read what is there (at most what the engine wants) and give it to the engine; the time after."""
+        engine, line = self.engine, self.line
+        if line.broken:  # closed after an answer: the rest of its silence is waited for by time alone
+            at = line.clock()
+            engine.receive(None, at)
+            return at
+        want = engine.want
+        if engine.answering is not None:
+            data = line.link.read_ready(want)
+        else:
+            try:
+                data = line.link.take_input(want)
+            except TransportError:
+                if not engine.trailing:
+                    raise
+                line.mark_broken()  # the connection closed after the answer: no byte followed it
+                data = b""
+        at = line.clock()
+        engine.receive(data or None, at)
+        return at
+
+    def step(self, now: float, ready: bool) -> None:
+        """The loop body for a line: the input is looked at first, unless a request is due and the input was
+        found empty a moment ago (the silence after the last answer), as the blocking driver does."""
+        engine, clock = self.engine, self.line.clock
+        if engine.wants_to_send:
+            now = clock()
+            if engine.must_look(now):
+                now = self.look()
+        else:
+            answering = engine.answering is not None
+            now = self.look()
+            if answering and engine.trailing:  # the answer is complete: what follows it, if anything is there
+                now = self.look()
+        if now >= engine.deadline:
+            engine.advance(now)
+        if engine.wants_to_send:
+            if engine.guard.must_discard(now):  # not looked at a moment ago (a retry after a timeout)
+                self.look()
+            now = clock()  # no later than the request's first byte
+            out = engine.take_output(now)
+            if out:
+                self.line.link.write(out[0])
+        self.complete(now)
+
+    def write(self, units: Sequence[Any], now: float) -> None:
+        self.line.link.write(units[0])
+
+
+#: one driver per line (its engine shares the line's guard with the blocking driver); the line's lock makes its
+#: user one task at a time
+_DRIVERS: weakref.WeakKeyDictionary[RtuLine, RtuDriver] = weakref.WeakKeyDictionary()
 
 
 class LineTask(PollTask):
@@ -61,21 +128,19 @@ class LineTask(PollTask):
         self._counters = counters
         self._check = check
         self._finish = finish
+        driver = _DRIVERS.get(line)
+        if driver is None:
+            driver = _DRIVERS[line] = RtuDriver(line)
+        self._driver = driver
         self._responses: list[Response] = []
-        self._index = 0
-        self._attempt = 0
-        self._step = _Step.START if exchanges else _Step.OVER
+        self._ticket: RtuTicket | None = None
         self._locked = False
-        self._give_up = 0.0  # QUIET: when waiting for silence becomes an error
-        self._deadline = 0.0  # ANSWER: when the answer is late
-        self._data = b""  # ANSWER: what arrived (while it looks like a normal answer)
-        self._receiver: ResponseReceiver | None = None  # ANSWER: anything else
-        self._at = 0.0  # when the last byte of the answer so far was read
-        self._answer: tuple[bytes, Response] | None = None  # TRAIL: the answer waiting for its silence
         self._outcome: PollResult | StarterbusError | None = None
         self.fd = -1  # nothing to watch before the line is taken (and reopened if it broke)
         self.wake_at = 0.0
         self.done = False
+        if not exchanges:
+            self._finish_all()
 
     # -- the PollTask interface ------------------------------------------------------------------------------
 
@@ -85,7 +150,7 @@ class LineTask(PollTask):
         try:
             self._advance(now)
         except StarterbusError as exc:
-            self._end(exc)
+            self._failed(exc)
         except BaseException:
             self._release()
             raise
@@ -99,13 +164,11 @@ class LineTask(PollTask):
         raise outcome
 
     def cancel(self) -> None:
-        if self._step in (_Step.ANSWER, _Step.TRAIL):  # an answer may still come: the line is not silent
-            exchange = self._exchanges[self._index]
-            self.line.guard.failed(self.line.clock(), exchange.quarantine)
-            self.line.count(self._counters, exchange, max(1, self._attempt), 0, None)
-        elif self._step is _Step.QUIET and self._attempt > 1:  # a retry waiting: the attempts sent are counted
-            self.line.count(self._counters, self._exchanges[self._index], self._attempt - 1, 0, None)
-        self._step = _Step.OVER
+        ticket = self._ticket
+        if ticket is not None and not ticket.ended:
+            self._driver.withdraw((ticket,), self.line.clock())
+            self._counted(ticket)
+        self._ticket = None
         self._release()
         if not self.done:
             self._outcome = TransportError(f"{self.line.name}: poll cancelled")
@@ -114,181 +177,76 @@ class LineTask(PollTask):
     # -- the steps -------------------------------------------------------------------------------------------
 
     def _advance(self, now: float) -> None:
+        driver, line = self._driver, self.line
         while not self.done:
-            step = self._step
-            if step is _Step.START:
-                if not self._start():
-                    self.fd = -1  # the line's input is its holder's until it is free: look again soon
-                    self.wake_at = now + LOCK_RETRY
-                    return
-            elif step is _Step.QUIET:
-                if not self._quiet(now):
-                    return
-            elif step is _Step.ANSWER:
-                if not self._in_transaction(self._receive, now):
-                    return
-            elif step is _Step.TRAIL:
-                if not self._in_transaction(self._trail, now):
-                    return
-            else:
-                self._finish_all()
+            if self._ticket is None:
+                if not self._locked:
+                    if not line.lock.acquire(blocking=False):
+                        self.fd = -1  # the line's input is its holder's until it is free: look again soon
+                        self.wake_at = now + LOCK_RETRY
+                        return
+                    self._locked = True
+                line.transactions += 1
+                if line.broken:
+                    line.usable_link()
+                exchange = self._exchanges[len(self._responses)]
+                (submitted,) = driver.submit((exchange,), now, (None,))
+                self._ticket = cast(RtuTicket, submitted)
+            ticket = self._ticket
+            engine = driver.engine
+            before = engine.requests, engine.retries
+            driver.step(now, True)
+            line.requests += engine.requests - before[0]
+            line.retries += engine.retries - before[1]
+            if not ticket.ended:
+                self._watch(engine, line.clock())
+                return
+            self._ended(ticket)
 
-    def _start(self) -> bool:
-        """Take the line and send now, or start waiting for silence; False: another thread holds the line."""
+    def _watch(self, engine: RtuEngine, now: float) -> None:
         line = self.line
-        if not self._locked:
-            if not line.lock.acquire(blocking=False):
-                return False
-            self._locked = True
-        exchange = self._exchanges[self._index]
-        if self._attempt == 0:
-            line.transactions += 1
-        self._attempt += 1
-        try:
-            link = line.usable_link() if line.broken else line.link
-            self.fd = link.fd
-            now = line.clock()  # fresh: whether the input was just found empty is a matter of microseconds
-            if line.guard.send_now(now):
-                self._send(exchange, now)
-            else:
-                self._give_up = now + exchange.quiet_limit
-                self._step = _Step.QUIET
-        except StarterbusError as exc:
-            self._transaction_failed(exc)
-        return True
-
-    def _quiet(self, now: float) -> bool:
-        """Discard the input; send once the line has been silent long enough. False: wait more."""
-        line, exchange = self.line, self._exchanges[self._index]
-        guard = line.guard
-        try:
-            data = line.link.take_input()
-            if data:
-                guard.stray(data, line.clock(), exchange.quarantine)
-            elif guard.quiet_at <= now:  # watched since the last look and found empty just now
-                guard.found_empty(now)
-                self._send(exchange, line.clock())
-                return True
-            if guard.quiet_at > now >= self._give_up:
-                raise line.never_silent(exchange)
-        except StarterbusError as exc:
-            self._transaction_failed(exc)
-            return True
-        self.wake_at = min(guard.quiet_at, self._give_up)
-        return False
-
-    def _send(self, exchange: Exchange, started: float) -> None:
-        line = self.line
-        line.guard.sent(started)
-        line.requests += 1
-        self._deadline = started + exchange.budget
-        self._data, self._receiver = b"", None
-        self._step = _Step.ANSWER  # before the write: cancelled during it, the line is quarantined
-        self.wake_at = self._deadline
-        line.link.write(exchange.frame)
-
-    def _in_transaction(self, step: Callable[[Exchange, float], bool], now: float) -> bool:
-        """Run an ANSWER or TRAIL step; a bad or missing answer fails the attempt (retried within the policy)."""
-        exchange = self._exchanges[self._index]
-        try:
-            return step(exchange, now)
-        except (TimeoutError, DecodeError) as exc:
-            try:
-                self.line.failed(exchange, exc, self._attempt)
-            except StarterbusError as last:
-                self._transaction_failed(last)
-                return True
-            self._step = _Step.START  # the retry waits for the quarantine
-            return True
-        except StarterbusError as exc:
-            self._transaction_failed(exc)
-            return True
-
-    def _receive(self, exchange: Exchange, now: float) -> bool:
-        """Read what arrived; on a whole answer go on to the trailing silence. False: wait more."""
-        line, receiver = self.line, self._receiver
-        self.fd = line.link.fd  # watched again after a look-again-later
-        if receiver is None:
-            chunk = line.link.read_ready(exchange.answer_length - len(self._data))
-            if chunk:
-                self._at = line.clock()
-                self._data += chunk
-            data = self._data
-            if len(data) == exchange.answer_length:
-                response = exchange.quick_decode(data)
-                if response is not None:
-                    return self._complete(exchange, data, response)
-            if len(data) == exchange.answer_length or (
-                len(data) >= exchange.header_length and not exchange.good_so_far(data)
-            ):
-                receiver = self._receiver = ResponseReceiver(exchange.request)
-                receiver.feed(data)
-            elif chunk and not line.guard.min_char_time and exchange.answer_length - len(data) > 1:
-                # the rest of a normal answer cannot be here sooner than the baud rate brings it: look again
-                # when all but its last byte can have come, instead of at every byte (only where no wire
-                # timing is checked: pty, TCP); the last byte is read as soon as it is there
+        self.fd, self.wake_at = -1 if line.broken else line.link.fd, engine.deadline
+        exchange = engine.answering
+        if exchange is not None and not line.guard.min_char_time:
+            # the rest of a normal answer cannot be here sooner than the baud rate brings it: look again when
+            # all but its last byte can have come, instead of at every byte (only where no wire timing is
+            # checked: pty, TCP); the last byte is read as soon as it is there
+            got, at = engine.answer_so_far
+            rest = at + (exchange.answer_length - got - 1) * line.char_time
+            if got > 0 and exchange.answer_length - got > 1 and rest > now:
                 self.fd = -1
-                rest = (exchange.answer_length - len(data) - 1) * line.char_time
-                self.wake_at = min(self._deadline, self._at + rest)
-                return False
-        else:
-            chunk = line.link.read_ready(max(1, receiver.expected_length - len(receiver.received)))
-            if chunk:
-                self._at = line.clock()
-                receiver.feed(chunk)
-        if receiver is not None:
-            event = receiver.next_event()
-            if event is not NEED_DATA:
-                if receiver.trailing:  # an exception answer read together with what followed it
-                    raise line.guard.trailing(receiver.frame, receiver.trailing)
-                return self._complete(exchange, receiver.frame, event)
-        if now >= self._deadline:
-            if receiver is None:
-                receiver = ResponseReceiver(exchange.request)
-                receiver.feed(self._data)
-            if receiver.received:
-                raise receiver.truncated_error()
-            raise line.no_answer(exchange)
-        self.wake_at = self._deadline
-        return False
+                self.wake_at = min(self.wake_at, rest)
 
-    def _complete(self, exchange: Exchange, frame: bytes, response: Response) -> bool:
-        error = self.line.guard.answer_complete(exchange.frame_length, frame, self._at)
-        if error is not None:
-            raise error
-        self._answer = (frame, response)
-        self._step = _Step.TRAIL
-        self.wake_at = self.line.guard.trail_until
-        return True
-
-    def _trail(self, exchange: Exchange, now: float) -> bool:
-        """Bytes after the answer make it suspect; silence until the end of the interval delivers it."""
-        line = self.line
-        assert self._answer is not None
-        frame, response = self._answer
-        try:
-            extra = line.link.take_input() if self.fd >= 0 else b""
-        except TransportError:  # the connection closed after the answer: no byte followed it
-            line.mark_broken()
-            self.fd = -1  # a closed socket stays readable: the rest of the silence is waited for by time alone
-            extra = b""
-        if extra:
-            raise line.guard.trailing(frame, extra)
-        if now < line.guard.trail_until:
-            self.wake_at = line.guard.trail_until
-            return False
-        line.guard.delivered(frame)
-        line.count(self._counters, exchange, self._attempt, len(frame), None)
+    def _ended(self, ticket: RtuTicket) -> None:
+        self._ticket = None
         self._release()
+        self._counted(ticket)
+        if ticket.state is not TicketState.DONE:
+            assert ticket.error is not None
+            self._end(ticket.error)
+            return
+        response = ticket.result
+        assert response is not None  # a poll has no broadcast
         self._responses.append(response)
-        self._index += 1
-        self._attempt = 0
-        self._step = _Step.START if self._index < len(self._exchanges) else _Step.OVER
         try:
-            self._check(exchange, response)
+            self._check(ticket.request, response)
         except StarterbusError as exc:  # an exception answer ends the poll (the line is healthy)
             self._end(exc)
-        return True
+            return
+        if len(self._responses) == len(self._exchanges):
+            self._finish_all()
+
+    def _counted(self, ticket: RtuTicket) -> None:
+        """What the ended (or cancelled) transaction put on the wire, into the counters; a transport error
+        breaks the line (reopened before the next transaction)."""
+        line, exchange = self.line, ticket.request
+        if ticket.state is TicketState.DONE:
+            line.count(self._counters, exchange, ticket.attempts, ticket.received, None)
+        elif ticket.state is TicketState.FAILED:
+            assert ticket.error is not None
+            line.given_up(self._counters, exchange, ticket.attempts, ticket.error)
+        elif ticket.attempts:
+            line.count(self._counters, exchange, ticket.attempts, 0, None)
 
     def _finish_all(self) -> None:
         try:
@@ -299,13 +257,18 @@ class LineTask(PollTask):
 
     # -- endings ---------------------------------------------------------------------------------------------
 
-    def _transaction_failed(self, exc: StarterbusError) -> None:
-        """The current transaction failed for good: count it, then end the task with ``exc``."""
-        self.line.given_up(self._counters, self._exchanges[self._index], self._attempt, exc)
+    def _failed(self, exc: StarterbusError) -> None:
+        """The line failed under the current transaction (a read or write of its link): it ends with ``exc``."""
+        ticket = self._ticket
+        if ticket is not None and not ticket.ended:
+            self._driver.crash(exc, self.line.clock())
+            self._counted(ticket)
+        elif ticket is None and not self.done:
+            self.line.given_up(self._counters, self._exchanges[len(self._responses)], 1, exc)
+        self._ticket = None
         self._end(exc)
 
     def _end(self, exc: StarterbusError) -> None:
-        self._step = _Step.OVER
         self._release()
         self._outcome = exc
         self.done = True
