@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import time
 import urllib.request
 from collections.abc import Iterator
@@ -22,13 +21,11 @@ from starterbus.core.status import Command
 from starterbus.ops.backup import loads
 from starterbus.ops.throttle import ThrottlePolicy
 from starterbus.testing.conformance import wait_until
+from starterbus.tests.web.chromium import WAIT_MS, needs_chromium, sync_api
 from starterbus.tests.web.harness import PASSWORD, Client, WebDemo, web_demo
 from starterbus.web.auth import AuthPolicy
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
-pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="no chromium (apt-get install chromium)")
-WAIT_MS = 20_000
+pytestmark = needs_chromium
 
 
 @pytest.fixture(scope="module")
@@ -36,25 +33,6 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[WebDemo]:
     logins = AuthPolicy(ThrottlePolicy(backoff_base=60.0), refusal_delay=0.1)
     with web_demo(tmp_path_factory.mktemp("browser"), allow_plaintext_commands=True, logins=logins) as demo:
         yield demo
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Any]:
-    with sync_api.sync_playwright() as p:
-        chromium = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-        try:
-            yield chromium
-        finally:
-            chromium.close()
-
-
-@pytest.fixture
-def page(browser: Any) -> Iterator[Any]:
-    context = browser.new_context(viewport={"width": 1366, "height": 768})
-    try:
-        yield context.new_page()
-    finally:
-        context.close()
 
 
 def _screenshot(page: Any, name: str) -> None:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import getpass
 import os
-import shutil
 import subprocess
 import sys
 import urllib.request
@@ -26,16 +25,14 @@ from starterbus.core.simulator import Phase
 from starterbus.core.status import Command
 from starterbus.ops.throttle import ThrottlePolicy
 from starterbus.testing.conformance import wait_until
+from starterbus.tests.web.chromium import WAIT_MS, needs_chromium, sync_api
 from starterbus.tests.web.harness import PASSWORD, WebDemo, web_demo
 from starterbus.tests.web.test_backup_api import _raw, _with_raw
 from starterbus.transports.profibus_pkw.driver.station_lock import LOCK_DIR_ENV
 from starterbus.web.auth import AuthPolicy
 from starterbus.web.backup_api import MAX_UPLOAD
 
-CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
-sync_api = pytest.importorskip("playwright.sync_api", reason="playwright is not installed (pip install playwright)")
-pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="no chromium (apt-get install chromium)")
-WAIT_MS = 20_000
+pytestmark = needs_chromium
 
 
 @pytest.fixture(scope="module")
@@ -43,25 +40,6 @@ def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[WebDemo]:
     logins = AuthPolicy(ThrottlePolicy(backoff_base=60.0), refusal_delay=0.1)
     with web_demo(tmp_path_factory.mktemp("events"), allow_plaintext_commands=True, logins=logins) as demo:
         yield demo
-
-
-@pytest.fixture(scope="module")
-def browser() -> Iterator[Any]:
-    with sync_api.sync_playwright() as p:
-        chromium = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
-        try:
-            yield chromium
-        finally:
-            chromium.close()
-
-
-@pytest.fixture
-def page(browser: Any) -> Iterator[Any]:
-    context = browser.new_context(viewport={"width": 1366, "height": 768})
-    try:
-        yield context.new_page()
-    finally:
-        context.close()
 
 
 def _open(site: WebDemo, page: Any, device: str, user: str | None = None) -> None:
