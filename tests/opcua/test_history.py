@@ -118,6 +118,26 @@ async def pages(node: Node, start: float | None, end: float | None, count: int) 
             return out
 
 
+async def event_pages(client: Client, node: Node, details: ua.ReadEventDetails) -> list[Any]:
+    """Every event of ``details`` read one to a page (NumValuesPerNode 1), following the continuation points."""
+    out, point = [], None
+    while True:
+        item = ua.HistoryReadValueId(NodeId=node.nodeid, ContinuationPoint=point)
+        params = ua.HistoryReadParameters(
+            HistoryReadDetails=details,
+            TimestampsToReturn=ua.TimestampsToReturn.Both,
+            ReleaseContinuationPoints=False,  # asyncua's default is True
+            NodesToRead=[item],
+        )
+        (result,) = await client.uaclient.history_read(params)
+        result.StatusCode.check()
+        assert len(result.HistoryData.Events) == 1
+        out.append(Event.from_event_fields(details.Filter.SelectClauses, result.HistoryData.Events[0].EventFields))
+        point = result.ContinuationPoint
+        if point is None:
+            return out
+
+
 def test_long_ranges_come_in_pages_with_nothing_lost_or_repeated(tmp_path: Path, pki: Path, line: Any) -> None:
     rows = synthetic(tmp_path / "h.db", 2345)
     currents = [r["values"]["phase_a_current"]["value"] if r["online"] else None for r in rows]
@@ -161,6 +181,37 @@ def test_long_ranges_come_in_pages_with_nothing_lost_or_repeated(tmp_path: Path,
         assert (
             await read_raw(node, T0 - 1, end, 100, other)
         ).StatusCode.value == ua.StatusCodes.BadContinuationPointInvalid
+
+    run_server(settings(pki, tmp_path / "h.db"), line[0], body)
+
+
+def test_event_pages_hold_the_types_asked_for_and_skip_the_others(tmp_path: Path, pki: Path, line: Any) -> None:
+    """Offline/online rows are OfflineAlarm conditions: a filter on record and fault events skips them, across
+    pages, and loses none of the others; a filter on every event type returns them too, in order."""
+    kinds = ["state", "offline", "online", "write", "offline", "online", "state", "fault"]
+    events = [{"time": T0 + i * 0.1, "device": "conveyor", "kind": kind, "text": f"e{i}",
+               "code": 6 if kind == "fault" else None} for i, kind in enumerate(kinds)]  # fmt: skip
+    with HistoryStore(tmp_path / "h.db") as store:
+        store.add_batch([], events)
+
+    async def body(client: Client, idx: int, server: OpcUaServer) -> None:
+        device = client.get_node(ua.NodeId("conveyor", idx))
+        record_type = await client.nodes.base_event_type.get_child(f"{idx}:StarterRecordEventType")
+        fault_type = await client.nodes.base_event_type.get_child(
+            ["0:ConditionType", "0:AcknowledgeableConditionType", "0:AlarmConditionType",
+             f"{idx}:StarterFaultAlarmType"]
+        )  # fmt: skip
+        offline_type = client.get_node(ua.NodeId(ua.ObjectIds.AlarmConditionType))
+        for types, wanted in (
+            ([record_type, fault_type], [1, 4, 7, 8]),
+            ([record_type, fault_type, offline_type], list(range(1, 9))),
+        ):
+            evfilter = await get_filter_from_event_type(types)
+            details = ua.ReadEventDetails(
+                StartTime=at(T0 - 1), EndTime=at(T0 + 10), NumValuesPerNode=1, Filter=evfilter
+            )
+            got = await event_pages(client, device, details)
+            assert [e.EventId for e in got] == [event_id(i) for i in wanted], types
 
     run_server(settings(pki, tmp_path / "h.db"), line[0], body)
 
@@ -282,26 +333,12 @@ def test_the_recorded_samples_and_the_recorded_fault_are_read_back(tmp_path: Pat
 
         evfilter = await get_filter_from_event_type([record_type, fault_type])
         details.Filter = evfilter
-        ids, point = [], None
-        while True:  # every event of the range, one to a page
-            item = ua.HistoryReadValueId(NodeId=device.nodeid, ContinuationPoint=point)
-            params = ua.HistoryReadParameters(
-                HistoryReadDetails=details,
-                TimestampsToReturn=ua.TimestampsToReturn.Both,
-                ReleaseContinuationPoints=False,  # asyncua's default is True
-                NodesToRead=[item],
-            )
-            (result,) = await client.uaclient.history_read(params)
-            result.StatusCode.check()
-            assert len(result.HistoryData.Events) == 1
-            fields = result.HistoryData.Events[0].EventFields
-            ids.append(Event.from_event_fields(evfilter.SelectClauses, fields).EventId)
-            point = result.ContinuationPoint
-            if point is None:
-                break
+        ids = [e.EventId for e in await event_pages(client, device, details)]
         with HistoryStore(db, create=False) as store:
             rows = store.events(device="conveyor", since=start - 60, until=fault["time"] + 1)
-        assert ids == [event_id(r["id"]) for r in rows] and len(ids) >= 4
+        # offline/online rows (a poll that failed on a loaded machine) are OfflineAlarm conditions: not asked for
+        asked = [r for r in rows if r["kind"] not in ("offline", "online")]
+        assert ids == [event_id(r["id"]) for r in asked] and len(ids) >= 4, [(r["id"], r["kind"]) for r in rows]
 
     try:
         run_server(settings(pki, db), port, body, sink=recorder)
