@@ -101,7 +101,7 @@ class Rig:
     pki: Path
     url: str
 
-    def run(self, make: Callable[[], Awaitable[T]], timeout: float = 20.0) -> T:
+    def run(self, make: Callable[[], Awaitable[T]], timeout: float = 60.0) -> T:  # outer: each step has its own
         async def wrapped() -> T:
             return await make()
 
@@ -307,6 +307,7 @@ def test_subscription_sees_the_current_change_poll_by_poll(rig: Rig) -> None:
             await sub.subscribe_data_change(await ns_node(c, "pump.Measurements.phase_a_current"))
             first = await asyncio.wait_for(handler.queue.get(), 10)  # the current value, at once
             assert first.Value is not None
+            pump.params["ramp_time"] = 60  # the current rises over 0.75 s: several polls, on a loaded machine too
             pump.start()  # on the simulator itself: the ramp makes the current rise poll after poll
             seen: list[ua.DataValue] = []
             while len({v.Value.Value for v in seen if v.Value is not None}) < 3:
