@@ -51,12 +51,15 @@ if TYPE_CHECKING:
         UncertainValueError,
     )
     from starterbus.core.media import Driver, StreamDriver, TcpDriver
+    from starterbus.core.media.can import CanDriver, CanEngine, ToEngine
+    from starterbus.core.media.keeper import keep_running, let_go
     from starterbus.core.model import Access, EnumTable, Kind, Label, PointDef, Reading, Value
     from starterbus.core.plugin_options import OptionValues, PluginOption, SimOption, resolve_options
     from starterbus.core.polling import PlannedRequest, PollResult, PollTask, TransportCounters, run_task
     from starterbus.core.profile import Profile, load_profile_file
     from starterbus.core.registry import get_profile, get_transport
     from starterbus.core.scheduler import Scheduler, SchedulerReentryError
+    from starterbus.core.scheduler import scheduler as process_scheduler
     from starterbus.core.sharing import SharedPool
     from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
     from starterbus.core.status import (
@@ -199,8 +202,14 @@ _LAZY = {
     "Driver": "starterbus.core.media",
     "StreamDriver": "starterbus.core.media",
     "TcpDriver": "starterbus.core.media",
+    "CanDriver": "starterbus.core.media.can",
+    "CanEngine": "starterbus.core.media.can",
+    "ToEngine": "starterbus.core.media.can",
+    "keep_running": "starterbus.core.media.keeper",
+    "let_go": "starterbus.core.media.keeper",
     "Scheduler": "starterbus.core.scheduler",
     "SchedulerReentryError": "starterbus.core.scheduler",
+    "process_scheduler": "starterbus.core.scheduler:scheduler",
 }
 
 
@@ -231,6 +240,8 @@ __all__ = [
     "AddressSpace",
     "Annotation",
     "AuditLog",
+    "CanDriver",
+    "CanEngine",
     "CanFrame",
     "Capability",
     "ChecksumError",
@@ -290,6 +301,7 @@ __all__ = [
     "TicketState",
     "TicketStateError",
     "TimeoutError",
+    "ToEngine",
     "Transport",
     "TransportCounters",
     "TransportError",
@@ -307,6 +319,8 @@ __all__ = [
     "encode_status_word",
     "get_profile",
     "get_transport",
+    "keep_running",
+    "let_go",
     "load_profile",
     "load_profile_file",
     "open_bus",
@@ -316,6 +330,7 @@ __all__ = [
     "parse_candump",
     "parse_hex",
     "parse_host_port",
+    "process_scheduler",
     "resolve_options",
     "run_task",
     "shutdown_bus",

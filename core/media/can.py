@@ -1,0 +1,506 @@
+"""A CAN bus as a medium: one python-can bus per (interface, channel), shared by every engine on it.
+
+:class:`CanDriver` is the scheduler's driver of one bus. Engines (:class:`CanEngine`: an :class:`Engine` of
+:class:`CanFrame` with the identifiers it ``wanted``) are added to it, a DeviceNet master and CANopen clients
+side by side. Each received classic frame goes to the engines whose ``wanted`` hold its identifier (one dict
+lookup, after the bus's own filters: the union of the engines' ``filters``); the others are counted as
+``dropped``. What the engines give to send is written at once; their deadlines are the driver's.
+
+A bus with a descriptor (SocketCAN) is selected directly and read until empty when it is ready. A bus without
+one (python-can's ``virtual``, ``remote``, some vendor interfaces) gets ONE reader thread (``can-reader
+IFACE/CH``): it puts the frames in a queue and writes one wake byte to a pipe when the queue was empty (a burst
+costs one wake-up); the driver's descriptor is that pipe.
+
+Requests reach an engine through the scheduler as :class:`ToEngine` (``Scheduler.run(driver, [ToEngine(engine,
+request)], ...)``); the ticket is the engine's own. An engine that raises is not dropped (a malformed frame or a
+bug must not silence a bus that others share): the error is kept in :attr:`CanDriver.errors` and its
+``advance`` is held back :data:`BUG_BACKOFF`.
+
+Periodic outputs (:meth:`CanDriver.periodic`): python-can's ``send_periodic`` where the interface sends them
+itself (SocketCAN's broadcast manager, hardware), else the driver's own deadlines, never a thread.
+
+An engine that must be served while no caller waits keeps the loop's own thread running
+(:func:`starterbus.core.media.keeper.keep_running`).
+
+Everything but :meth:`CanDriver.acquire` / :meth:`CanDriver.release` runs in the scheduler's loop (through
+``Scheduler.call`` or ``run``): only the leader touches the driver, the bus's writes and its engines.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future
+from dataclasses import dataclass
+from typing import Any, Protocol, TypeVar
+
+import can
+
+from starterbus.core.canbus import open_bus, shutdown
+from starterbus.core.canframe import CanFrame
+from starterbus.core.engine import Engine, Ticket, TicketState
+from starterbus.core.errors import StarterbusError, TransportError
+from starterbus.core.media.can_reader import CanReader
+from starterbus.core.sharing import SharedPool
+
+__all__ = [
+    "BUG_BACKOFF",
+    "CAN_BUSES",
+    "CanDriver",
+    "CanEngine",
+    "Loop",
+    "Periodic",
+    "ToEngine",
+]
+
+log = logging.getLogger(__name__)
+
+BUG_BACKOFF = 0.01  # s an engine's advance is held back after it raised (no tight loop on a failing timer)
+MESSAGE_CACHE = 512  # python-can messages kept for frames sent again (poll commands, heartbeats)
+#: the longest wait of a call into the loop (adding an engine, closing): only a stalled loop gets there
+STALL = 30.0
+
+
+T = TypeVar("T")
+
+
+class Loop(Protocol):
+    """What the driver needs of the scheduler (:class:`starterbus.core.Scheduler`; named here, not imported: the
+    scheduler's module imports the media's)."""
+
+    @property
+    def running(self) -> bool: ...
+    def call(self, fn: Callable[[float], T]) -> Future[T]: ...
+    def wait(self, future: Future[T], bound: float, what: str) -> T: ...
+    def add(self, driver: Any) -> None: ...
+    def remove(self, driver: Any) -> None: ...
+    def start(self) -> None: ...
+    def stop(self) -> None: ...
+
+
+class CanEngine(Engine[Any, Any, CanFrame], Protocol):
+    """An engine on a CAN bus: the identifiers it wants routed to it (may change: read at each step)."""
+
+    @property
+    def wanted(self) -> frozenset[int]: ...
+
+
+@dataclass(frozen=True, slots=True)
+class ToEngine:
+    """A request for one engine of a :class:`CanDriver` (what ``Scheduler.run`` / ``submit`` are given)."""
+
+    engine: CanEngine
+    request: object
+
+
+class Periodic:
+    """One frame sent every ``period`` s until :meth:`stop` (in the loop), by the interface or the driver."""
+
+    def __init__(self, driver: CanDriver, frame: CanFrame, period: float, now: float) -> None:
+        self.driver, self.frame, self.period = driver, frame, period
+        self.next_at = now
+        self.task: can.broadcastmanager.CyclicSendTaskABC | None = None
+        self.stopped = False
+
+    def modify(self, frame: CanFrame) -> None:
+        """Send ``frame`` from now on (same identifier)."""
+        self.frame = frame
+        if self.task is not None and isinstance(self.task, can.broadcastmanager.ModifiableCyclicTaskABC):
+            self.task.modify_data(_message(frame))
+
+    def stop(self) -> None:
+        if self.stopped:
+            return
+        self.stopped = True
+        if self.task is not None:
+            self.task.stop()
+        self.driver._periodics = [p for p in self.driver._periodics if p is not self]
+
+
+def _message(frame: CanFrame) -> can.Message:
+    return can.Message(arbitration_id=frame.can_id, data=frame.data, is_extended_id=False)
+
+
+def _kernel_periodic(bus: can.BusABC) -> bool:
+    """Whether the interface sends periodic frames itself (not python-can's generic thread per task)."""
+    own = getattr(type(bus), "_send_periodic_internal", None)
+    return own is not None and own is not can.BusABC._send_periodic_internal
+
+
+class CanDriver:
+    """The engines on one python-can bus, run by the scheduler (a :class:`~starterbus.core.scheduler.Served`)."""
+
+    def __init__(self, bus: can.BusABC, name: str, loop: Loop, *, owns_bus: bool = True) -> None:
+        self.bus = bus
+        self.name = name
+        self.loop = loop
+        self._owns_bus = owns_bus
+        self.engines: list[CanEngine] = []
+        self._filters: dict[CanEngine, list[can.typechecking.CanFilter] | None] = {}
+        self._seen: list[frozenset[int]] = []  # each engine's `wanted` as last routed
+        self._routes: dict[int, tuple[CanEngine, ...]] = {}
+        self._held: dict[CanEngine, float] = {}  # engine -> no advance before (it raised)
+        self._futures: dict[Ticket[Any, Any], Future[Any] | None] = {}
+        self._owner: dict[Ticket[Any, Any], CanEngine] = {}
+        self._batches: dict[Ticket[Any, Any], list[Ticket[Any, Any]]] = {}
+        self._periodics: list[Periodic] = []
+        self._messages: dict[CanFrame, can.Message] = {}
+        self.errors: collections.deque[str] = collections.deque(maxlen=100)
+        self.received = 0  # frames read from the bus (past its filters)
+        self.dropped = 0  # of them, frames no engine wanted (or not classic 11-bit data frames)
+        self.sent = 0
+        self.crashes = 0
+        self.closed = False
+        self.key: tuple[str, str] = ("", "")
+        self._step_cpu = 0.0
+        try:
+            self._fd = bus.fileno()
+        except (NotImplementedError, AttributeError, OSError, can.CanError):
+            self._fd = -1
+        self._reader = CanReader(bus, name, self.errors) if self._fd < 0 else None
+
+    # -- sharing one bus per (interface, channel) in a process --------------------------------------------------
+
+    @classmethod
+    def acquire(
+        cls,
+        interface: str,
+        channel: str,
+        loop: Loop,
+        bitrate: int | None = None,
+        *,
+        needs_peer: str | None = None,
+    ) -> CanDriver:
+        """The driver of this bus in this process (opened and added to the scheduler at first use); give it
+        back with :meth:`release`."""
+        key = (interface, channel)
+
+        def make() -> CanDriver:
+            bus = open_bus(interface, channel, bitrate, needs_peer=needs_peer)
+            try:
+                driver = cls(bus, f"{interface}/{channel}", loop)
+                driver.key = key
+                driver.call(lambda now: driver.loop.add(driver), "add the bus")
+            except BaseException:
+                shutdown(bus)
+                raise
+            return driver
+
+        return CAN_BUSES.acquire(key, make)
+
+    def release(self) -> None:
+        """One user fewer; the last one closes the driver (its reader, and the bus it opened)."""
+        CAN_BUSES.release(self.key)
+
+    def call(self, fn: Callable[[float], T], what: str) -> T:
+        """Run ``fn(now)`` in the loop and wait for it (leading the loop while no other thread does)."""
+        return self.loop.wait(self.loop.call(fn), STALL, f"{self.name}: {what}")
+
+    def close(self) -> None:
+        """Stop serving the bus: every ticket fails, the reader stops, a bus the driver opened is shut down."""
+        if self.closed:
+            return
+
+        def close(now: float) -> None:
+            self.loop.remove(self)
+            self._fail_all(TransportError(f"CAN bus {self.name} is closed"), now)
+            for periodic in list(self._periodics):
+                periodic.stop()
+
+        try:
+            self.call(close, "close")
+        finally:
+            self.closed = True
+            if self._reader is not None:
+                self._reader.close()
+            if self._owns_bus:
+                shutdown(self.bus)
+
+    # -- engines (in the loop) ------------------------------------------------------------------------------------
+
+    def add(self, engine: CanEngine, filters: list[can.typechecking.CanFilter] | None = None) -> None:
+        """Route frames to ``engine`` from now on; ``filters``: python-can filters covering its ``wanted`` (None:
+        it may want any identifier: the bus then filters nothing)."""
+        if engine in self.engines:
+            return
+        self.engines = [*self.engines, engine]
+        self._filters[engine] = filters
+        self._seen = []
+        self._set_filters()
+
+    def remove(self, engine: CanEngine, now: float) -> None:
+        """Stop routing to ``engine``; its tickets still open fail."""
+        if engine not in self.engines:
+            return
+        self.engines = [e for e in self.engines if e is not engine]
+        self._filters.pop(engine, None)
+        self._held.pop(engine, None)
+        self._seen = []
+        self._routes = {}
+        error = TransportError(f"{self.name}: the engine was removed from the bus")
+        for ticket, owner in list(self._owner.items()):
+            if owner is engine:
+                if not ticket.ended:
+                    ticket.failed(error, now)
+                self._end(ticket)
+        self._set_filters()
+
+    def _set_filters(self) -> None:
+        lists = [self._filters.get(engine) for engine in self.engines]
+        merged: list[can.typechecking.CanFilter] | None = None
+        if lists and all(f is not None for f in lists):
+            merged = [item for f in lists for item in (f or [])]
+        try:
+            self.bus.set_filters(merged)
+        except (can.CanError, NotImplementedError, AttributeError):  # pragma: no cover - software routing only
+            pass
+
+    def periodic(self, frame: CanFrame, period: float, now: float) -> Periodic:
+        """Send ``frame`` every ``period`` s from now on (the interface's cyclic send where it has its own,
+        else at the driver's deadlines)."""
+        task = Periodic(self, frame, period, now)
+        if _kernel_periodic(self.bus):
+            task.task = self.bus.send_periodic(_message(frame), period, store_task=False)
+        else:
+            self._periodics.append(task)
+        return task
+
+    # -- what the scheduler reads ---------------------------------------------------------------------------------
+
+    @property
+    def fd(self) -> int:
+        return self._fd if self._reader is None else self._reader.fd
+
+    @property
+    def writing(self) -> bool:
+        return False
+
+    @property
+    def deadline(self) -> float:
+        at = float("inf")
+        held = self._held
+        for engine in self.engines:
+            due = engine.deadline
+            if held and engine in held:
+                due = max(due, held[engine])
+            at = min(at, due)
+        for periodic in self._periodics:
+            at = min(at, periodic.next_at)
+        return at
+
+    @property
+    def pending(self) -> int:
+        return len(self._futures)
+
+    @property
+    def io_cpu(self) -> float:
+        """CPU seconds spent in this driver's steps (in whichever thread led) and in its reader thread."""
+        return self._step_cpu + self.reader_cpu
+
+    @property
+    def reader_cpu(self) -> float:
+        """CPU seconds of the reader thread (0 for a bus with a descriptor)."""
+        return self._reader.cpu if self._reader is not None else 0.0
+
+    # -- the loop body --------------------------------------------------------------------------------------------
+
+    def step(self, now: float, ready: bool) -> None:
+        cpu = time.thread_time()
+        try:
+            if ready:
+                self._take_input(now)
+            held = self._held
+            for engine in self.engines:
+                if now >= engine.deadline and not (held and now < held.get(engine, 0.0)):
+                    try:
+                        engine.advance(now)
+                    except Exception as exc:
+                        self._failed(engine, exc, now, "advance")
+                        held[engine] = now + BUG_BACKOFF
+                self._flush(engine, now)
+            if self._periodics:
+                self._send_periodics(now)
+        finally:
+            self._step_cpu += time.thread_time() - cpu
+
+    def _take_input(self, now: float) -> None:
+        if self._reader is None:
+            messages: list[can.Message] = []
+            while True:
+                try:
+                    message = self.bus.recv(0.0)
+                except can.CanError as exc:
+                    self.errors.append(f"receive failed: {exc}")
+                    break
+                if message is None:
+                    break
+                messages.append(message)
+        else:
+            messages = self._reader.take()
+        if not messages:
+            return
+        self.received += len(messages)
+        if len(self._seen) != len(self.engines) or any(
+            e.wanted is not s for e, s in zip(self.engines, self._seen, strict=True)
+        ):
+            self._route()
+        routes = self._routes
+        touched: set[CanEngine] = set()
+        for message in messages:
+            engines = routes.get(message.arbitration_id)
+            if engines is None or message.is_extended_id or message.is_remote_frame or message.is_error_frame:
+                self.dropped += 1
+                continue
+            if message.is_fd or message.dlc > 8:
+                self.dropped += 1
+                continue
+            frame = CanFrame(message.arbitration_id, bytes(message.data))
+            for engine in engines:
+                try:
+                    engine.receive(frame, now)
+                except Exception as exc:
+                    self._failed(engine, exc, now, f"frame {frame.text()}")
+                touched.add(engine)
+        for engine in touched:  # answers go out after the burst, each engine's in order
+            self._flush(engine, now)
+
+    def _route(self) -> None:
+        routes: dict[int, list[CanEngine]] = {}
+        for engine in self.engines:
+            for can_id in engine.wanted:
+                routes.setdefault(can_id, []).append(engine)
+        self._routes = {can_id: tuple(engines) for can_id, engines in routes.items()}
+        self._seen = [engine.wanted for engine in self.engines]
+
+    def _flush(self, engine: CanEngine, now: float) -> None:
+        """Write what the engine has to send; end the futures of its tickets that ended."""
+        try:
+            out = engine.take_output(now)
+        except Exception as exc:
+            self._failed(engine, exc, now, "output")
+            out = ()
+        if out:
+            self.write(out)
+            if len(self.engines) > 1:
+                self._loop_back(engine, out, now)
+        self._complete(engine, now)
+
+    def _loop_back(self, sender: CanEngine, frames: Sequence[CanFrame], now: float) -> None:
+        """What one engine wrote reaches the others on the bus that want it, as it reaches separate sockets on
+        one interface (python-can delivers no frame back to the bus that sent it)."""
+        if len(self._seen) != len(self.engines):
+            self._route()
+        touched: list[CanEngine] = []
+        for frame in frames:
+            for engine in self._routes.get(frame.can_id, ()):
+                if engine is not sender:
+                    try:
+                        engine.receive(frame, now)
+                    except Exception as exc:
+                        self._failed(engine, exc, now, f"frame {frame.text()}")
+                    if engine not in touched:
+                        touched.append(engine)
+        for engine in touched:
+            self._flush(engine, now)
+
+    def write(self, frames: Sequence[CanFrame]) -> None:
+        messages = self._messages
+        for frame in frames:
+            message = messages.get(frame)
+            if message is None:
+                message = _message(frame)
+                if len(messages) >= MESSAGE_CACHE:
+                    messages.clear()
+                messages[frame] = message
+            try:
+                self.bus.send(message)
+                self.sent += 1
+            except can.CanError as exc:
+                log.warning("CAN send %s on %s failed: %s", frame.text(), self.name, exc)
+                self.errors.append(f"send {frame.text()} failed: {exc}")
+
+    def _send_periodics(self, now: float) -> None:
+        for periodic in self._periodics:
+            if now >= periodic.next_at:
+                self.write((periodic.frame,))
+                periodic.next_at += periodic.period
+                if periodic.next_at <= now:  # late (a stalled loop): on the grid again, no burst of catch-ups
+                    periodic.next_at = now + periodic.period
+
+    def _failed(self, engine: CanEngine, exc: Exception, now: float, where: str) -> None:
+        if isinstance(exc, StarterbusError):  # a malformed frame: never stops the bus
+            self.errors.append(str(exc))
+            return
+        log.exception("%s: engine %s failed (%s)", self.name, type(engine).__name__, where)
+        self.errors.append(f"{type(exc).__name__}: {exc}")
+
+    def _complete(self, engine: CanEngine, now: float) -> None:
+        done = engine.take_completed()
+        while done:
+            withdrawn = False
+            for ticket in done:
+                batch = self._batches.pop(ticket, None)
+                if batch is not None and ticket.state is not TicketState.DONE:
+                    for other in batch:
+                        if not other.ended:
+                            engine.cancel(other, now)
+                            withdrawn = True
+                self._end(ticket)
+            done = engine.take_completed() if withdrawn else []
+
+    def _end(self, ticket: Ticket[Any, Any]) -> None:
+        future = self._futures.pop(ticket, None)
+        self._owner.pop(ticket, None)
+        self._batches.pop(ticket, None)
+        if future is not None:
+            future.set_result(ticket)
+
+    # -- what the scheduler calls ---------------------------------------------------------------------------------
+
+    def submit(
+        self, requests: Sequence[Any], now: float, futures: Sequence[Future[Any] | None]
+    ) -> list[Ticket[Any, Any]]:
+        """Queue each :class:`ToEngine` on its engine (one batch: the first to fail withdraws the others)."""
+        tickets: list[Ticket[Any, Any]] = []
+        for routed, future in zip(requests, futures, strict=True):
+            if not isinstance(routed, ToEngine) or routed.engine not in self.engines:
+                raise TransportError(f"{self.name}: {routed!r} is not a request for an engine on this bus")
+            ticket = routed.engine.submit(routed.request, now)
+            self._futures[ticket] = future
+            self._owner[ticket] = routed.engine
+            tickets.append(ticket)
+        if len(tickets) > 1:
+            for ticket in tickets:
+                self._batches[ticket] = tickets
+        for engine in {self._owner[t] for t in tickets}:
+            self._flush(engine, now)
+        return tickets
+
+    def withdraw(self, tickets: Sequence[Ticket[Any, Any]], now: float) -> None:
+        for ticket in tickets:
+            engine = self._owner.get(ticket)
+            if engine is not None and not ticket.ended:
+                engine.cancel(ticket, now)
+                self._complete(engine, now)
+
+    def cancel(self, futures: Sequence[Future[Any]], now: float) -> None:
+        withdrawn = set(futures)
+        self.withdraw([t for t, f in list(self._futures.items()) if f in withdrawn], now)
+
+    def crash(self, error: StarterbusError, now: float) -> None:
+        """A step raised past the engines' own containment (the bus): every ticket fails; the engines stay."""
+        self.crashes += 1
+        self.errors.append(str(error))
+        self._fail_all(error, now)
+
+    def _fail_all(self, error: StarterbusError, now: float) -> None:
+        for ticket in list(self._futures):
+            if not ticket.ended:
+                ticket.failed(error, now)
+            self._end(ticket)
+
+
+#: one driver per (interface, channel) in this process
+CAN_BUSES: SharedPool[CanDriver] = SharedPool("CAN buses")
