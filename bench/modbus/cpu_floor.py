@@ -1,6 +1,6 @@
 """CPU per Modbus FC03 transaction against a hand-written exact-length floor, side by side (issue 14, item 4).
 
-    python bench/modbus/cpu_floor.py [--tx 50] [--rounds 200] [--changing] [--watch-floor]
+    python bench/modbus/cpu_floor.py [--tx 50] [--rounds 200] [--changing] [--watch-floor] [--before DIR]
 
 On a bare pty hop (``line_emulator.py`` without pacing) to a plain pymodbus server, nominal 19200 baud, one
 process opens every client on the same port and measures them in turn, ``--tx`` transactions each, round after
@@ -11,15 +11,23 @@ totals are robust to what else it is doing; the median of the per-round ratios i
 clients of one round ran under the same load). A few transactions before each turn are not counted (the first
 request after another client's must find the line silent). ``--watch-floor`` adds a fourth client, the same
 loop watching the line during the silence after each answer (as starterbus does for the trailing-bytes rule)
-instead of sleeping before the request, and the ratios to it. Not run by the tests.
+instead of sleeping before the request, and the ratios to it. ``--before DIR`` (A/B in one process) adds
+``before``: ``read_registers`` through the ``RtuLine`` of ``DIR/starterbus/transports/modbus/line.py`` (an
+untouched copy of an older tree; its imports are this tree's modules), on the same link, its turns interleaved
+with the others', and prints the ratio of this tree's ``read_registers`` to it. Not run by the tests.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
+import importlib.util
 import statistics
 import time
 from collections.abc import Callable
+from functools import partial
+from pathlib import Path
+from typing import Any
 
 from starterbus.bench.modbus import clients, throughput
 
@@ -37,7 +45,33 @@ def cpu_per_tx(op: Callable[[], object], count: int, warm: int = 50) -> float:
     return (time.process_time() - start) / count * 1e6
 
 
-def open_clients(port: str, watch_floor: bool) -> tuple[dict[str, Callable[[], object]], list[Callable[[], None]]]:
+def before_line_class(tree: str) -> type[Any]:
+    """The ``RtuLine`` class of an older tree's ``line.py``, loaded beside this tree's (its imports are ours)."""
+    path = Path(tree) / "starterbus" / "transports" / "modbus" / "line.py"
+    spec = importlib.util.spec_from_file_location("cpu_floor_before_line", path)
+    if spec is None or spec.loader is None:
+        raise SystemExit(f"--before: no line.py at {path}")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    line_class: type[Any] = module.RtuLine
+    return line_class
+
+
+def before_op(raw: Callable[[], object], tree: str) -> Callable[[], object]:
+    """``read_registers`` as ``raw`` does it, through the older tree's line on the same link."""
+    assert isinstance(raw, partial)
+    transport = raw.func.__self__  # type: ignore[attr-defined]
+    line = transport.line
+    old = copy.copy(transport)  # its own caches and counters, the older line
+    old._counters = type(transport.counters())()
+    old._reads = {}
+    old._line = before_line_class(tree)(lambda: line.link, line.settings)
+    return partial(old.read_registers, *raw.args)
+
+
+def open_clients(
+    port: str, watch_floor: bool, before: str | None = None
+) -> tuple[dict[str, Callable[[], object]], list[Callable[[], None]]]:
     ops: dict[str, Callable[[], object]] = {}
     closers: list[Callable[[], None]] = []
     floors = [("floor", False), ("watch", True)] if watch_floor else [("floor", False)]
@@ -47,6 +81,8 @@ def open_clients(port: str, watch_floor: bool) -> tuple[dict[str, Callable[[], o
     for name, device_level in (("raw", False), ("device", True)):
         ops[name], close = clients.starterbus_ops(port, BAUD, "fc03", device_level)
         closers.append(close)
+    if before is not None:
+        ops["before"] = before_op(ops["raw"], before)
     return ops, closers
 
 
@@ -56,12 +92,13 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=200)
     parser.add_argument("--changing", action="store_true", help="every FC03 answer differs (pymodbus server)")
     parser.add_argument("--watch-floor", action="store_true", help="also the floor that watches the silence")
+    parser.add_argument("--before", metavar="DIR", help="A/B: also read_registers through DIR's RtuLine")
     args = parser.parse_args()
     emulator = throughput.Emulator(0)
     server = throughput.start_server("pymodbus", emulator.server, BAUD, args.changing)
     try:
         throughput.wait_ready(emulator.client, BAUD)
-        ops, closers = open_clients(emulator.client, args.watch_floor)
+        ops, closers = open_clients(emulator.client, args.watch_floor, args.before)
         names = list(ops)
         samples: dict[str, list[float]] = {name: [] for name in names}
         try:
@@ -95,6 +132,12 @@ def report(samples: dict[str, list[float]], args: argparse.Namespace) -> None:
     per_round = [(r / f, d / f) for f, r, d in zip(samples["floor"], samples["raw"], samples["device"], strict=True)]
     paired = [statistics.median(r for r, _ in per_round), statistics.median(d for _, d in per_round)]
     print(f"  median of the per-round ratios: read_registers {paired[0]:.2f}x   Device.read {paired[1]:.2f}x")
+    if "before" in mean:
+        ab = [r / b for r, b in zip(samples["raw"], samples["before"], strict=True)]
+        print(
+            f"  A/B: read_registers {mean['raw'] / mean['before']:.3f}x the --before tree's (paired "
+            f"{statistics.median(ab):.3f}x); the --before tree's {mean['before'] / floor:.2f}x the floor"
+        )
     if "watch" in mean:
         watching = mean["watch"]
         print(
