@@ -105,13 +105,19 @@ class PollTask(ABC):
     first, and calls :meth:`advance` with the time it read after waiting; it repeats while :attr:`done` is
     False (``fd`` may change between calls: a reconnect; -1: wait for ``wake_at`` only). Then :meth:`result`
     gives the poll's result or raises its error. The task owns its line from the first :meth:`advance` until
-    it is done; :meth:`cancel` gives the line back unfinished (a poller that stops). Made by
+    it is done; :meth:`cancel` gives the line back unfinished (a poller that stops). A fleet runs these methods
+    in the scheduler's own thread (docs/engine.md, step 4): they never block nor wait on the loop. Made by
     :meth:`Transport.start_poll <starterbus.core.transport.Transport.start_poll>`.
     """
 
     fd: int = -1
     wake_at: float = 0.0
     done: bool = False
+    #: set by a poller that advances the task from the scheduler's own loop (the fleet), before the first
+    #: :meth:`advance`: calling it (in the loop's thread, e.g. from a done callback of a ticket's future) has the
+    #: task advanced at the loop's next turn, so a task waiting for the loop's tickets needs no ``fd`` and only
+    #: an outer bound as ``wake_at``. None: nobody listens (``fd`` and ``wake_at`` are all a poller looks at).
+    on_progress: Callable[[], None] | None = None
 
     @abstractmethod
     def advance(self, now: float) -> None:

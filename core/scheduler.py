@@ -26,12 +26,17 @@ from starterbus.core.engine import Ticket, TicketState
 from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
 from starterbus.core.media.waiter import FD_SETSIZE, Waiter, precise_timers
 
-__all__ = ["FD_SETSIZE", "Scheduler", "SchedulerReentryError", "Served", "Waiter", "precise_timers", "scheduler"]
+__all__ = [
+    "FD_SETSIZE", "THREAD_NAME", "Scheduler", "SchedulerReentryError", "Served", "Waiter", "precise_timers",
+    "scheduler",
+]  # fmt: skip
 
 T = TypeVar("T")
 
 #: the longest wait of the scheduler's own thread when nothing is due (a submission wakes it at once anyway)
 IDLE = 1.0
+#: the name of the loop's own thread
+THREAD_NAME = "starterbus-io"
 
 
 class SchedulerReentryError(StarterbusError):
@@ -244,6 +249,40 @@ class Scheduler:
                         self._changed.notify_all()
         return future.result()
 
+    def lead(self) -> bool:
+        """Take the leadership without a turn, when no thread leads, the loop has no thread of its own and its
+        inbox is empty. True: the caller is the leader and may step its own driver until :meth:`release` (a
+        sync call's fast path: no lock beyond this one, no future)."""
+        with self._lock:
+            if self._leader is not None or self._thread is not None or self._inbox:
+                return False
+            self._leader = threading.get_ident()
+        return True
+
+    def release(self) -> None:
+        """Give back the leadership taken with :meth:`lead` (the waiters, if any, are told)."""
+        with self._lock:
+            self._leader = None
+            self._changed.notify_all()
+
+    def in_loop(self) -> bool:
+        """Whether the calling thread runs the loop now (its own thread, or a leader): a blocking wait from here
+        would be refused."""
+        return self._leader == threading.get_ident()
+
+    def due(self, driver: Served) -> None:
+        """Step ``driver`` at the loop's next turn, without waiting (any thread; from the loop's own thread no
+        system call). A driver no longer served is left alone."""
+        if self._leader == threading.get_ident():
+            self._due.append(driver)
+            return
+
+        def mark(now: float) -> None:
+            if driver in self.drivers:
+                self._due.append(driver)
+
+        self._post(mark)
+
     def try_turn(self) -> bool:
         """One turn of the loop without waiting, if no other thread runs it now: for a poller that waits on the
         drivers' descriptors itself (``fleet/mux.py``). False: another thread leads and serves the inbox."""
@@ -269,17 +308,20 @@ class Scheduler:
         with self._lock:
             self._changed.notify_all()
 
-    def start(self) -> None:
-        """Run the loop in a thread of its own (``starterbus-io``) until :meth:`stop`; waiters are followers."""
+    def start(self, thread: threading.Thread | None = None) -> bool:
+        """Run the loop in a thread of its own (``starterbus-io``) until :meth:`stop`; waiters are followers.
+        ``thread``: a thread not yet started whose target calls :meth:`serve` (a supervisor's, so that the loop
+        failing is its worker failing). False: the loop's own thread runs already (``thread`` is not started)."""
         with self._lock:
             if self._thread is not None:
-                return
+                return False
             self._stopping = False
-            self._thread = threading.Thread(target=self._serve, name="starterbus-io", daemon=True)
+            self._thread = thread or threading.Thread(target=self.serve, name=THREAD_NAME, daemon=True)
             self._serving.clear()
         self._thread.start()
         self.wake()  # a caller leading now hands over at its next turn
         self._serving.wait()
+        return True
 
     def stop(self) -> None:
         """End the loop's own thread (the drivers stay; waiters lead again)."""
@@ -296,7 +338,14 @@ class Scheduler:
         """The loop's own thread runs."""
         return self._thread is not None and self._thread.is_alive()
 
-    def _serve(self) -> None:
+    @property
+    def thread(self) -> threading.Thread | None:
+        """The loop's own thread while it runs (None: callers lead)."""
+        return self._thread
+
+    def serve(self) -> None:
+        """The loop, in the calling thread, until :meth:`stop` (the target of the thread :meth:`start` runs); an
+        exception out of the loop itself (not a driver's: those are contained) ends it and is raised."""
         precise_timers()
         with self._lock:
             while self._leader is not None:  # a caller leading now hands over at its next check

@@ -62,6 +62,7 @@ class DeviceRuntime:
     slowest_request: float = 0.0  # longest time per request of a good poll, s (floor of the probe timeout)
     probes: int = 0
     slot: int = -1  # its place in its bus's list of devices
+    open_error: StarterbusError | None = None  # opening it (in a pool thread) failed: its next poll's error
 
 
 @dataclass(slots=True)
@@ -94,6 +95,9 @@ class BusWorker:
         self.done_in_round: set[int] = set()
         self.finished = False  # the rounds asked for are done
         self.notify: Callable[[], None] = self.wake.set  # tells whoever drives the bus that a job is queued
+        self.lent = False  # a pool thread has the bus (a job, a device opened or closed): its polls wait
+        self.deferred = False  # devices are closed in a pool thread (:meth:`close_dropped`), not where dropped
+        self.dropped: list[Device] = []  # devices to close (``deferred``)
 
     @property
     def transactions(self) -> int:
@@ -215,6 +219,23 @@ class BusWorker:
     def _close_all(self) -> None:
         for runtime in self.devices:
             self._close(runtime)
+        self.close_dropped()
+
+    def close_dropped(self) -> None:
+        """Close the devices dropped while closing was ``deferred``."""
+        while self.dropped:
+            device = self.dropped.pop()
+            try:
+                device.close()
+            except StarterbusError:
+                pass
+
+    def open_for_poll(self, runtime: DeviceRuntime) -> None:
+        """Open the device for its next poll (in a pool thread, the bus lent); a failure is that poll's error."""
+        try:
+            self._ensure_open(runtime)
+        except StarterbusError as exc:
+            runtime.open_error = exc
 
     def run_after_the_end(self, job: Job) -> None:
         """A job that came after :meth:`shut_down`: run in the calling thread, on its device opened for it."""
@@ -273,6 +294,9 @@ class BusWorker:
         return runtime.device
 
     def _close(self, runtime: DeviceRuntime) -> None:
+        if runtime.device is not None and self.deferred:
+            self.dropped.append(runtime.device)
+            runtime.device = None
         if runtime.device is not None:
             try:
                 runtime.device.close()
@@ -302,6 +326,9 @@ class BusWorker:
     def prepare(self, attempt: Attempt) -> Device:
         """The device opened (raises what opening raises), what the poll reads, the counters before it."""
         runtime = attempt.runtime
+        error, runtime.open_error = runtime.open_error, None
+        if error is not None:
+            raise error
         device = self._ensure_open(runtime)
         attempt.points = self._what_to_read(runtime, device)
         attempt.before = self._counters(device)

@@ -1,158 +1,171 @@
-"""One thread polling many buses at once: each poll a :class:`~starterbus.core.polling.PollTask`, all waited on
-with one selector.
+"""The fleet's buses on the process's scheduler (docs/engine.md, step 4): each bus a driver of its loop
+(:class:`~starterbus.fleet.bus_driver.Bus`), each poll a :class:`~starterbus.core.polling.PollTask` advanced
+from it, so one thread (``starterbus-io``) waits on every line at once.
 
 A thread per bus spends most of its CPU handing the interpreter lock to the other bus threads around every
 ``select`` and ``read``; one thread that waits on every line's descriptor and timer at once does the same work
 without the hand-overs and wakes for whichever line is due (bench/fleet/rtu_scale.py measures both). Per bus
 the rules are those of :class:`~starterbus.fleet.bus_worker.BusWorker`, which keeps the schedule and the
 bookkeeping: one poll at a time, devices on their grids, probes within the line's budget, ``delay`` between
-polls. A job (command, write) for a device on a multiplexed bus runs in a thread of its own while that bus
-is lent to it; its other buses go on. A bus whose transport polls only by blocking (``start_poll`` gives
-None: a pyserial port without a file descriptor) is handed to a thread of its own at its first poll.
+polls; :meth:`BusWorker.end <starterbus.fleet.bus_worker.BusWorker.end>` is a poll's completion callback.
+
+What may block runs in the fleet's small job pool (:class:`~starterbus.fleet.jobs.JobPool`), never in the loop:
+jobs (commands, writes), and opening and closing devices (a transport's ``open`` may wait on the loop itself).
+The bus is lent meanwhile (``BusWorker.lent``): its polls wait, the other buses go on. A bus whose transport
+polls only by blocking (``start_poll`` gives None: a pyserial port without a file descriptor) is handed to a
+thread of its own at its first poll.
+
+The fleet starts the loop's own thread when it is not running (under the poller's supervisor: the loop itself
+failing is fatal); the last fleet on the loop to end stops it if a fleet started it. A loop already running
+(started by someone else) is used as it is: its failing is then not this fleet's to see.
 """
 
 from __future__ import annotations
 
-import os
+import functools
 import threading
-from dataclasses import dataclass
+import time
+from collections.abc import Callable
 
 from starterbus.core.errors import StarterbusError, TransportError
-from starterbus.core.media.waiter import precise_timers
 from starterbus.core.polling import PollResult, PollTask
-from starterbus.core.scheduler import FD_SETSIZE, Waiter
+from starterbus.core.scheduler import FD_SETSIZE, THREAD_NAME, Scheduler, Waiter, scheduler
+from starterbus.fleet.bus_driver import Bus
 from starterbus.fleet.bus_worker import Attempt, BusWorker, DeviceRuntime
+from starterbus.fleet.jobs import POOL_SIZE, JobPool
 from starterbus.fleet.poll_context import PollContext
 
-#: longest sleep when nothing is due (a stop or a job wakes the thread at once anyway)
-IDLE = 1.0
+__all__ = ["FD_SETSIZE", "Multiplexer", "Waiter"]  # Waiter: core.scheduler's, the fleet's before
 
-__all__ = ["FD_SETSIZE", "IDLE", "Multiplexer", "Waiter"]  # Waiter: core.scheduler's, the fleet's before
+INF = float("inf")
 
-
-@dataclass(slots=True)
-class _Bus:
-    worker: BusWorker
-    task: PollTask | None = None
-    attempt: Attempt | None = None
-    fd: int = -1  # the descriptor registered for the task
-    free_at: float = 0.0  # the bus's ``delay`` after a poll
-    lent: threading.Thread | None = None  # a job thread that has the bus
-    returned: bool = False  # the job thread is done with it
-    crash: StarterbusError | None = None  # what went wrong where a task raised what it should not
-    handed_over: bool = False  # to a thread of its own
+#: per scheduler, the fleets on it now, and whether one of them started its thread (the last one out stops it)
+_FLEETS: dict[Scheduler, int] = {}
+_STARTED: set[Scheduler] = set()
+_FLEETS_LOCK = threading.Lock()
 
 
 class Multiplexer:
-    """Polls the given buses from one thread (:meth:`start`); stops with the poller."""
+    """Polls the given buses from the scheduler's loop (:meth:`start`); stops with the poller."""
 
-    def __init__(self, poller: PollContext, workers: list[BusWorker]) -> None:
+    def __init__(self, poller: PollContext, workers: list[BusWorker], loop: Scheduler | None = None) -> None:
         self.poller = poller
-        self.buses = [_Bus(w) for w in workers]
-        self.thread = poller.supervisor.thread("bus-mux", self._run)  # fatal: the loop itself failing stops all
-        self._wake_r, self._wake_w = -1, -1  # a pipe from start() to the end of the loop
-        self._wake_lock = threading.Lock()  # closing the pipe vs writing to it: never to a reused descriptor
-        self._waiter: Waiter[_Bus | None] = Waiter()
+        self._loop = loop  # the process's, made at start (a poller never started holds no descriptor)
+        self.buses = [Bus(w, self.serve) for w in workers]
+        self.thread = poller.supervisor.thread(THREAD_NAME, self._run_loop)  # if the fleet starts the loop
+        self.pool = JobPool(poller.supervisor, min(POOL_SIZE, len(workers)))
+        self._started = False
+        self._finishing = False  # the end is decided: the buses are no longer stepped
+        self._ended = threading.Event()  # every bus given back and shut down
+        self._stopped_loop = False  # the fleet was the last on the loop and stopped the thread it started
         for bus in self.buses:
-            bus.worker.notify = self.wake
+            bus.worker.notify = functools.partial(self._poke, bus)
+
+    @property
+    def loop(self) -> Scheduler:
+        if self._loop is None:
+            self._loop = scheduler()
+        return self._loop
 
     def start(self) -> None:
-        self._wake_r, self._wake_w = os.pipe()
-        os.set_blocking(self._wake_r, False)
-        os.set_blocking(self._wake_w, False)
-        self._waiter.register(self._wake_r, None)
-        self.thread.start()
+        clock = self.poller.clock
+        for bus in self.buses:
+            bus.worker.stats.started = clock()
+            bus.worker.deferred = True  # closed in the pool: a transport's close may wait on the loop
+        self._started = True
+        loop = self.loop
+        with _FLEETS_LOCK:
+            _FLEETS[loop] = _FLEETS.get(loop, 0) + 1
+            if loop.start(self.thread):
+                _STARTED.add(loop)
+        loop.call(self._add)
+
+    def _add(self, now: float) -> None:
+        for bus in self.buses:
+            self.loop.add(bus)
+            self.loop.due(bus)
+
+    def _run_loop(self) -> None:
+        try:
+            self.loop.serve()
+        finally:
+            if not self._finishing:  # the loop itself failed (the fleet's end stops it only once decided)
+                self._abandon()
+
+    def _poke(self, bus: Bus) -> None:
+        """Step ``bus`` at the loop's next turn (any thread): a job was queued, its lent work is over."""
+        if not self._finishing:
+            self.loop.due(bus)
 
     def wake(self) -> None:
-        """Look at the buses again now (a job was queued, the poller stops); nothing once the loop is over."""
-        with self._wake_lock:
-            if self._wake_w < 0:
-                return
-            try:
-                os.write(self._wake_w, b"!")
-            except BlockingIOError:  # already woken (the pipe is full)
-                pass
+        """Look at every bus again now (the poller stops); nothing once the fleet's end is decided."""
+        if self._started:
+            for bus in self.buses:
+                self._poke(bus)
 
     def lent(self) -> list[threading.Thread]:
-        """The threads running jobs now."""
-        return [b.lent for b in self.buses if b.lent is not None]
+        """The pool's threads now (running jobs, opening or closing devices, the fleet's end)."""
+        return self.pool.alive
+
+    @property
+    def driving(self) -> bool:
+        """Between start and the end: a job queued now is run by the pool (or at the end)."""
+        return self._started and not self._ended.is_set()
 
     @property
     def alive(self) -> bool:
-        return self.thread.is_alive() or any(t.is_alive() for t in self.lent())
+        return self.driving or bool(self.pool.alive) or (self._stopped_loop and self.thread.is_alive())
 
-    # -- the loop --------------------------------------------------------------------------------------------
+    def join(self, timeout: float | None = None) -> None:
+        """Wait for the end: every bus shut down, the loop's thread (if the fleet started it) and the pool's."""
+        deadline = None if timeout is None else time.monotonic() + timeout
 
-    def _run(self) -> None:
-        poller = self.poller
-        clock = poller.clock
-        precise_timers()
-        for bus in self.buses:
-            bus.worker.stats.started = clock()
-        try:
-            while not poller.stopping.is_set():
-                now = clock()
-                until = now + IDLE
-                busy = False
-                for bus in self.buses:
-                    if bus.handed_over:
-                        continue
-                    if bus.task is None:
-                        self._serve(bus, now)
-                    if bus.task is not None:
-                        until = min(until, bus.task.wake_at)
-                        busy = True
-                    elif bus.lent is not None:
-                        busy = True
-                    elif bus.worker.jobs or not bus.worker.finished:
-                        busy = True
-                        if bus.free_at > now:  # its ``delay`` first, then a job or a poll
-                            until = min(until, bus.free_at)
-                        elif not bus.worker.finished:
-                            until = min(until, bus.worker.next_due(now)[0])
-                if not busy:
-                    break  # every bus has done its rounds (or has a thread of its own)
-                try:
-                    ready = self._waiter.wait(max(0.0, until - clock()))
-                except OSError:  # a descriptor closed under a task (by another thread): fail that poll
-                    ready = []
-                    self._drop_closed()
-                now = clock()
-                for which in ready:
-                    if which is None:
-                        self._drain()
-                    else:
-                        self._serve(which, now)
-                for bus in self.buses:
-                    if bus.task is not None and bus.task.wake_at <= now:
-                        self._serve(bus, now)
-        finally:
-            self._shut_down()
+        def left() -> float | None:
+            return None if deadline is None else max(0.0, deadline - time.monotonic())
 
-    def _serve(self, bus: _Bus, now: float) -> None:
-        """:meth:`_service`; an exception that is not the line's (``on_sample`` raised, a bug) is contained for
-        this bus alone (:meth:`BusWorker._contained <starterbus.fleet.bus_worker.BusWorker>`): counted and
-        logged by the supervisor, its poll cancelled, its devices closed, the bus resumed after the backoff; the
-        other buses go on."""
-        try:
-            self._service(bus, now)
-        except Exception as exc:
-            worker = bus.worker
-            pause = self.poller.supervisor.contain(worker.name, exc)
+        if self._started and not self._ended.wait(left()):
+            return
+        if self._stopped_loop:
+            self.thread.join(left())
+        for thread in self.pool.alive:
+            thread.join(left())
+
+    def own_thread(self) -> bool:
+        """Whether the calling thread is one of the fleet's own (the loop, the pool): it must not wait for the
+        end, which may wait for it."""
+        return self._started and (self.loop.in_loop() or threading.current_thread() in self.pool.alive)
+
+    # -- a bus's step, in the loop -------------------------------------------------------------------------------
+
+    def serve(self, bus: Bus, now: float) -> None:
+        """Advance the bus's poll and start the next (:meth:`_service`); an exception that is not the line's
+        (``on_sample`` raised, a bug) is contained for this bus alone: counted and logged by the supervisor,
+        its poll cancelled, its devices closed, the bus resumed after the backoff; the other buses go on."""
+        if self._finishing or bus.handed_over:
+            return
+        if self.poller.stopping.is_set():
             self._stop_bus(bus)
-            resume = self.poller.clock() + pause
-            worker.restart(resume)
-            bus.free_at = resume
+        else:
+            try:
+                self._service(bus, now)
+            except Exception as exc:
+                worker = bus.worker
+                pause = self.poller.supervisor.contain(worker.name, exc)
+                self._stop_bus(bus)
+                resume = self.poller.clock() + pause
+                worker.restart(resume)
+                bus.free_at = resume
+        self._plan(bus)
 
-    def _service(self, bus: _Bus, now: float) -> None:
+    def _service(self, bus: Bus, now: float) -> None:
         """Advance the bus's poll; when it is over, start the next one that is due at once (the line's
         silence after the last answer is already behind it)."""
+        clock = self.poller.clock
         while True:
             task = bus.task
             if task is not None:
                 self._step(bus, task, now)
                 if not task.done:
-                    self._watch(bus, task.fd)
                     return
                 attempt, bus.task, bus.attempt = bus.attempt, None, None
                 assert attempt is not None
@@ -160,8 +173,8 @@ class Multiplexer:
                     result: PollResult | None = task.result()
                     error: StarterbusError | None = None
                 except StarterbusError as exc:
-                    result, error = None, bus.crash or exc
-                bus.crash = None
+                    result, error = None, bus.failure or exc
+                bus.failure = None
                 worker = bus.worker
                 if (
                     error is None
@@ -173,58 +186,54 @@ class Multiplexer:
                     # a good poll leaves the line silent and healthy: the next request goes out first, this
                     # poll's bookkeeping follows while its answer is on the way (not after the last poll of a
                     # round: whether another poll follows is decided by that bookkeeping)
-                    ended = self.poller.clock()
-                    following = self._next(bus, now, lend=False) and self._task(bus)
+                    ended = clock()
+                    following = self._task(bus) if self._next(bus, now, lend=False) else None
                     if following:
-                        self._step(bus, following, self.poller.clock())
+                        self._step(bus, following, clock())
                     self._end(bus, attempt, result, error, ended)
                     if following and not following.done:
-                        self._watch(bus, following.fd)
                         return
-                    now = self.poller.clock()
+                    now = clock()
                     continue
                 self._end(bus, attempt, result, error)
-                now = self.poller.clock()
+                now = clock()
             if not self._next(bus, now):
-                self._watch(bus, -1)
                 return
 
     @staticmethod
-    def _step(bus: _Bus, task: PollTask, now: float) -> None:
+    def _step(bus: Bus, task: PollTask, now: float) -> None:
         """``task.advance(now)``; a defect in a transport fails its poll instead of stopping every bus."""
         try:
             task.advance(now)
         except Exception as exc:
             task.cancel()
-            bus.crash = TransportError(f"{bus.worker.bus.name}: the poll failed: {type(exc).__name__}: {exc}")
+            bus.failure = TransportError(f"{bus.worker.bus.name}: the poll failed: {type(exc).__name__}: {exc}")
 
     @staticmethod
-    def _task(bus: _Bus) -> PollTask | None:
-        return bus.task
+    def _task(bus: Bus) -> PollTask | None:
+        return bus.task  # (read again: the one just started)
 
-    def _next(self, bus: _Bus, now: float, lend: bool = True) -> bool:
-        """Between polls: return a lent bus, lend it for queued jobs, or start the poll that is due (True);
-        jobs and polls alike only once the bus's ``delay`` after the last poll is over. ``lend=False``: the last
-        poll's bookkeeping is still to come, queued jobs wait for it (a job would use its device meanwhile)."""
+    def _next(self, bus: Bus, now: float, lend: bool = True) -> bool:
+        """Between polls: lend the bus for queued jobs (or devices to close), lend it to open the device due
+        next, or start the poll that is due (True); jobs and polls alike only once the bus's ``delay`` after
+        the last poll is over. ``lend=False``: the last poll's bookkeeping is still to come, jobs wait for it
+        (a job would use its device meanwhile)."""
         worker = bus.worker
-        if bus.lent is not None:
-            if not bus.returned:
-                return False
-            bus.lent.join()
-            bus.lent = None
-        if bus.free_at > now:
+        if worker.lent or bus.free_at > now:
             return False
-        if worker.jobs:
-            if not lend:
-                return False
-            bus.returned = False
-            bus.lent = self.poller.supervisor.thread(f"jobs-{worker.bus.name}", self._jobs, bus)
-            bus.lent.start()
+        if worker.jobs or worker.dropped:
+            if lend:
+                self._lend(bus, self._jobs, bus)
             return False
         if worker.finished or self.poller.stopping.is_set():
             return False
-        due, _ = worker.next_due(now)
+        due, index = worker.next_due(now)
         if due > now:
+            return False
+        runtime = worker.devices[index]
+        if runtime.device is None and runtime.open_error is None:
+            if lend:
+                self._lend(bus, worker.open_for_poll, runtime)
             return False
         runtime = worker.take(due)
         attempt = bus.attempt = worker.begin(runtime)
@@ -239,29 +248,54 @@ class Multiplexer:
         if task is None:
             self._hand_over(bus, runtime)
             return False
+        task.on_progress = functools.partial(self._poke, bus)
         bus.task = task
         return True
 
-    def _jobs(self, bus: _Bus) -> None:
-        try:
-            bus.worker.run_jobs()
-        finally:
-            bus.returned = True
-            self.wake()
+    def _plan(self, bus: Bus) -> None:
+        """When the bus is next stepped without news, whether it is over; the fleet ends once every bus is."""
+        worker, now = bus.worker, self.poller.clock()
+        over = False
+        if bus.task is not None:
+            pass
+        elif bus.handed_over:
+            over = True
+        elif worker.lent:
+            bus.next_at = INF  # the lent work steps it when it gives the bus back
+        elif self.poller.stopping.is_set() or (worker.finished and not worker.jobs):
+            bus.next_at, over = INF, True
+        elif bus.free_at > now:
+            bus.next_at = bus.free_at
+        elif worker.jobs or worker.dropped or worker.finished:
+            bus.next_at = now
+        else:
+            bus.next_at = worker.next_due(now)[0]
+        if over is not bus.over:
+            bus.over = over
+            if over and all(b.over for b in self.buses):
+                self._finish()
 
-    def _watch(self, bus: _Bus, fd: int) -> None:
-        """Wait on ``fd`` for the bus (-1: on nothing) instead of what it waited on."""
-        if fd == bus.fd:
-            return
-        if bus.fd >= 0:
-            self._waiter.unregister(bus.fd)
-        bus.fd = fd
-        if fd >= 0:
-            self._waiter.register(fd, bus)
+    def _lend(self, bus: Bus, work: Callable[..., object], *args: object) -> None:
+        """``work(*args)`` in the pool, the bus's polls held until it is done."""
+        worker = bus.worker
+        worker.lent = True
+
+        def run() -> None:
+            try:
+                work(*args)
+            finally:
+                worker.lent = False
+                self._poke(bus)
+
+        self.pool.run(f"jobs-{worker.bus.name}", run)
+
+    def _jobs(self, bus: Bus) -> None:
+        bus.worker.close_dropped()
+        bus.worker.run_jobs()
 
     def _end(
         self,
-        bus: _Bus,
+        bus: Bus,
         attempt: Attempt,
         result: PollResult | None,
         error: StarterbusError | None,
@@ -273,54 +307,67 @@ class Multiplexer:
             bus.free_at = self.poller.clock() + worker.bus.delay
         worker.polled(attempt.runtime)
 
-    def _hand_over(self, bus: _Bus, runtime: DeviceRuntime) -> None:
+    def _hand_over(self, bus: Bus, runtime: DeviceRuntime) -> None:
         """This bus polls by blocking: it gets a thread of its own, starting with ``runtime``'s poll."""
         bus.handed_over = True
         bus.attempt = None
         worker = bus.worker
+        worker.deferred = False
         worker.notify = worker.wake.set
         worker.thread = self.poller.supervisor.thread(worker.name, worker.run, runtime)
         worker.thread.start()
 
-    def _drop_closed(self) -> None:
-        for bus in self.buses:
-            if bus.task is not None and bus.fd >= 0:
-                try:
-                    os.fstat(bus.fd)
-                except OSError as exc:
-                    bus.task.cancel()
-                    bus.crash = TransportError(f"{bus.worker.bus.name}: the line was closed under the poll: {exc}")
-                    self._watch(bus, -1)
-                    self._serve(bus, self.poller.clock())
-
-    def _drain(self) -> None:
-        try:
-            while os.read(self._wake_r, 512):
-                pass
-        except (BlockingIOError, OSError):
-            pass
-
-    def _stop_bus(self, bus: _Bus) -> None:
-        """Cancel the bus's poll in flight (what it sent is counted), wait for a job that has the bus."""
+    def _stop_bus(self, bus: Bus) -> None:
+        """Cancel the bus's poll in flight (what it sent is counted); no other starts."""
         if bus.task is not None:
             bus.task.cancel()
             bus.task = None
-        self._watch(bus, -1)
         if bus.attempt is not None:
             bus.worker.abandon(bus.attempt)
             bus.attempt = None
-        if bus.lent is not None:
-            bus.lent.join()
-            bus.lent = None
+
+    # -- the end -----------------------------------------------------------------------------------------------
+
+    def _finish(self) -> None:
+        """Every bus is over (in the loop): they leave it, and the pool shuts them down."""
+        self._finishing = True
+        for bus in self.buses:
+            self.loop.remove(bus)
+        self.pool.run("fleet-end", self._shut_down)
 
     def _shut_down(self) -> None:
-        for bus in self.buses:  # every line given back first
-            self._stop_bus(bus)
+        """The jobs queued until now run, the devices are closed; then the loop's thread stops if the fleet
+        started it."""
+        try:
+            for bus in self.buses:
+                if not bus.handed_over:
+                    bus.worker.shut_down()
+        finally:
+            loop = self.loop
+            with _FLEETS_LOCK:
+                left = _FLEETS.pop(loop, 1) - 1
+                if left:
+                    _FLEETS[loop] = left
+                elif loop in _STARTED:
+                    _STARTED.discard(loop)
+                    self._stopped_loop = True
+            if self._stopped_loop:
+                loop.stop()
+            self._ended.set()
+
+    def _abandon(self) -> None:
+        """The loop failed (in its thread, after it ended): every poll cancelled, the lent work waited for, the
+        buses shut down here."""
+        self._finishing = True
+        loop = self.loop
         for bus in self.buses:
-            if not bus.handed_over:
-                bus.worker.shut_down()
-        self._waiter.close()
-        with self._wake_lock:
-            os.close(self._wake_r)
-            os.close(self._wake_w)
-            self._wake_r, self._wake_w = -1, -1
+            self._stop_bus(bus)
+
+        def remove(now: float) -> None:
+            for bus in self.buses:
+                loop.remove(bus)
+
+        loop.call(remove)
+        loop.try_turn()  # made now, unless another thread leads (it makes it)
+        self.pool.drain()
+        self._shut_down()

@@ -1,11 +1,12 @@
 """Polling a fleet: all buses concurrently, each bus strictly one transaction at a time, devices on their own
 periods (the rules per bus: :mod:`starterbus.fleet.bus_worker`).
 
-Buses whose transports can poll without blocking (``Transport.start_poll``: Modbus RTU on a file descriptor)
-are polled by one thread that waits on all their lines at once (:mod:`starterbus.fleet.mux`); any other bus
-by a thread of its own. Commands and writes for a device are queued to its bus (:meth:`FleetPoller.submit`),
-so they take their turn on the line like any poll. Each bus adds up what its transports report putting on the
-wire (:meth:`FleetPoller.line_stats`).
+Buses whose transports can poll without blocking (``Transport.start_poll``: Modbus RTU on a file descriptor,
+Modbus TCP) are polled from the process's scheduler, whose one thread waits on all their lines at once
+(:mod:`starterbus.fleet.mux`); their jobs, and the opening and closing of their devices, run in a small pool
+of threads shared by those buses. Any other bus is polled by a thread of its own. Commands and writes for a
+device are queued to its bus (:meth:`FleetPoller.submit`), so they take their turn on the line like any poll.
+Each bus adds up what its transports report putting on the wire (:meth:`FleetPoller.line_stats`).
 """
 
 from __future__ import annotations
@@ -109,7 +110,8 @@ class FleetPoller:
         """Stop polling and wait (up to ``timeout``) until every bus is done; called from one of the poller's
         own threads (``on_sample``, a job) it does not wait: those threads may wait for the caller."""
         self.request_stop()
-        if threading.current_thread() not in self._threads():
+        own = threading.current_thread() in self._threads() or (self.mux is not None and self.mux.own_thread())
+        if not own:
             self.join(timeout)
 
     def request_stop(self) -> None:
@@ -134,7 +136,7 @@ class FleetPoller:
                 thread.join(None if deadline is None else max(0.0, deadline - time.monotonic()))
 
         if self.mux is not None:
-            wait_for(self.mux.thread)
+            self.mux.join(None if deadline is None else max(0.0, deadline - time.monotonic()))
         # then each bus's thread, as it is now: one the multiplexer handed a bus to is known once it is over
         for worker in self.workers:
             wait_for(worker.thread)
@@ -153,7 +155,7 @@ class FleetPoller:
         """Whether a thread polls ``worker``'s bus now (and so will run its jobs)."""
         if worker.thread.is_alive():
             return True
-        return self.mux is not None and self.mux.thread.is_alive() and worker not in self._own_thread
+        return self.mux is not None and self.mux.driving and worker not in self._own_thread
 
     def runtimes(self) -> list[DeviceRuntime]:
         return [r for w in self.workers for r in w.devices]

@@ -141,9 +141,9 @@ def test_the_multiplexer_failing_stops_the_poller_with_one_line(
     poller = FleetPoller(lines.fleet(buses=2), samples, supervisor=supervisor).start()
     poller.join(30.0)
     assert not poller.running, "a fatal failure stops every bus"
-    assert poller.failure is not None and poller.failure.worker == "bus-mux"
-    assert str(poller.failure).startswith("bus-mux failed: RuntimeError: the selector broke (at ")
-    assert supervisor.failures == {"bus-mux": 1}
+    assert poller.failure is not None and poller.failure.worker == "starterbus-io"
+    assert str(poller.failure).startswith("starterbus-io failed: RuntimeError: the selector broke (at ")
+    assert supervisor.failures == {"starterbus-io": 1}
     assert no_leases_left(lines)
 
 
@@ -174,7 +174,8 @@ def test_poll_exits_1_with_one_line_when_a_worker_fails_for_good(
     captured = capsys.readouterr()
     assert code == 1
     err = captured.err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("starterbus: error: bus-mux failed: RuntimeError: the selector broke")
+    assert len(err) == 1
+    assert err[0].startswith("starterbus: error: starterbus-io failed: RuntimeError: the selector broke")
     assert '"device": "b0u1"' in captured.out, "it polled until then"
 
 

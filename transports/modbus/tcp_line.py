@@ -30,6 +30,9 @@ from starterbus.transports.modbus.mbap import HEADER_LENGTH, MbapEngine, MbapTic
 STALL = 30.0
 #: how soon a poll looks again while another thread runs the loop (that thread serves the poll meanwhile)
 LOOK_AGAIN = 0.001
+#: how soon a poll advanced from the loop's own thread looks again without news (its futures' callbacks have it
+#: advanced as soon as a transaction ends: this only bounds a wait)
+LOOK_LATER = 1.0
 
 
 class MbapConnection:
@@ -139,10 +142,11 @@ class MbapConnection:
 
 
 class MbapPoll(PollTask):
-    """A poll's transactions as a :class:`PollTask` for the fleet's multiplexer: submitted at the first
-    :meth:`advance`, each advance one turn of the scheduler without waiting (the multiplexer waits on the
-    connection's descriptor and deadline for it). ``check`` refuses an answer (an exception), ``finish`` makes
-    the poll's result from the answers."""
+    """A poll's transactions as a :class:`PollTask`: submitted at the first :meth:`advance`. Advanced from the
+    scheduler's own loop (the fleet sets :attr:`on_progress`), it is advanced again when one of its transactions
+    ends; advanced from elsewhere, each advance is one turn of the scheduler without waiting (the caller waits on
+    the connection's descriptor and deadline for it). ``check`` refuses an answer (an exception), ``finish``
+    makes the poll's result from the answers."""
 
     def __init__(
         self,
@@ -164,9 +168,15 @@ class MbapPoll(PollTask):
             return
         connection = self.connection
         loop, driver = connection._loop, connection._driver
+        progress = self.on_progress
         if self._futures is None:
             self._futures = loop.submit_all(driver, self.exchanges)
-        if loop.try_turn():
+            if progress is not None:  # advanced again when a transaction ends (in the loop's thread)
+                for future in self._futures:
+                    future.add_done_callback(lambda _: progress())
+        if progress is not None:  # the loop that ends the futures is the one that advances this task
+            self.fd, self.wake_at = -1, now + LOOK_LATER
+        elif loop.try_turn():
             self.fd, self.wake_at = driver.fd, driver.deadline
         else:
             self.fd, self.wake_at = -1, now + LOOK_AGAIN
