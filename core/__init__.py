@@ -53,6 +53,7 @@ if TYPE_CHECKING:
     from starterbus.core.media import Driver, StreamDriver, TcpDriver
     from starterbus.core.media.can import CanDriver, CanEngine, ToEngine
     from starterbus.core.media.keeper import keep_running, let_go
+    from starterbus.core.media.local import LocalDriver, LocalEngine
     from starterbus.core.model import Access, EnumTable, Kind, Label, PointDef, Reading, Value
     from starterbus.core.plugin_options import OptionValues, PluginOption, SimOption, resolve_options
     from starterbus.core.polling import PlannedRequest, PollResult, PollTask, TransportCounters, run_task
@@ -207,6 +208,8 @@ _LAZY = {
     "ToEngine": "starterbus.core.media.can",
     "keep_running": "starterbus.core.media.keeper",
     "let_go": "starterbus.core.media.keeper",
+    "LocalDriver": "starterbus.core.media.local",
+    "LocalEngine": "starterbus.core.media.local",
     "Scheduler": "starterbus.core.scheduler",
     "SchedulerReentryError": "starterbus.core.scheduler",
     "process_scheduler": "starterbus.core.scheduler:scheduler",
@@ -264,6 +267,8 @@ __all__ = [
     "GuardedOperationError",
     "Kind",
     "Label",
+    "LocalDriver",
+    "LocalEngine",
     "LoopbackBridge",
     "ManualClock",
     "MotorState",

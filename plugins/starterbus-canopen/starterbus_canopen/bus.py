@@ -1,10 +1,14 @@
-"""One CAN bus per process for every CANopen device on it: one ``canopen.Network``, one master heartbeat.
+"""One CAN bus per process for every CANopen device on it: the process's CAN driver of the bus, one SDO engine per
+node, one master heartbeat per master node id.
 
 Devices on one bus (a fleet's ``[[bus]]``, or several ``open_device`` calls naming the same interface and
-channel) share a :class:`CanBus` from :data:`BUSES`: one python-can bus and notifier thread, which interfaces
-that cannot be opened twice (PCAN, slcan on a serial port) need; one heartbeat per master node id, not one per
-device; one ``RemoteNode`` per node id, so that a second transport for a node does not take the node's SDO
-answers away from the first. The last device to leave closes the bus.
+channel) share a :class:`CanBus` from :data:`BUSES`. It holds a lease of the process's
+:class:`~starterbus.core.CanDriver` of that bus (one python-can bus per interface and channel, shared with any
+other protocol on it: interfaces such as PCAN or slcan cannot be opened twice), run by the process's scheduler;
+one :class:`~starterbus_canopen.sdo.SdoEngine` per node id, so that two devices for one node share its SDO
+transfers (one at a time, one quiet period) and its TPDO1; one heartbeat per master node id, a periodic output of
+the driver (the interface's own cyclic send where it has one, else the driver's deadlines), not one per device.
+The last device to leave gives the driver back.
 
 What must be the same for every device on the bus (the bit rate; a master's heartbeat period) is checked when a
 device joins: a difference is a :class:`~starterbus.core.ConfigurationError` naming both, and the device does
@@ -14,17 +18,26 @@ not join.
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
-import canopen
+import can
 
-from starterbus.core import ConfigurationError, SharedPool, TransportError, open_bus, shutdown_bus
+from starterbus.core import (
+    CanDriver,
+    CanFrame,
+    ConfigurationError,
+    SharedPool,
+    TransportError,
+    process_scheduler,
+)
+from starterbus_canopen.sdo import SdoEngine
 
 HEARTBEAT_OPERATIONAL = 0x05
+HEARTBEAT_BASE = 0x700
 
-Listener = Callable[[int, bytearray, float], None]
+T = TypeVar("T")
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,30 +47,33 @@ class Member:
     node: int
     master: int
     heartbeat: float  # s; 0: the device asked for none
-    listens: tuple[tuple[int, Listener], ...]  # (COB-ID, callback)
+
+
+def _filters(engine: SdoEngine) -> list[can.typechecking.CanFilter]:
+    return [{"can_id": can_id, "can_mask": 0x7FF} for can_id in sorted(engine.wanted)]
 
 
 class CanBus:
-    """One interface/channel opened once in this process, shared by every CANopen device on it. Thread-safe."""
+    """One interface/channel of this process, shared by every CANopen device on it. Thread-safe: the bookkeeping
+    under a lock, everything touching the bus in the scheduler's loop."""
 
     def __init__(self, interface: str, channel: str, bitrate: int | None) -> None:
         self.interface, self.channel, self.bitrate = interface, channel, bitrate
-        bus = open_bus(interface, channel, bitrate)  # any failure: TransportError naming interface and channel
-        network = canopen.Network(bus)
-        network.NOTIFIER_CYCLE = 0.05  # the notifier thread ends promptly on close
-        try:
-            network.connect()
-        except Exception as exc:
-            shutdown_bus(bus)
-            raise TransportError(f"cannot listen on CAN interface {interface!r} channel {channel!r}: {exc}") from exc
-        self.network = network
+        self.loop = process_scheduler()
+        # any failure: TransportError naming interface and channel
+        self.driver = CanDriver.acquire(interface, channel, self.loop, bitrate)
         self._lock = threading.Lock()
-        self._nodes: dict[int, tuple[canopen.RemoteNode, int]] = {}  # node id -> (node, devices using it)
-        self._heartbeats: dict[int, tuple[float, Any, int]] = {}  # master id -> (period, task, devices)
+        self._nodes: dict[int, tuple[SdoEngine, int]] = {}  # node id -> (engine, devices using it)
+        self._heartbeats: dict[int, tuple[float, Any, int]] = {}  # master id -> (period, periodic, devices)
+        self.closed = False
 
     @property
     def name(self) -> str:
         return f"{self.interface}/{self.channel}"
+
+    def call(self, fn: Callable[[float], T], what: str) -> T:
+        """Run ``fn(now)`` in the scheduler's loop and wait for it."""
+        return self.driver.call(fn, what)
 
     def heartbeats(self) -> dict[int, float]:
         """Master node id -> the period of the heartbeat this process sends for it on the bus, s."""
@@ -81,9 +97,9 @@ class CanBus:
                 f"asks for {text(bitrate)}: one bus has one bit rate"
             )
 
-    def join(self, member: Member, make_node: Callable[[], canopen.RemoteNode], who: str) -> canopen.RemoteNode:
-        """Attach a device: its node (made with ``make_node`` unless another device already uses it), its
-        listeners and its master's heartbeat. Nothing changes if this raises."""
+    def join(self, member: Member, who: str) -> SdoEngine:
+        """Attach a device: the SDO engine of its node (made unless another device already uses the node) and its
+        master's heartbeat. Nothing changes if this raises."""
         with self._lock:
             known = self._heartbeats.get(member.master)
             if member.heartbeat > 0 and known is not None and known[0] != member.heartbeat:
@@ -93,24 +109,26 @@ class CanBus:
                     "heartbeat period (give every device on the bus the same heartbeat=)"
                 )
             entry = self._nodes.get(member.node)
-            node = entry[0] if entry else make_node()
+            driver = self.driver
             if entry is None:
-                self.network.add_node(node)
-            self._nodes[member.node] = (node, entry[1] + 1 if entry else 1)
+                engine = SdoEngine(member.node, f"{self.name} node {member.node}")
+                self.call(lambda now: driver.add(engine, _filters(engine)), "add an SDO client")
+            else:
+                engine = entry[0]
+            self._nodes[member.node] = (engine, entry[1] + 1 if entry else 1)
             try:
                 if member.heartbeat > 0:
                     if known is None:
-                        frame = bytes([HEARTBEAT_OPERATIONAL])
-                        task = self.network.send_periodic(0x700 + member.master, frame, member.heartbeat)
+                        frame = CanFrame(HEARTBEAT_BASE + member.master, bytes([HEARTBEAT_OPERATIONAL]))
+                        period = member.heartbeat
+                        task = self.call(lambda now: driver.periodic(frame, period, now), "start the heartbeat")
                         self._heartbeats[member.master] = (member.heartbeat, task, 1)
                     else:
                         self._heartbeats[member.master] = (known[0], known[1], known[2] + 1)
-                for cob, listener in member.listens:
-                    self.network.subscribe(cob, listener)
             except BaseException:
                 self._leave(member)
                 raise
-            return node
+            return engine
 
     def leave(self, member: Member) -> None:
         """Detach what :meth:`join` attached for ``member``."""
@@ -118,9 +136,6 @@ class CanBus:
             self._leave(member)
 
     def _leave(self, member: Member) -> None:
-        for cob, listener in member.listens:
-            if listener in self.network.subscribers.get(cob, ()):
-                self.network.unsubscribe(cob, listener)
         known = self._heartbeats.get(member.master)
         if member.heartbeat > 0 and known is not None:
             period, task, users = known
@@ -128,26 +143,46 @@ class CanBus:
                 self._heartbeats[member.master] = (period, task, users - 1)
             else:
                 del self._heartbeats[member.master]
-                task.stop()
+                self.call(lambda now: task.stop(), "stop the heartbeat")
         entry = self._nodes.get(member.node)
         if entry is not None:
-            node, users = entry
+            engine, users = entry
             if users > 1:
-                self._nodes[member.node] = (node, users - 1)
+                self._nodes[member.node] = (engine, users - 1)
             else:
                 del self._nodes[member.node]
-                del self.network[member.node]
+                driver = self.driver
+                self.call(lambda now: driver.remove(engine, now), "remove an SDO client")
+
+    def send(self, frames: Sequence[CanFrame], what: str) -> None:
+        """Write ``frames`` now, in this order (NMT, RPDO): a failure is a TransportError saying ``what``."""
+        bus = self.driver.bus
+
+        def send(now: float) -> None:
+            for frame in frames:
+                bus.send(can.Message(arbitration_id=frame.can_id, data=frame.data, is_extended_id=False))
+
+        try:
+            self.call(send, what)
+        except can.CanError as exc:
+            raise TransportError(f"{what}: {exc}") from None
+
+    def periodic(self, frame: CanFrame, period: float, what: str) -> Any:
+        """Send ``frame`` every ``period`` s from now on (the driver's periodic output: ``modify``, ``stop``)."""
+        driver = self.driver
+        return self.call(lambda now: driver.periodic(frame, period, now), what)
 
     def close(self) -> None:
         with self._lock:
-            for _, task, _ in self._heartbeats.values():
-                task.stop()
+            tasks = [task for _, task, _ in self._heartbeats.values()]
             self._heartbeats.clear()
             self._nodes.clear()
         try:
-            self.network.disconnect()  # re-raises what stopped the notifier thread, if anything did
-        except Exception as exc:
-            raise TransportError(f"CAN bus {self.name}: closing: {exc}") from exc
+            if tasks and not self.driver.closed:
+                self.call(lambda now: [task.stop() for task in tasks], "stop the heartbeats")
+        finally:
+            self.closed = True
+            self.driver.release()
 
 
 #: every CAN bus a CANopen device of this process is on, by (interface, channel)

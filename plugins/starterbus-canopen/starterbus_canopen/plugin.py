@@ -28,7 +28,7 @@ def _int(value: object) -> bool:
 
 class CanopenPlugin(TransportPlugin):
     name = "canopen"
-    summary = "CANopen master over python-can (canopen library): SDO, TPDO1 status, RPDO1 commands, heartbeat"
+    summary = "CANopen master over python-can: SDO (expedited), TPDO1 status, RPDO1 commands, heartbeat"
     capabilities = frozenset(Capability)
     url_forms = (
         "canopen://INTERFACE/CHANNEL?node=N",

@@ -1,25 +1,28 @@
 """The CANopen master for one device: SDO for parameters and measurements, TPDO1 for the status, RPDO1 for
-commands, a master heartbeat, NMT start on open (built on canopen's RemoteNode).
+commands, a master heartbeat, NMT start on open.
+
+The device's node is an :class:`~starterbus_canopen.sdo.SdoEngine` on the process's CAN driver of its bus
+(:mod:`starterbus_canopen.bus`), run by the process's scheduler: no thread of its own. Every SDO transfer is a
+ticket; the heartbeat and the RPDO1 cycle are periodic outputs of the driver. While the device is open the
+scheduler's own thread runs (``keep_running``): the heartbeat and the cycle go on, and each TPDO1 is stamped when
+it arrives, whether or not a caller waits. A fleet's poll is an :class:`~starterbus_canopen.poll.SdoPoll`.
 
 Status reads use the latest TPDO1 when it is fresh (no older than ``max_age``) and provably later than the last
 command: after a command, the status comes over SDO (answered after the device processed the RPDO, frames being
 in order on the bus) and only TPDOs received after that SDO answer count again. SDO transfers to one node are
-serialised; after an SDO timeout the next transfer waits one timeout so that a late reply is flushed, never
-paired with the next request (the library also sends abort 0x05040000 on timeout).
+serialised by its engine; after an SDO timeout the engine aborts the transfer (0x05040000) and sends the node
+nothing for one timeout, dropping what it answers meanwhile, so a late reply is never paired with the next request.
 """
 
 from __future__ import annotations
 
 import math
-import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Generator, Sequence
 from typing import Any
 
-import can
-import canopen
-
 from starterbus.core import (
+    CanFrame,
     Capability,
     Command,
     ControlWordState,
@@ -27,20 +30,24 @@ from starterbus.core import (
     DeviceUrl,
     NotOpenError,
     PointDef,
+    PollResult,
+    PollTask,
     Profile,
     Reading,
-    RemoteDeviceError,
     Status,
-    TimeoutError,
     Transport,
     TransportError,
     Value,
     check_peer,
     decode_status_word,
+    keep_running,
+    let_go,
 )
 from starterbus_canopen.bus import BUSES, CanBus, Member
-from starterbus_canopen.codes import RPDO1_BASE, TPDO1_BASE, Tpdo1, abort_meaning, encode_rpdo1
-from starterbus_canopen.od import PdoLayout, build_od
+from starterbus_canopen.codes import RPDO1_BASE, Tpdo1, encode_rpdo1
+from starterbus_canopen.od import PdoLayout
+from starterbus_canopen.poll import SdoPoll, Steps, drive
+from starterbus_canopen.sdo import Download, SdoEngine, SdoRequest, Upload
 from starterbus_canopen.settings import PLUGIN_NAME
 from starterbus_canopen.url import CanopenUrl
 
@@ -50,26 +57,6 @@ VIRTUAL_HINT = (
     "across processes, use a bus every process can open, e.g. Linux virtual CAN (ip link add dev vcan0 type vcan; "
     "ip link set up vcan0): starterbus simulate ... --canopen socketcan:vcan0 and canopen://socketcan/vcan0?node=N"
 )
-
-
-class SdoGate:
-    """SDO transfers to one node of one bus, from every transport of this process: one at a time, and after a
-    timeout the next transfer waits one timeout (whichever transport makes it) so that a late reply is dropped."""
-
-    __slots__ = ("lock", "quiet_until")
-
-    def __init__(self) -> None:
-        self.lock = threading.Lock()
-        self.quiet_until = 0.0
-
-
-_gates_guard = threading.Lock()
-_gates: dict[tuple[str, str, int], SdoGate] = {}
-
-
-def sdo_gate(interface: str, channel: str, node: int) -> SdoGate:
-    with _gates_guard:
-        return _gates.setdefault((interface, channel, node), SdoGate())
 
 
 def sdo_download_frame(node: int, index: int, subindex: int, raw: int) -> str:
@@ -85,17 +72,12 @@ class CanopenTransport(Transport):
         super().__init__(url, profile)
         self.options = CanopenUrl.parse(url, profile)
         self.layout = PdoLayout.of(profile)
-        self._od = build_od(profile, self.options.node)
         self._bus: CanBus | None = None
         self._member: Member | None = None
-        self._node: canopen.RemoteNode | None = None
-        self._tasks: list[Any] = []
-        self._rpdo_task: Any = None
+        self._engine: SdoEngine | None = None
+        self._rpdo: Any = None  # the RPDO1 cycle (a periodic output of the bus's driver), once a command was sent
         self._control = ControlWordState()
-        self._gate = sdo_gate(self.options.interface, self.options.channel, self.options.node)
-        self._tpdo: tuple[Tpdo1, float] | None = None
         self._tpdo_valid_after = 0.0
-        self.bad_tpdos = 0
 
     # -- lifecycle -------------------------------------------------------------------------------------------
 
@@ -110,34 +92,34 @@ class CanopenTransport(Transport):
             bus = BUSES.acquire(key, lambda: CanBus(o.interface, o.channel, o.bitrate))
         except TransportError as exc:
             raise TransportError(f"{self.describe()}: {exc}") from exc
-        step = "join the bus (master heartbeat)"
         try:
             bus.check_bitrate(o.bitrate, self.url.text)
-            member = Member(o.node, o.master, o.heartbeat, ((TPDO1_BASE + o.node, self._on_tpdo),))
-            node = bus.join(member, lambda: canopen.RemoteNode(o.node, self._od), self.url.text)
+            member = Member(o.node, o.master, o.heartbeat)
+            engine = bus.join(member, self.url.text)
             try:
-                step = "NMT start"
-                node.nmt.send_command(NMT_START)
+                bus.send([CanFrame(0x000, bytes([NMT_START, o.node]))], f"{self.describe()}: NMT start")
             except BaseException:
                 bus.leave(member)
                 raise
-        except BaseException as exc:
+        except BaseException:
             BUSES.release(key)
-            if isinstance(exc, can.CanError):
-                raise TransportError(f"{self.describe()}: {step}: {exc}") from exc
             raise
-        self._bus, self._member, self._node = bus, member, node
+        keep_running(bus.loop)  # the heartbeat, the RPDO1 cycle and TPDO1 times, whether or not a caller waits
+        self._bus, self._member, self._engine = bus, member, engine
         self._tpdo_valid_after = time.monotonic()
 
     def _close(self) -> None:
-        bus, member, self._bus, self._member, self._node = self._bus, self._member, None, None, None
-        for task in self._tasks:
-            task.stop()
-        self._tasks.clear()
-        self._rpdo_task = None
-        if bus is not None and member is not None:
+        bus, member, rpdo = self._bus, self._member, self._rpdo
+        self._bus, self._member, self._engine, self._rpdo = None, None, None, None
+        if bus is None or member is None:
+            return
+        try:
+            if rpdo is not None:
+                bus.call(lambda now: rpdo.stop(), "stop the RPDO1 cycle")
             bus.leave(member)
+        finally:
             BUSES.release((self.options.interface, self.options.channel))
+            let_go(bus.loop)
 
     @property
     def bus(self) -> CanBus:
@@ -146,10 +128,24 @@ class CanopenTransport(Transport):
             raise NotOpenError(f"{self.describe()}: the transport is not open")
         return self._bus
 
-    def _require(self) -> tuple[canopen.Network, canopen.RemoteNode]:
-        if self._bus is None or self._node is None:
+    @property
+    def engine(self) -> SdoEngine:
+        """The SDO client of the device's node (shared with every device of this process for that node)."""
+        return self._require()[1]
+
+    @property
+    def bad_tpdos(self) -> int:
+        """Malformed TPDO1s of the node dropped so far."""
+        return self.engine.bad_tpdos
+
+    def _require(self) -> tuple[CanBus, SdoEngine]:
+        if self._bus is None or self._engine is None:
             raise NotOpenError(f"{self.describe()}: the transport is not open")
-        return self._bus.network, self._node
+        return self._bus, self._engine
+
+    def _drive(self, steps: Steps[Any]) -> Any:
+        bus, engine = self._require()
+        return drive(bus, engine, steps)
 
     @property
     def capabilities(self) -> frozenset[Capability]:
@@ -163,76 +159,57 @@ class CanopenTransport(Transport):
             raise self.unsupported(what, f"{point.key} has no canopen address in {self.profile.display_name}")
         return int(where[0]), int(where[1])
 
-    def _sdo(self, what: str, call: Any, *args: Any) -> Any:
-        _, node = self._require()
-        gate = self._gate
-        with gate.lock:
-            wait = gate.quiet_until - time.monotonic()
-            if wait > 0:
-                time.sleep(wait)  # let a late reply of a timed-out transfer arrive, then drop it
-            if not node.sdo.responses.empty():
-                node.sdo.responses = type(node.sdo.responses)()
-            node.sdo.RESPONSE_TIMEOUT = self.options.timeout  # the node may be shared with another transport
-            node.sdo.MAX_RETRIES = 1
-            try:
-                return call(*args)
-            except canopen.SdoAbortedError as exc:
-                code = int(exc.code)
-                raise RemoteDeviceError("CANopen SDO", code, abort_meaning(code), detail=what) from None
-            except canopen.SdoCommunicationError as exc:
-                gate.quiet_until = time.monotonic() + self.options.timeout
-                if "No SDO response" in str(exc):
-                    raise TimeoutError(
-                        f"{self.describe()}: {what}: no SDO answer in {self.options.timeout:g} s"
-                    ) from None
-                raise TransportError(f"{self.describe()}: {what}: {exc}") from None
-            except can.CanError as exc:
-                raise TransportError(f"{self.describe()}: {what}: {exc}") from None
-
-    def _upload_u(self, index: int, subindex: int, size: int, what: str) -> int:
-        _, node = self._require()
-        data = self._sdo(f"read {what} at 0x{index:04X}:{subindex:02X}", node.sdo.upload, index, subindex)
+    def _upload_u(self, index: int, subindex: int, size: int, what: str) -> Generator[SdoRequest, bytes, int]:
+        where = f"0x{index:04X}:{subindex:02X}"
+        data = yield Upload(index, subindex, self.options.timeout, f"{self.describe()}: read {what} at {where}")
         if len(data) != size:
-            raise DecodeError(
-                f"{what}: {len(data)} bytes, expected {size}", bytes(data), f"0x{index:04X}:{subindex:02X}"
-            )
+            raise DecodeError(f"{what}: {len(data)} bytes, expected {size}", bytes(data), where)
         return int.from_bytes(data, "little")
 
-    def _read_points(self, points: Sequence[PointDef]) -> list[Reading]:
+    def _points_steps(self, points: Sequence[PointDef]) -> Generator[SdoRequest, bytes, list[Reading]]:
         out = []
         for point in points:
             index, subindex = self._address(point, f"read {point.key}")
-            out.append(Reading(point, self._upload_u(index, subindex, 2, point.key)))
+            out.append(Reading(point, (yield from self._upload_u(index, subindex, 2, point.key))))
         return out
+
+    def _read_points(self, points: Sequence[PointDef]) -> list[Reading]:
+        result: list[Reading] = self._drive(self._points_steps(points))
+        return result
 
     def _write_parameter(self, point: PointDef, raw: int) -> None:
         index, subindex = self._address(point, f"write {point.key}")
-        _, node = self._require()
-        what = f"write {point.key} = {raw} at 0x{index:04X}:{subindex:02X}"
-        self._sdo(what, node.sdo.download, index, subindex, raw.to_bytes(2, "little"))
+        what = f"{self.describe()}: write {point.key} = {raw} at 0x{index:04X}:{subindex:02X}"
+        request = Download(index, subindex, raw.to_bytes(2, "little"), self.options.timeout, what)
 
-    def _identify(self) -> dict[str, object]:
+        def steps() -> Generator[SdoRequest, bytes, None]:
+            yield request
+
+        self._drive(steps())
+
+    def _identify_steps(self) -> Generator[SdoRequest, bytes, dict[str, object]]:
+        device_type = yield from self._upload_u(0x1000, 0, 4, "device type")
+        vendor = yield from self._upload_u(0x1018, 1, 4, "vendor-ID")
+        product = yield from self._upload_u(0x1018, 2, 4, "product code")
+        revision = yield from self._upload_u(0x1018, 3, 4, "revision number")
+        serial = yield from self._upload_u(0x1018, 4, 4, "serial number")
         return {
-            "device_type": f"0x{self._upload_u(0x1000, 0, 4, 'device type'):08X}",
-            "vendor_id": f"0x{self._upload_u(0x1018, 1, 4, 'vendor-ID'):08X}",
-            "product_code": self._upload_u(0x1018, 2, 4, "product code"),
-            "revision": f"0x{self._upload_u(0x1018, 3, 4, 'revision number'):08X}",
-            "serial_number": self._upload_u(0x1018, 4, 4, "serial number"),
+            "device_type": f"0x{device_type:08X}",
+            "vendor_id": f"0x{vendor:08X}",
+            "product_code": product,
+            "revision": f"0x{revision:08X}",
+            "serial_number": serial,
             "node": self.options.node,
         }
 
+    def _identify(self) -> dict[str, object]:
+        result: dict[str, object] = self._drive(self._identify_steps())
+        return result
+
     # -- PDO -------------------------------------------------------------------------------------------------
 
-    def _on_tpdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        try:
-            sample = Tpdo1.decode(bytes(data))
-        except DecodeError:  # a malformed TPDO never yields a value
-            self.bad_tpdos += 1
-            return
-        self._tpdo = (sample, time.monotonic())
-
     def _fresh_tpdo(self) -> Tpdo1 | None:
-        latest = self._tpdo
+        latest = self.engine.tpdo
         if latest is None:
             return None
         sample, at = latest
@@ -240,19 +217,18 @@ class CanopenTransport(Transport):
             return None
         return sample
 
-    def _read_status(self) -> Status:
-        self._require()
+    def _status_steps(self) -> Generator[SdoRequest, bytes, Status]:
         layout = self.layout
         sample = self._fresh_tpdo()
         if sample is not None:
             word, current, source = sample.status_word, sample.current_raw, "canopen TPDO1"
         else:
             index, subindex = self._address(layout.status_word, "read the status")
-            word = self._upload_u(index, subindex, 2, layout.status_word.key)
+            word = yield from self._upload_u(index, subindex, 2, layout.status_word.key)
             current = None
             if layout.current is not None:
                 index, subindex = self._address(layout.current, "read the status")
-                current = self._upload_u(index, subindex, 2, layout.current.key)
+                current = yield from self._upload_u(index, subindex, 2, layout.current.key)
             source = "canopen SDO"
             self._tpdo_valid_after = time.monotonic()
         currents = {}
@@ -266,26 +242,44 @@ class CanopenTransport(Transport):
             source=source,
         )
 
+    def _read_status(self) -> Status:
+        status: Status = self._drive(self._status_steps())
+        return status
+
+    # -- the fleet's poll without blocking -------------------------------------------------------------------
+
+    def _poll_steps(self, points: Sequence[PointDef], status: bool) -> Generator[SdoRequest, bytes, PollResult]:
+        value = (yield from self._status_steps()) if status else None
+        readings = (yield from self._points_steps(points)) if points else []
+        return PollResult(value, readings)
+
+    def _poll(self, points: Sequence[PointDef], status: bool) -> PollResult:
+        result: PollResult = self._drive(self._poll_steps(points, status))
+        return result
+
+    def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
+        bus, engine = self._require()
+        return SdoPoll(bus, engine, self._poll_steps(points, status))
+
+    # -- commands --------------------------------------------------------------------------------------------
+
     def _rpdo_frames(self, command: Command) -> list[int]:
         state = ControlWordState(self._control.bus_control, self._control.run)
         return state.apply(command)
 
     def _send_command(self, command: Command) -> None:
-        network, _ = self._require()
+        bus, _ = self._require()
         words = self._control.apply(command)
         cob = RPDO1_BASE + self.options.node
         self._tpdo_valid_after = math.inf
-        try:
-            for word in words:
-                network.send_message(cob, encode_rpdo1(word))
-            data = encode_rpdo1(words[-1])
-            if self._rpdo_task is None:
-                self._rpdo_task = network.send_periodic(cob, data, self.options.cycle)
-                self._tasks.append(self._rpdo_task)
-            else:
-                self._rpdo_task.update(data)
-        except can.CanError as exc:
-            raise TransportError(f"{self.describe()}: send {command.value}: {exc}") from None
+        what = f"{self.describe()}: send {command.value}"
+        bus.send([CanFrame(cob, encode_rpdo1(word)) for word in words], what)
+        frame = CanFrame(cob, encode_rpdo1(words[-1]))
+        rpdo = self._rpdo
+        if rpdo is None:
+            self._rpdo = bus.periodic(frame, self.options.cycle, f"{what}: start the RPDO1 cycle")
+        else:
+            bus.call(lambda now: rpdo.modify(frame), f"{what}: the RPDO1 cycle")
 
     # -- dry runs --------------------------------------------------------------------------------------------
 

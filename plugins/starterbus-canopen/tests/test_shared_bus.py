@@ -1,4 +1,4 @@
-"""Devices on one CAN bus share one canopen Network, one master heartbeat and one RemoteNode per node id; what
+"""Devices on one CAN bus share one CAN driver, one master heartbeat and one SDO engine per node id; what
 must be equal on a bus (bit rate, a master's heartbeat period) is checked, and a refused device leaves nothing."""
 
 from __future__ import annotations
@@ -6,7 +6,6 @@ from __future__ import annotations
 from collections.abc import Iterator
 
 import can
-import canopen
 import pytest
 from starterbus_canopen.bus import BUSES, CanBus
 from starterbus_canopen.simulator import CanopenSimulator
@@ -66,7 +65,7 @@ def test_two_devices_on_one_bus_share_its_network_and_their_master_heartbeat(
         first.close()
         second.close()
     assert key not in BUSES.leases()
-    assert bus.heartbeats() == {} and bus.network.bus is None  # the last device closed the bus
+    assert bus.heartbeats() == {} and bus.closed and bus.driver.closed  # the last device closed the bus
 
 
 def test_one_node_opened_twice_keeps_answering_the_one_still_open(channel: str) -> None:
@@ -128,14 +127,16 @@ def test_an_interface_that_cannot_be_opened_is_a_transport_error_and_leaves_noth
 def test_a_failing_nmt_start_is_a_transport_error_and_leaves_nothing(
     channel: str, two_nodes: CanopenSimulator, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    send = canopen.Network.send_message
+    send = can.interfaces.virtual.VirtualBus.send
 
-    def bus_off_for_nmt(network: canopen.Network, can_id: int, data: bytes, remote: bool = False) -> None:
-        if can_id == 0x000:
+    def bus_off_for_nmt(
+        bus: can.interfaces.virtual.VirtualBus, message: can.Message, timeout: float | None = None
+    ) -> None:
+        if message.arbitration_id == 0x000:
             raise can.CanError("scripted: bus off")
-        send(network, can_id, data, remote)
+        send(bus, message, timeout)
 
-    monkeypatch.setattr(canopen.Network, "send_message", bus_off_for_nmt)
+    monkeypatch.setattr(can.interfaces.virtual.VirtualBus, "send", bus_off_for_nmt)
     with pytest.raises(TransportError, match=r"heartbeat=50 \(node 5\): NMT start: scripted: bus off"):
         open_device(f"canopen://virtual/{channel}?node=5&heartbeat=50").open()
     assert ("virtual", channel) not in BUSES.leases()
