@@ -23,7 +23,7 @@ from starterbus.core import (
 from starterbus.transports.profibus_pkw.codec.codes import PROTOCOL, Direction, Part, Ppo
 from starterbus.transports.profibus_pkw.decoder import annotate_hex
 from starterbus.transports.profibus_pkw.settings import ProfibusSettings, profibus_settings
-from starterbus.transports.profibus_pkw.transport import ProfibusPkwTransport
+from starterbus.transports.profibus_pkw.transport import ProfibusPkwTransport, ProfibusSimTransport
 from starterbus.transports.profibus_pkw.url import LinkSettings
 
 
@@ -41,7 +41,9 @@ class ProfibusPkwPlugin(TransportPlugin):
     )
 
     def open(self, url: DeviceUrl, profile: Profile) -> Transport:
-        return ProfibusPkwTransport(url, profile, LinkSettings.from_url(url, profile))
+        settings = LinkSettings.from_url(url, profile)
+        kind = ProfibusSimTransport if settings.variant == "sim" else ProfibusPkwTransport
+        return kind(url, profile, settings)
 
     def parse_settings(self, settings: Mapping[str, Any]) -> ProfibusSettings:
         """``[transports.profibus-pkw]``: ppo, stations, errors (parsed by the loader), refusals."""

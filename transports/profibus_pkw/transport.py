@@ -6,6 +6,7 @@ Its URL (``profibus-pkw+sim://`` or ``profibus-pkw+gateway://``) and parameters:
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import cast
 
 from starterbus.core import (
     CW_START,
@@ -17,6 +18,8 @@ from starterbus.core import (
     DeviceUrl,
     Kind,
     PointDef,
+    PollResult,
+    PollTask,
     Profile,
     Reading,
     SimulatedStarter,
@@ -28,7 +31,9 @@ from starterbus.transports.profibus_pkw.codec.codes import PROTOCOL, Ppo, TaskCo
 from starterbus.transports.profibus_pkw.codec.telegram import NO_TASK, PkwRequest, hex_text, output_words, pkw_request
 from starterbus.transports.profibus_pkw.driver.channels import Channel, GatewayChannel, SimChannel, get_slave
 from starterbus.transports.profibus_pkw.driver.link import CyclicLink
+from starterbus.transports.profibus_pkw.driver.poll import StationPoll
 from starterbus.transports.profibus_pkw.master.handshake import PkwEngine
+from starterbus.transports.profibus_pkw.master.station import FreshInputs, PkwTask, StationRequest, StationTicket
 from starterbus.transports.profibus_pkw.settings import profibus_settings
 from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
 from starterbus.transports.profibus_pkw.url import LinkSettings
@@ -167,7 +172,9 @@ class ProfibusPkwTransport(Transport):
             )
 
     def _read_status(self) -> Status:
-        words = self._link().inputs(self.settings.limits.timeout)
+        return self._status(self._link().inputs(self.settings.limits.timeout))
+
+    def _status(self, words: tuple[int, ...]) -> Status:
         zsw, act = (words[2], words[3]) if self.ppo is Ppo.PPO1 else (words[0], words[1])
         return status_with_currents(self.profile, zsw, [act], source=PROTOCOL, scale=ACT_SCALE, extra_raw={"act": act})
 
@@ -192,3 +199,29 @@ class ProfibusPkwTransport(Transport):
         """The output telegrams of a command, one per control word (each held for ``hold`` exchanges)."""
         state = ControlWordState(self.control.bus_control, self.control.run)
         return [self._telegram_hex(NO_TASK, word) for word in state.apply(command)]
+
+
+class ProfibusSimTransport(ProfibusPkwTransport):
+    """``profibus-pkw+sim://``: the station's link runs on the process's scheduler, so a fleet polls it as a
+    :class:`PollTask` without a thread for the bus. (A gateway's channel blocks in pymodbus' client until it runs
+    on the Modbus TCP engine: its class offers no poll tasks, and the fleet gives its bus a thread.)"""
+
+    def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
+        """The poll as a task on the process's scheduler (the station's link is on it: a simulated slave)."""
+        link = self._link()
+        if not link.multiplexed:
+            return None
+        limits = self.settings.limits
+        requests: list[StationRequest] = [FreshInputs(limits.timeout)] if status else []
+        requests += [PkwTask(self.request_for(p), f"read {p.key} ({p.address})") for p in points]
+
+        def finish(tickets: list[StationTicket]) -> PollResult:
+            words = cast("tuple[int, ...]", tickets[0].result) if status else None
+            readings = []
+            for point, ticket in zip(points, tickets[1:] if status else tickets, strict=True):
+                assert ticket.job is not None and ticket.job.response is not None
+                readings.append(Reading(point, ticket.job.response.pwe))
+            return PollResult(self._status(words) if words is not None else None, readings)
+
+        bound = (limits.timeout + 1.0 + 4 * max(self.settings.cycle, 0.001)) * max(1, len(requests))
+        return StationPoll(link, requests, finish, bound)

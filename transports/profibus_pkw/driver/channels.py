@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import threading
 from abc import ABC, abstractmethod
-from collections.abc import Sequence
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -62,6 +62,13 @@ class Channel(ABC):
     """One DP slave's data exchange. Called by one cycle driver at a time (the driver serialises)."""
 
     ppo: Ppo
+    #: the exchange is an in-process call that never blocks (a simulated slave): the link runs on the process's
+    #: scheduler; otherwise on a loop of its own per :meth:`loop_key`, so a blocking call delays no other medium
+    in_process: bool = False
+
+    def loop_key(self) -> Hashable:
+        """Channels with the same key share one loop (their exchanges take turns): by default one per type."""
+        return (type(self).__module__, type(self).__qualname__)
 
     @abstractmethod
     def exchange(self, out_words: Sequence[int | None]) -> tuple[int, ...]:
@@ -136,6 +143,8 @@ def attached_slaves() -> list[str]:
 
 class SimChannel(Channel):
     """Exchange with an in-process :class:`SimulatedDpSlave` (no I/O; each call is one DP cycle)."""
+
+    in_process = True
 
     def __init__(self, slave: SimulatedDpSlave) -> None:
         self.slave = slave
@@ -261,6 +270,9 @@ class GatewayChannel(Channel):
             return True
         n = self.ppo.words
         return self.out + n <= self.inp or self.inp + n <= self.out
+
+    def loop_key(self) -> Hashable:
+        return ("gateway", self.host, self.port)  # the stations of one gateway take turns on its connection
 
     def exchange(self, out_words: Sequence[int | None]) -> tuple[int, ...]:
         start = 0

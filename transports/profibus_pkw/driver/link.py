@@ -1,14 +1,19 @@
-"""The cycle driver of one station: every exchange carries the control word (PZD) and the PKW engine's words.
-
-PZD and PKW are independent: the control word in force goes out on EVERY exchange whatever the PKW engine is
-waiting for, so a start or stop is never delayed by a pending or stuck parameter task.
+"""The cycle driver of one station: its :class:`StationEngine` on a :class:`LocalDriver` of a scheduler (no thread of
+its own, no lock: docs/engine.md, step 6). Every exchange carries the control word (PZD) and the PKW engine's
+words; PZD and PKW are independent, so a start or stop is never delayed by a pending or stuck parameter task.
 
 Two ways to run the cycles:
 
-- ``cycle > 0``: a background thread exchanges every ``cycle`` seconds (like a DP master); callers wait for the
-  exchanges they need.
-- ``cycle == 0``: no thread; the calling thread runs exchanges back to back until what it waits for is there
-  (on demand; useful for in-process simulation and benchmarks).
+- ``cycle > 0``: an exchange every ``cycle`` seconds, as deadlines of the loop: continuously while the loop's own
+  thread runs (a fleet or a service started it), else while a caller waits on the station (leader mode: a CLI
+  command or a script drives the loop in its own thread for as long as it waits);
+- ``cycle == 0``: exchanges back to back while a caller waits for something (on demand), none otherwise.
+
+Which loop: a channel that exchanges in this process without blocking (:class:`SimChannel`) runs on the process's
+scheduler, so a fleet multiplexes it with every other medium. A channel that may block in its call (a gateway
+reached with pymodbus' sync client, a third-party card) runs on a loop of its own per gateway or channel type
+(:func:`loop_for`), so its round trips never delay another medium's I/O; a link with a clock of its own (a test's
+manual clock) gets a loop on that clock.
 
 A command's control words are each held for ``hold`` exchanges and at least ``pulse`` seconds (so a reset pulse
 reaches a slave behind a gateway whose own DP cycle is slower than ours); the last word stays in force.
@@ -18,24 +23,57 @@ from __future__ import annotations
 
 import threading
 import time
-from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
+from typing import cast
 
-from starterbus.core import CW_RESET, SW_FAULT, SW_RUNNING, SW_STARTING, EncodeError, StarterbusError, TimeoutError
-from starterbus.transports.profibus_pkw.codec.codes import PROTOCOL, Ppo
-from starterbus.transports.profibus_pkw.codec.telegram import (
-    NO_TASK,
-    PkwRequest,
-    PkwResponse,
-    Ppo1In,
-    PzdIn,
-    from_words,
+from starterbus.core import (
+    SW_FAULT,
+    SW_RUNNING,
+    SW_STARTING,
+    LocalDriver,
+    Scheduler,
+    StarterbusError,
+    TransportError,
+    process_scheduler,
 )
+from starterbus.transports.profibus_pkw.codec.codes import Ppo
+from starterbus.transports.profibus_pkw.codec.telegram import NO_TASK, PkwRequest
 from starterbus.transports.profibus_pkw.driver.channels import Channel, channel_error
 from starterbus.transports.profibus_pkw.master.handshake import PkwEngine, PkwJob
+from starterbus.transports.profibus_pkw.master.station import (
+    ControlWords,
+    DpIn,
+    DpOut,
+    FreshInputs,
+    PkwTask,
+    StationEngine,
+    StationRequest,
+    StationTicket,
+    output_words_of,
+)
 
 Clock = Callable[[], float]
+
+#: the outer bound of a wait beyond the requests' own time limits: only a stalled loop gets there
+STALL = 30.0
+
+_loops: dict[Hashable, Scheduler] = {}
+_loops_lock = threading.Lock()
+
+
+def loop_for(channel: Channel, clock: Clock) -> Scheduler:
+    """The loop a link on ``channel`` runs on (see the module's text)."""
+    if clock is time.monotonic and channel.in_process:
+        return process_scheduler()
+    if clock is not time.monotonic:
+        return Scheduler(clock)  # a test's own clock: a loop of its own
+    key = channel.loop_key()
+    with _loops_lock:
+        loop = _loops.get(key)
+        if loop is None:
+            loop = _loops[key] = Scheduler()
+    return loop
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,7 +84,7 @@ class LinkStats:
 
 
 class CyclicLink:
-    """Drives one DP slave through one :class:`Channel`. Thread-safe."""
+    """Drives one DP slave through one :class:`Channel`. Thread-safe (only the loop's leader calls the engine)."""
 
     def __init__(
         self,
@@ -69,18 +107,46 @@ class CyclicLink:
         self.pulse = pulse
         self.clock = clock
         self.name = name
-        self._cond = threading.Condition(threading.RLock())
-        self._control: int | None = 0
-        self._plan: deque[list[float]] = deque()  # [word, exchanges left, not before (time)]
-        self._attempts = 0
-        self._exchanges = 0
-        self._failures = 0
-        self._last_in: tuple[int, ...] | None = None
-        self._last_error: StarterbusError | None = None
-        self._last_ok = True
-        self._thread: threading.Thread | None = None
-        self._stop = threading.Event()
+        where = channel.describe()
+
+        def make_station(pkw: PkwEngine | None = None) -> StationEngine:
+            fresh = pkw or PkwEngine(engine.errors, engine.limits)  # after a crash: nothing of the old state
+            return StationEngine(self.ppo, fresh, cycle=cycle, hold=hold, pulse=pulse, where=where)
+
+        first = [make_station(engine)]
+        self._loop = loop_for(channel, clock)
+        self._driver: LocalDriver[StationEngine] = LocalDriver(
+            name or where,
+            lambda: first.pop() if first else make_station(),
+            self._exchange,
+            clock=self._loop.clock,
+            error=channel_error,
+        )
         self._opened = False
+        self._added = False
+
+    def _exchange(self, unit: DpOut) -> DpIn:
+        return unit[0], self.channel.exchange(unit[1])
+
+    @property
+    def loop(self) -> Scheduler:
+        """The loop the station runs on."""
+        return self._loop
+
+    @property
+    def driver(self) -> LocalDriver[StationEngine]:
+        """The station's driver on that loop."""
+        return self._driver
+
+    @property
+    def multiplexed(self) -> bool:
+        """On the process's scheduler (an in-process channel): a fleet can poll it without a thread of its own."""
+        return self._loop is process_scheduler()
+
+    @property
+    def station(self) -> StationEngine:
+        """The station's engine (a fresh one after a defect crashed the old)."""
+        return self._driver.engine
 
     # -- lifecycle ------------------------------------------------------------------------------------------
 
@@ -96,25 +162,21 @@ class CyclicLink:
             snap = self.channel.snapshot()
         except Exception as exc:
             raise channel_error(exc) from exc
-        with self._cond:
-            self._last_in = snap.inputs
-            if snap.outputs is not None:
-                word = snap.outputs[2] if self.ppo is Ppo.PPO1 else snap.outputs[0]
-                self._control = word & ~CW_RESET & 0xFFFF
-            else:
-                self._control = None
-            self._opened = True
-        if self.cycle > 0:
-            self._stop.clear()
-            self._thread = threading.Thread(target=self._run, name=f"{PROTOCOL} cycle {self.name}", daemon=True)
-            self._thread.start()
-        return self._control
+        loop, driver = self._loop, self._driver
+
+        def add(now: float) -> int | None:
+            word = driver.engine.adopt(snap.outputs, snap.inputs)
+            loop.add(driver)
+            return word
+
+        word = loop.wait(loop.call(add), STALL, f"{self.name}: open")
+        self._opened = self._added = True
+        return word
 
     @property
     def last_inputs(self) -> tuple[int, ...] | None:
         """The input words of the last exchange (or of the snapshot taken on open)."""
-        with self._cond:
-            return self._last_in
+        return self.station.last_in
 
     def motor_running(self) -> bool:
         """From the last status word: starting or running, and no fault."""
@@ -126,14 +188,20 @@ class CyclicLink:
 
     def close(self) -> None:
         """Stop cycling; leave "no task" in the output area (best effort) and release the channel."""
-        thread, self._thread = self._thread, None
-        if thread is not None:
-            self._stop.set()
-            thread.join(timeout=max(1.0, 5 * self.cycle))
+        loop, driver = self._loop, self._driver
         try:
-            with self._cond:
-                if self._opened and self._last_ok and self.ppo is Ppo.PPO1:
-                    self.channel.exchange(_outputs(self.ppo, NO_TASK, self._control))
+            if self._added:
+                self._added = False
+
+                def remove(now: float) -> None:
+                    loop.remove(driver)
+                    driver.engine.close(TransportError(f"{self.name or self.channel.describe()}: closed"), now)
+                    driver.complete(now)
+
+                loop.wait(loop.call(remove), STALL, f"{self.name}: close")
+            station = driver.engine
+            if self._opened and station.last_ok and self.ppo is Ppo.PPO1:
+                self.channel.exchange(output_words_of(self.ppo, NO_TASK, station.control))
         except Exception:
             pass
         finally:
@@ -142,84 +210,30 @@ class CyclicLink:
 
     @property
     def running(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
+        """Cycling (``cycle > 0``) between open and close."""
+        return self._added and self.cycle > 0
 
     # -- one exchange ---------------------------------------------------------------------------------------
 
-    def _run(self) -> None:
-        next_at = self.clock()
-        while not self._stop.is_set():
-            self.run_cycle()
-            next_at += self.cycle
-            delay = next_at - self.clock()
-            if delay < 0:  # overrun: do not try to catch up
-                next_at = self.clock()
-                delay = 0.0
-            self._stop.wait(delay)
+    def _run(self, request: StationRequest, bound: float, what: str) -> StationTicket:
+        if not self._added:
+            raise TransportError(f"{self.name or self.channel.describe()}: the link is not open")
+        (ticket,) = self._loop.run(self._driver, [request], bound + STALL, what)
+        return cast(StationTicket, ticket)
 
     def run_cycle(self) -> None:
-        """One exchange: current control word + the PKW engine's words out, inputs to the engine."""
-        with self._cond:
-            now = self.clock()
-            pkw = self.engine.output(now) if self.ppo is Ppo.PPO1 else NO_TASK
-            stw = int(self._plan[0][0]) if self._plan else self._control
-            self._attempts += 1
-            try:
-                words = self.channel.exchange(_outputs(self.ppo, pkw, stw))
-                if self.ppo is Ppo.PPO1:  # count and range
-                    from_words(Ppo1In, words)
-                else:
-                    from_words(PzdIn, words)
-            except Exception as exc:
-                error = channel_error(exc)
-                self._failures += 1
-                self._last_error = error
-                self._last_ok = False
-                self.engine.fail(error, self.clock())
-                self._cond.notify_all()
-                return
-            now = self.clock()
-            self._exchanges += 1
-            self._last_in = words
-            self._last_ok = True
-            if self.ppo is Ppo.PPO1:
-                self.engine.receive(PkwResponse(words[0], words[1]), now)
-            if self._plan:
-                step = self._plan[0]
-                step[1] -= 1
-                if step[1] <= 0 and now >= step[2]:
-                    self._plan.popleft()
-                    if self._plan:
-                        self._plan[0][2] = now + self.pulse
-            self._cond.notify_all()
-
-    def _wait(self, done: Callable[[], bool], timeout: float) -> bool:
-        """Wait until ``done()`` (evaluated under the lock); on demand mode runs the exchanges itself."""
-        deadline = self.clock() + timeout
-        if self.cycle > 0 and self.running:
-            with self._cond:
-                while not done():
-                    left = deadline - self.clock()
-                    if left <= 0:
-                        return False
-                    self._cond.wait(min(left, max(self.cycle, 0.001) * 4))
-                return True
-        while True:
-            with self._cond:
-                if done():
-                    return True
-                if self.clock() > deadline:
-                    return False
-                self.run_cycle()
-                if self.cycle > 0:  # a closed link driven by hand still respects its cycle time
-                    time.sleep(self.cycle)
+        """One exchange (the next cycle's, with ``cycle > 0``); a channel failure is recorded, not raised."""
+        try:
+            self._run(FreshInputs(STALL), STALL, f"{self.name}: one exchange")
+        except StarterbusError:
+            pass
 
     # -- PZD -------------------------------------------------------------------------------------------------
 
     @property
     def control(self) -> int | None:
         """The control word this link puts in the output area; None while passive (see :meth:`open`)."""
-        return self._control
+        return self.station.control
 
     def send_control(self, words: Sequence[int], timeout: float = 2.0) -> None:
         """Send each word for ``hold`` exchanges (and ``pulse`` seconds); the last one stays in force."""
@@ -228,32 +242,13 @@ class CyclicLink:
         for word in words:
             if not 0 <= word <= 0xFFFF:
                 raise ValueError(f"control word {word!r} is not 16 bits")
-        with self._cond:
-            now = self.clock()
-            self._plan.clear()  # a command still being sent is superseded (its caller returns)
-            self._plan = deque([[float(w), float(self.hold), now + self.pulse] for w in words])
-            self._control = words[-1]
-            plan = self._plan
         budget = timeout + len(words) * (self.hold * self.cycle + self.pulse)
-        if not self._wait(lambda: not plan, budget):
-            with self._cond:
-                error = self._last_error
-            raise TimeoutError(
-                f"{PROTOCOL}: control word(s) {', '.join(f'0x{w:04X}' for w in words)} not exchanged within "
-                f"{budget:.2f} s" + (f" (last error: {error})" if error else "")
-            )
+        self._run(ControlWords(tuple(words), timeout), budget, f"{self.name}: control words").outcome()
 
     def inputs(self, timeout: float = 2.0) -> tuple[int, ...]:
         """Input words from an exchange that started after this call (fresh status)."""
-        with self._cond:
-            target = self._attempts + 1
-        if not self._wait(lambda: self._attempts >= target, timeout):
-            raise TimeoutError(f"{PROTOCOL}: no DP exchange within {timeout:.2f} s ({self.channel.describe()})")
-        with self._cond:
-            if not self._last_ok and self._last_error is not None:
-                raise self._last_error
-            assert self._last_in is not None
-            return self._last_in
+        ticket = self._run(FreshInputs(timeout), timeout, f"{self.name}: inputs")
+        return cast("tuple[int, ...]", ticket.outcome())
 
     # -- PKW -------------------------------------------------------------------------------------------------
 
@@ -261,31 +256,17 @@ class CyclicLink:
         """Run one PKW task to its end; returns the finished job or raises its error."""
         if not self.ppo.has_pkw:
             raise ValueError("PPO3 has no PKW area")
-        with self._cond:
-            job = self.engine.submit(request, what)
-        limits = self.engine.limits
-        budget = limits.timeout + max(self.cycle, 0.001) * 4 + 1.0
-        if not self._wait(lambda: job.done, budget):
-            with self._cond:
-                if not job.done:  # no exchange came back in time to apply the limits: the channel stalled
-                    self.engine.cancel(
-                        job,
-                        TimeoutError(f"{PROTOCOL}: {job.describe()}: no DP exchange within {budget:.2f} s"),
-                        self.clock(),
-                    )
+        budget = self.engine.limits.timeout + max(self.cycle, 0.001) * 4 + 1.0
+        ticket = self._run(PkwTask(request, what), budget, f"{self.name}: {what or 'PKW task'}")
+        job = ticket.job
+        assert job is not None
         if job.error is not None:
             raise job.error
+        if ticket.error is not None:  # cancelled or failed around the job (a closed link)
+            raise ticket.error
         return job
 
     def stats(self) -> LinkStats:
-        with self._cond:
-            return LinkStats(self._exchanges, self._failures, str(self._last_error) if self._last_error else None)
-
-
-def _outputs(ppo: Ppo, pkw: PkwRequest, stw: int | None) -> tuple[int | None, ...]:
-    """The output words of one exchange; None = leave that word in the output area as it is (passive PZD)."""
-    if (pkw.ind or pkw.pwe) and ppo is not Ppo.PPO1:
-        raise EncodeError("PPO3 has no PKW area: parameter tasks need PPO1", field="ppo")
-    if ppo is Ppo.PPO1:
-        return (pkw.ind, pkw.pwe, stw, None if stw is None else 0)
-    return (stw, None if stw is None else 0)
+        station = self.station
+        error = station.last_error
+        return LinkStats(station.exchanges, station.failures, str(error) if error else None)

@@ -1,0 +1,383 @@
+"""One DP station as a sans-IO engine (docs/engine.md, step 6): the cycle driver's rules without its thread or lock.
+
+A unit is one DP data exchange: :meth:`StationEngine.take_output` gives ``(n, output words)``, the control word
+in force (or the step of a command's plan) and the PKW engine's words; the peer answers ``(n, input words)``
+(:meth:`~StationEngine.receive`) or fails (:meth:`~StationEngine.refused`). An answer to any exchange but the one
+outstanding is stray and counted, never fed to the PKW engine (its freshness proofs count observations).
+
+PZD and PKW are independent: the control word in force goes out on EVERY exchange whatever the PKW engine is
+waiting for, so a start or stop is never delayed by a pending or stuck parameter task.
+
+Requests, each a ticket:
+
+- :class:`PkwTask`: one PKW task; the ticket holds its :class:`PkwJob` (``job``), DONE with the job's response,
+  FAILED with the job's error;
+- :class:`ControlWords`: each word held for ``hold`` exchanges and at least ``pulse`` seconds, the last one then
+  in force; done when the plan is empty (a newer command supersedes it: done too, its words are in force);
+- :class:`FreshInputs`: the input words of the next exchange (one that starts after the request).
+
+``cycle > 0``: an exchange every ``cycle`` seconds whatever is asked (the deadline is the next cycle); ``cycle ==
+0``: exchanges back to back while a ticket waits, none otherwise. Each request has a time limit of its own (rule
+6 of docs/engine.md); no clock is read here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import cast
+
+from starterbus.core import (
+    CW_RESET,
+    EncodeError,
+    StarterbusError,
+    Ticket,
+    TicketState,
+    TimeoutError,
+    TransportError,
+)
+from starterbus.transports.profibus_pkw.codec.codes import PROTOCOL, Ppo
+from starterbus.transports.profibus_pkw.codec.telegram import (
+    NO_TASK,
+    PkwRequest,
+    PkwResponse,
+    Ppo1In,
+    PzdIn,
+    from_words,
+)
+from starterbus.transports.profibus_pkw.master.handshake import PkwEngine, PkwJob
+
+#: a deadline that never comes
+FOREVER = math.inf
+
+__all__ = [
+    "ControlWords",
+    "DpIn",
+    "DpOut",
+    "FreshInputs",
+    "PkwTask",
+    "StationEngine",
+    "StationTicket",
+    "output_words_of",
+]
+
+#: one exchange out: its number and the output words (None: leave that word as it is, passive PZD)
+DpOut = tuple[int, tuple[int | None, ...]]
+#: one exchange in: the number of the exchange it answers and the input words
+DpIn = tuple[int, tuple[int, ...]]
+
+
+@dataclass(frozen=True, slots=True)
+class PkwTask:
+    request: PkwRequest
+    what: str = ""
+
+
+@dataclass(frozen=True, slots=True)
+class ControlWords:
+    words: tuple[int, ...]
+    timeout: float = 2.0
+
+
+@dataclass(frozen=True, slots=True)
+class FreshInputs:
+    timeout: float = 2.0
+
+
+StationRequest = PkwTask | ControlWords | FreshInputs
+
+
+@dataclass(eq=False, slots=True)
+class StationTicket(Ticket[StationRequest, object]):
+    """A station's ticket: ``job`` for a PKW task; ``give_up``: when it fails if nothing ended it before;
+    ``after``: the exchanges started before it (fresh inputs come from a later one)."""
+
+    job: PkwJob | None = None
+    give_up: float = FOREVER
+    after: int = 0
+
+
+class StationEngine:
+    """The engine of one DP station (one caller at a time: the scheduler's leader). ``control``: the control word
+    in force, None while passive (the output word left as it is until the first command)."""
+
+    def __init__(
+        self,
+        ppo: Ppo,
+        pkw: PkwEngine,
+        *,
+        cycle: float = 0.0,
+        hold: int = 3,
+        pulse: float = 0.0,
+        where: str = "",
+        reply_within: float = 1.0,
+    ) -> None:
+        if cycle < 0 or hold < 1 or pulse < 0:
+            raise ValueError("cycle and pulse must be >= 0 and hold >= 1")
+        self.ppo, self.pkw, self.cycle, self.hold, self.pulse = ppo, pkw, cycle, hold, pulse
+        self.where = where  # the channel, in messages
+        self.reply_within = reply_within  # an exchange not answered by then failed (only a peer that drops one)
+        self.control: int | None = 0
+        self._plan: deque[list[float]] = deque()  # [word, exchanges left, not before (time)]
+        self._plan_ticket: StationTicket | None = None
+        self._plan_sent = False
+        self._before_plan: int | None = 0
+        self.attempts = 0  # exchanges started
+        self.exchanges = 0  # answered
+        self.failures = 0
+        self.stray = 0  # answers to no outstanding exchange (dropped)
+        self.last_in: tuple[int, ...] | None = None
+        self.last_error: StarterbusError | None = None
+        self.last_ok = True
+        self._out: int = 0  # the exchange outstanding (0: none)
+        self._out_at = 0.0
+        self._next_at = -math.inf  # cycle > 0: the next exchange
+        self._ready_at = 0.0  # cycle == 0: due since
+        self._waiting: list[StationTicket] = []
+        self._done: list[StationTicket] = []
+
+    # -- what is in force -----------------------------------------------------------------------------------
+
+    def adopt(self, outputs: Sequence[int] | None, inputs: tuple[int, ...]) -> int | None:
+        """What a channel showed on open (without writing): its control word is kept in force (the reset bit
+        dropped); unknown outputs leave the engine passive on PZD. Returns the word in force."""
+        self.last_in = inputs
+        if outputs is not None:
+            word = outputs[2] if self.ppo is Ppo.PPO1 else outputs[0]
+            self.control = word & ~CW_RESET & 0xFFFF
+        else:
+            self.control = None
+        self._before_plan = self.control
+        return self.control
+
+    # -- the engine verbs -----------------------------------------------------------------------------------
+
+    @property
+    def deadline(self) -> float:
+        due = min((t.give_up for t in self._waiting), default=FOREVER)
+        if self._out:
+            return min(due, self._out_at + self.reply_within)
+        if self.cycle > 0:
+            return min(due, self._next_at)
+        return self._ready_at if self._waiting else due
+
+    def submit(self, request: StationRequest, now: float) -> StationTicket:
+        ticket = StationTicket(request)
+        if isinstance(request, PkwTask):
+            if not self.ppo.has_pkw:
+                ticket.failed(EncodeError("PPO3 has no PKW area: parameter tasks need PPO1", field="ppo"), now)
+                self._done.append(ticket)
+                return ticket
+            ticket.job = self.pkw.submit(request.request, request.what)
+            ticket.give_up = now + self._stall_budget()
+        elif isinstance(request, ControlWords):
+            words = request.words
+            bad = [w for w in words if not 0 <= w <= 0xFFFF]
+            if bad or not words:
+                if bad:
+                    ticket.failed(EncodeError(f"control word {bad[0]!r} is not 16 bits", field="STW"), now)
+                else:
+                    ticket.done(None, now)
+                self._done.append(ticket)
+                return ticket
+            old = self._plan_ticket
+            if old is not None and not old.ended:  # superseded: its caller returns, its last word is replaced
+                self._end(old, now)
+            self._before_plan = self.control
+            self._plan = deque([[float(w), float(self.hold), now + self.pulse] for w in words])
+            self._plan_ticket, self._plan_sent = ticket, False
+            self.control = words[-1]
+            ticket.give_up = now + request.timeout + len(words) * (self.hold * self.cycle + self.pulse)
+        else:
+            ticket.after = self.attempts
+            ticket.give_up = now + request.timeout
+        if not self._waiting:
+            self._ready_at = now
+        self._waiting.append(ticket)
+        return ticket
+
+    def cancel(self, ticket: Ticket[StationRequest, object], now: float) -> None:
+        assert isinstance(ticket, StationTicket), ticket
+        if ticket.ended:
+            return
+        if ticket.job is not None and not ticket.job.done:
+            self.pkw.cancel(ticket.job, TransportError(f"{PROTOCOL}: {ticket.job.describe()}: cancelled"), now)
+        if ticket is self._plan_ticket:
+            if not self._plan_sent:  # nothing of it went out: the word before it stays in force
+                self._plan.clear()
+                self.control = self._before_plan
+            self._plan_ticket = None  # once sent, the plan runs to its end (a reset bit is never left in force)
+        ticket.cancelled(now)
+        self._forget(ticket)
+
+    def take_output(self, now: float) -> Sequence[DpOut]:
+        if self._out:
+            return ()
+        if self.cycle > 0:
+            if now < self._next_at:
+                return ()
+        elif not self._waiting:
+            return ()
+        self.attempts = n = self.attempts + 1
+        pkw = self.pkw.output(now) if self.ppo is Ppo.PPO1 else NO_TASK
+        if self._plan:
+            stw: int | None = int(self._plan[0][0])
+            self._plan_sent = True
+        else:
+            stw = self.control
+        if self._next_at == -math.inf or now - self._next_at > self.cycle:
+            self._next_at = now  # the first exchange, or one after a pause (nobody ran the loop): a new start
+        self._out, self._out_at = n, now
+        for ticket in self._waiting:
+            if ticket.state is TicketState.QUEUED and (ticket.job is None or ticket.job.started is not None):
+                ticket.sent(now)
+        return ((n, output_words_of(self.ppo, pkw, stw)),)
+
+    def receive(self, data: DpOut | None, now: float) -> None:
+        """``data``: the :data:`DpIn` of an exchange (typed as the unit out: an engine has one unit type)."""
+        if data is None:
+            return
+        n, got = data
+        words = cast("tuple[int, ...]", got)  # checked below
+        if n != self._out or not n:
+            self.stray += 1
+            return
+        self._out = 0
+        try:  # count and range
+            if self.ppo is Ppo.PPO1:
+                from_words(Ppo1In, words)
+            else:
+                from_words(PzdIn, words)
+        except Exception as exc:  # what a third-party channel returned is checked here, typed
+            error = exc if isinstance(exc, StarterbusError) else TransportError(f"channel failed: {exc!r}")
+            self._failed(n, error, now)
+            return
+        self.exchanges += 1
+        self.last_in = tuple(words)
+        self.last_ok = True
+        if self.ppo is Ppo.PPO1:
+            self.pkw.receive(PkwResponse(words[0], words[1]), now)
+        plan = self._plan
+        if plan:
+            step = plan[0]
+            step[1] -= 1
+            if step[1] <= 0 and now >= step[2]:
+                plan.popleft()
+                if plan:
+                    plan[0][2] = now + self.pulse
+        self._after(n, now, None)
+
+    def refused(self, unit: DpOut, error: StarterbusError, now: float) -> None:
+        """The peer raised on the exchange ``unit``: it failed."""
+        if unit[0] == self._out and self._out:
+            self._out = 0
+            self._failed(unit[0], error, now)
+
+    def advance(self, now: float) -> None:
+        if self._out and now >= self._out_at + self.reply_within:
+            n, self._out = self._out, 0
+            self._failed(n, TransportError(f"{PROTOCOL}: DP exchange {n} not answered ({self.where})"), now)
+        job = self.pkw.current
+        if job is not None and job.started is not None and now - job.started > self.pkw.limits.timeout:
+            self.pkw.expire(now)
+        for ticket in list(self._waiting):
+            if now >= ticket.give_up and not ticket.ended:
+                self._give_up(ticket, now)
+        self._sweep(now)
+
+    def take_completed(self) -> list[StationTicket]:
+        done, self._done = self._done, []
+        return done
+
+    # -- helpers --------------------------------------------------------------------------------------------
+
+    def close(self, error: StarterbusError, now: float) -> None:
+        """Every ticket not ended fails with ``error`` (the station is closed)."""
+        for ticket in list(self._waiting):
+            if ticket.job is not None and not ticket.job.done:
+                self.pkw.cancel(ticket.job, error, now)
+            ticket.failed(error, now)
+            self._forget(ticket)
+
+    def _stall_budget(self) -> float:
+        """How long a PKW task may wait for the exchanges that apply its own limits."""
+        return self.pkw.limits.timeout + max(self.cycle, 0.001) * 4 + 1.0
+
+    def _failed(self, n: int, error: StarterbusError, now: float) -> None:
+        self.failures += 1
+        self.last_error = error
+        self.last_ok = False
+        self.pkw.fail(error, now)
+        self._after(n, now, error)
+
+    def _after(self, n: int, now: float, error: StarterbusError | None) -> None:
+        """Exchange ``n`` ended (``error``: it failed): the tickets it ends, and when the next one is due."""
+        if self.cycle > 0:
+            self._next_at = max(self._next_at + self.cycle, now)  # an overrun: at once, without catching up
+        self._ready_at = now
+        plan_ticket = self._plan_ticket
+        for ticket in self._waiting:
+            if isinstance(ticket.request, FreshInputs) and n > ticket.after:
+                if error is None:
+                    ticket.done(self.last_in, now)
+                else:
+                    ticket.failed(error, now)
+            elif ticket is plan_ticket and not self._plan:
+                ticket.done(None, now)
+        self._sweep(now)
+
+    def _sweep(self, now: float) -> None:
+        for ticket in list(self._waiting):
+            job = ticket.job
+            if job is not None and job.done and not ticket.ended:
+                if job.error is None:
+                    ticket.done(job.response, now)
+                else:
+                    ticket.failed(job.error, now)
+            if ticket.ended:
+                self._forget(ticket)
+
+    def _end(self, ticket: StationTicket, now: float) -> None:
+        ticket.done(None, now)
+        self._forget(ticket)
+
+    def _forget(self, ticket: StationTicket) -> None:
+        if ticket is self._plan_ticket:
+            self._plan_ticket = None
+        if ticket in self._waiting:
+            self._waiting.remove(ticket)
+        self._done.append(ticket)
+
+    def _give_up(self, ticket: StationTicket, now: float) -> None:
+        request = ticket.request
+        job = ticket.job
+        if job is not None:  # no exchange came back in time to apply the limits: the channel stalled
+            why = TimeoutError(f"{PROTOCOL}: {job.describe()}: no DP exchange within {self._stall_budget():.2f} s")
+            self.pkw.cancel(job, why, now)
+            ticket.failed(job.error or why, now)
+        elif isinstance(request, ControlWords):
+            budget = request.timeout + len(request.words) * (self.hold * self.cycle + self.pulse)
+            error = self.last_error
+            ticket.failed(
+                TimeoutError(
+                    f"{PROTOCOL}: control word(s) {', '.join(f'0x{w:04X}' for w in request.words)} not exchanged "
+                    f"within {budget:.2f} s" + (f" (last error: {error})" if error else "")
+                ),
+                now,
+            )
+        else:
+            assert isinstance(request, FreshInputs)
+            text = f"{PROTOCOL}: no DP exchange within {request.timeout:.2f} s ({self.where})"
+            ticket.failed(TimeoutError(text), now)
+        self._forget(ticket)
+
+
+def output_words_of(ppo: Ppo, pkw: PkwRequest, stw: int | None) -> tuple[int | None, ...]:
+    """The output words of one exchange; None = leave that word in the output area as it is (passive PZD)."""
+    if (pkw.ind or pkw.pwe) and ppo is not Ppo.PPO1:
+        raise EncodeError("PPO3 has no PKW area: parameter tasks need PPO1", field="ppo")
+    if ppo is Ppo.PPO1:
+        return (pkw.ind, pkw.pwe, stw, None if stw is None else 0)
+    return (stw, None if stw is None else 0)
