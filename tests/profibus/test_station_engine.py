@@ -4,14 +4,20 @@ transcripts of the cycle driver's rules (PZD on every exchange, a command's plan
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import pytest
 from hypothesis import given, settings
 
 from starterbus.core.engine import TicketState
 from starterbus.core.errors import TimeoutError, TransportError
+from starterbus.core.profile import Profile
+from starterbus.core.simulator import Phase, SimulatedStarter
 from starterbus.testing.engines import EngineKit, Step, schedules
 from starterbus.transports.profibus_pkw.codec.codes import Ppo, TaskCode
 from starterbus.transports.profibus_pkw.codec.telegram import PkwResponse, pkw_request
+from starterbus.transports.profibus_pkw.driver.channels import SimChannel
+from starterbus.transports.profibus_pkw.driver.link import CyclicLink
 from starterbus.transports.profibus_pkw.master.handshake import Limits, PkwEngine
 from starterbus.transports.profibus_pkw.master.station import (
     ControlWords,
@@ -21,6 +27,7 @@ from starterbus.transports.profibus_pkw.master.station import (
     StationEngine,
     StationRequest,
 )
+from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
 
 LIMITS = Limits(max_cycles=20, timeout=0.5)
 
@@ -148,3 +155,30 @@ def test_cycling_exchanges_every_cycle_and_a_command_times_out_on_a_failing_peer
             engine.refused((n, ()), TransportError("cable pulled"), now)
     assert isinstance(ticket.error, TimeoutError) and "cable pulled" in str(ticket.error)
     assert engine.failures > 10 and now == pytest.approx(0.005 + 2.0 + 2 * 0.01)  # timeout + hold x cycle
+
+
+def test_after_a_defect_the_fresh_engine_leaves_the_control_word_alone(jjr8000: Profile) -> None:
+    sent: list[tuple[int | None, ...]] = []
+
+    class Recording(SimChannel):
+        def exchange(self, out_words: Sequence[int | None]) -> tuple[int, ...]:
+            sent.append(tuple(out_words))
+            return super().exchange(out_words)
+
+    starter = SimulatedStarter(jjr8000)
+    link = CyclicLink(Recording(SimulatedDpSlave(starter)), PkwEngine(), cycle=0)
+    link.open()
+    try:
+        link.send_control([0x0009])
+        assert sent[-1][2] == 0x0009 and starter.phase is Phase.STARTING
+
+        def defect(now: float) -> Sequence[DpOut]:
+            raise RuntimeError("a bug")
+
+        link.station.take_output = defect  # type: ignore[method-assign]
+        with pytest.raises(TransportError, match="RuntimeError: a bug"):
+            link.inputs()
+        link.inputs()  # a fresh engine: passive on PZD, so the run it gave is not taken back by a 0
+        assert sent[-1][2:] == (None, None) and link.control is None and starter.phase is Phase.STARTING
+    finally:
+        link.close()

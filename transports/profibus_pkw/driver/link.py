@@ -110,8 +110,11 @@ class CyclicLink:
         where = channel.describe()
 
         def make_station(pkw: PkwEngine | None = None) -> StationEngine:
-            fresh = pkw or PkwEngine(engine.errors, engine.limits)  # after a crash: nothing of the old state
-            return StationEngine(self.ppo, fresh, cycle=cycle, hold=hold, pulse=pulse, where=where)
+            fresh = pkw or PkwEngine(engine.errors, engine.limits)
+            station = StationEngine(self.ppo, fresh, cycle=cycle, hold=hold, pulse=pulse, where=where)
+            if pkw is None:  # after a defect crashed the old engine: nothing of its state is trusted, and the word
+                station.control = None  # in the output area is left as it is (never a word that could stop a run)
+            return station
 
         first = [make_station(engine)]
         self._loop = loop_for(channel, clock)
