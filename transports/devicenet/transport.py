@@ -35,7 +35,8 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Generator, Sequence
+from typing import Any
 
 from starterbus.core import (
     CW_RESET,
@@ -48,6 +49,8 @@ from starterbus.core import (
     DecodeError,
     DeviceUrl,
     PointDef,
+    PollResult,
+    PollTask,
     Profile,
     Reading,
     SharedPool,
@@ -68,7 +71,9 @@ from starterbus.transports.devicenet.codec.cip import ObjectClass, Service
 from starterbus.transports.devicenet.codec.explicit import ExplicitRequest
 from starterbus.transports.devicenet.codec.identity import ATTRIBUTE_NAMES, decode_identity
 from starterbus.transports.devicenet.codec.ids import poll_command_id
+from starterbus.transports.devicenet.driver.poll import DeviceNetPoll, Steps
 from starterbus.transports.devicenet.driver.scanner import Scanner, SlaveLink
+from starterbus.transports.devicenet.master.engine import Explicit, FreshInput, MasterRequest, Until
 from starterbus.transports.devicenet.master.link import InputSample, LinkState
 from starterbus.transports.devicenet.master.polling import POLL_RESPONSE_TIMEOUT
 from starterbus.transports.devicenet.master.sequence import input_request
@@ -174,29 +179,22 @@ class DeviceNetTransport(Transport):
         return max(2 * link.interval, 0.1) + POLL_RESPONSE_TIMEOUT
 
     def _fresh_sample(self, link: SlaveLink, scanner: Scanner) -> InputSample:
+        return scanner.drive(self._fresh_steps(link, scanner))
+
+    def _fresh_steps(self, link: SlaveLink, scanner: Scanner) -> Generator[MasterRequest, Any, InputSample]:
         limit = self.stale_after(link)
-
-        def fresh() -> bool:
-            sample = link.sample
-            return link.established and sample is not None and scanner.clock() - sample.at <= limit
-
-        def settled() -> bool:
-            return fresh() or scanner.machine.link_error(link) is not None
-
         error = scanner.link_error(link)
-        if error is None and not fresh():
-            scanner.expedite(link)  # a slow scan never fails a read: poll now
-            scanner.wait_for(settled, self.timeout)
-            error = scanner.link_error(link)
         if error is not None:
             raise error
-        sample = link.sample
-        if not fresh() or sample is None:
-            age = "never" if sample is None else f"{scanner.clock() - sample.at:.3f} s ago"
+        sample = yield FreshInput(link, limit, self.timeout)  # polled at once if older: a slow scan never fails
+        if sample is None:
+            last = link.sample
+            age = "never" if last is None else f"{scanner.clock() - last.at:.3f} s ago"
             raise TimeoutError(
                 f"{self.describe()}: no fresh input assembly (last one {age}, fresh means < {limit:.3f} s; "
                 f"connection {link.state.value}" + (f": {link.last_error}" if link.last_error else "") + ")"
             )
+        assert isinstance(sample, InputSample)
         return sample
 
     def _await_explicit(self, scanner: Scanner, link: SlaveLink) -> None:
@@ -206,7 +204,11 @@ class DeviceNetTransport(Transport):
 
     def _explicit_inputs(self, scanner: Scanner, link: SlaveLink) -> InputAssembly:
         """The input assembly read over explicit messaging (Get_Attribute_Single, attribute 3): no outputs sent."""
-        self._await_explicit(scanner, link)
+        return scanner.drive(self._explicit_steps(scanner, link))
+
+    def _explicit_steps(self, scanner: Scanner, link: SlaveLink) -> Generator[MasterRequest, Any, InputAssembly]:
+        if not link.established:  # a slave being (re-)allocated gets up to ``timeout`` to establish
+            yield Until(lambda: link.established or scanner.machine.link_error(link) is not None, self.timeout)
         error = scanner.link_error(link)
         if error is not None:
             raise error
@@ -217,7 +219,8 @@ class DeviceNetTransport(Transport):
                 + (f": {link.last_error}" if link.last_error else "")
                 + ")"
             )
-        response = scanner.request(link, input_request(scanner.machine, link, assemblies), timeout=self.timeout * 2)
+        request = input_request(scanner.machine, link, assemblies)
+        response = yield Explicit(link, request, False, self.timeout * 2)
         return decode_input(response.data, assemblies.input_instance)
 
     def _retake(self, scanner: Scanner, link: SlaveLink, *, strict: bool) -> None:
@@ -384,6 +387,34 @@ class DeviceNetTransport(Transport):
             if inputs.selected_value is None:
                 raise DecodeError("input assembly 101 without bytes 4-5", current.data, "selected_value")
             return Reading(point, inputs.selected_value)
+
+    # -- the fleet's poll without blocking ------------------------------------------------------------------------
+
+    def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
+        """The status and the L1 current as tickets (monitoring: one explicit read of the input assembly; while
+        this master polls: the latest fresh sample). Status parameters (selected in the outputs) and taking
+        control again (``control=open``) poll by blocking (None)."""
+        scanner, link = self._require()
+        phases = self.profile.phase_currents()
+        l1 = phases[0].key if phases else None
+        if any(point.key != l1 for point in points) or (self.control == "open" and not link.polling):
+            return None
+        if points and link.polling and link.assemblies is not AssemblySet.BASIC:
+            return None  # extended: the L1 current is read as a status parameter (0.1 A), as read_points does
+        return DeviceNetPoll(scanner, self._poll_steps(scanner, link, points, status))
+
+    def _poll_steps(self, scanner: Scanner, link: SlaveLink, points: Sequence[PointDef], status: bool) -> Steps:
+        if link.polling:
+            sample = yield from self._fresh_steps(link, scanner)
+            assemblies = link.assemblies or AssemblySet.EXTENDED
+            inputs = decode_input(sample.data, assemblies.input_instance)
+            timestamp = scanner.wall_time(sample.at)
+            value = inputs.to_status(self.profile, selected_address=sample.select, timestamp=timestamp, source=NAME)
+        else:
+            inputs = yield from self._explicit_steps(scanner, link)
+            value = inputs.to_status(self.profile, timestamp=time.time(), source=NAME)
+        readings = [Reading(point, inputs.current_a, CURRENT_RESOLUTION_A) for point in points]
+        return PollResult(value if status else None, readings)
 
     # -- identity ------------------------------------------------------------------------------------------------
 

@@ -1,52 +1,79 @@
-"""The DeviceNet master's driver: one thread and one python-can bus around a sans-IO :class:`MasterNode`.
+"""The DeviceNet master on its bus: a :class:`MasterEngine` on the process's :class:`CanDriver` of that bus, run
+by the process's scheduler (docs/engine.md, step 5). No thread of its own and no lock.
 
 The protocol (duplicate MAC ID check, connection sequence, keep-alive, fragmentation, scan scheduling, the
-communication fault and duplicate responders) lives in :mod:`~starterbus.transports.devicenet.master.node`.
-This module only moves frames and times: the thread receives, drops at once every frame the master has no use
-for (one set lookup; CAN filters on interfaces that filter in hardware or in the kernel), feeds the rest to
-the machine and runs its timers when due. User threads call the machine under the same lock and send what it
-returns; they wait on a condition that is notified after every change.
+communication fault and duplicate responders) lives in :mod:`~starterbus.transports.devicenet.master.node`, the
+tickets callers wait on in :mod:`~starterbus.transports.devicenet.master.engine`. Each method of
+:class:`Scanner` submits one ticket and waits for it: while no other thread runs the loop, the caller runs it
+(a CLI ``status`` starts no thread but python-can's reader where the bus has no descriptor).
+
+A master with a polled I/O connection (``LinkConfig.io``, or :meth:`Scanner.take_control`) must poll whether or
+not anyone waits: the slave's watchdog stops the motor 4 x EPR after the last poll. From then until it closes,
+the scanner keeps the loop's own thread running (``keep_running``). A master that only monitors runs its timers
+whenever a caller leads (or the loop's thread runs, in a fleet or a service): a submission first runs what is
+due, so a call after a quiet spell sees the present state.
 """
 
 from __future__ import annotations
 
-import collections
-import logging
 import random
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Generator
+from typing import Any, TypeVar
 
 import can
 
-from starterbus.core import CanFrame, StarterbusError, TimeoutError, open_bus, shutdown_bus
+from starterbus.core import (
+    CanDriver,
+    StarterbusError,
+    Ticket,
+    ToEngine,
+    TransportError,
+    keep_running,
+    let_go,
+    process_scheduler,
+)
 from starterbus.transports.devicenet.codec.explicit import ExplicitRequest, ExplicitResponse
+from starterbus.transports.devicenet.master.engine import (
+    Acked,
+    Attach,
+    Begin,
+    Detach,
+    Expedite,
+    Explicit,
+    FreshInput,
+    MasterEngine,
+    MasterRequest,
+    Online,
+    Outputs,
+    ReleaseControl,
+    Reset,
+    TakeControl,
+    Until,
+)
 from starterbus.transports.devicenet.master.link import (
-    IoPhase,
+    InputSample,
     LinkConfig,
-    LinkState,
     MasterLink,
     ScannerConfig,
     ScannerState,
-    Transaction,
 )
 from starterbus.transports.devicenet.master.node import MasterNode
 
-__all__ = ["VIRTUAL_HINT", "Scanner", "SlaveLink"]
-
-log = logging.getLogger(__name__)
+__all__ = ["CAN_FILTERS", "VIRTUAL_HINT", "Scanner", "SlaveLink"]
 
 SlaveLink = MasterLink
+T = TypeVar("T")
 #: what a master told that its virtual channel has no peer in this process should use instead
 VIRTUAL_HINT = (
     "from another process, serve the simulator through its loopback bridge (starterbus simulate ... "
     "--devicenet virtual:bus0 --devicenet-bridge 127.0.0.1:54701) and use devicenet://remote/127.0.0.1:54701?mac=N"
 )
-MAX_WAIT = 0.25  # longest receive wait: bounds the latency of timers a user thread set meanwhile
-BUG_BACKOFF = 0.01  # seconds before timers run again after an unexpected exception
-MESSAGE_CACHE = 512  # python-can messages kept for frames sent again (poll commands)
+#: the outer bound of a wait beyond the ticket's own timeout: only a stalled loop gets there
+STALL = 30.0
 #: every identifier the master listens to, as three mask filters: poll responses (group 1 id 15), explicit
-#: responses (group 2 id 3) and duplicate MAC ID checks (group 2 id 7); exact matching follows in software
+#: responses (group 2 id 3) and duplicate MAC ID checks (group 2 id 7); exact routing follows in the driver
 CAN_FILTERS: list[can.typechecking.CanFilter] = [
     {"can_id": 0x3C0, "can_mask": 0x7C0, "extended": False},
     {"can_id": 0x403, "can_mask": 0x607, "extended": False},
@@ -55,40 +82,40 @@ CAN_FILTERS: list[can.typechecking.CanFilter] = [
 
 
 class Scanner:
-    """One DeviceNet master on one CAN bus. Thread-safe; shared by every Device on that bus in a process."""
+    """One DeviceNet master on one CAN bus. Thread-safe (every call is a ticket on the scheduler); shared by
+    every Device on that bus in a process. ``bus``: a python-can bus the caller opened (and closes)."""
 
     def __init__(
-        self, config: ScannerConfig, bus: can.BusABC | None = None, clock: Callable[[], float] = time.monotonic
-    ):
+        self, config: ScannerConfig, bus: can.BusABC | None = None, clock: Callable[[], float] | None = None
+    ) -> None:
         self.config = config
         self.where = f"{config.interface}/{config.channel}"
-        self.clock = clock
-        self.bus = (
-            bus
-            if bus is not None
-            else open_bus(config.interface, config.channel, config.bitrate, needs_peer=VIRTUAL_HINT)
-        )
-        self._owns_bus = bus is None
-        try:
-            self.bus.set_filters(CAN_FILTERS)
-        except (can.CanError, NotImplementedError, AttributeError):  # pragma: no cover - software filtering
-            pass
+        self.loop = process_scheduler()
+        if clock is not None and clock is not self.loop.clock:
+            raise TransportError(f"DeviceNet master on {self.where}: the scheduler's clock is the only clock")
+        self.clock = self.loop.clock
+        if bus is None:
+            self.driver = CanDriver.acquire(
+                config.interface, config.channel, self.loop, config.bitrate, needs_peer=VIRTUAL_HINT
+            )
+            self._shared = True
+        else:
+            self.driver = CanDriver(bus, self.where, self.loop, owns_bus=False)
+            self.driver.call(lambda now: self.loop.add(self.driver), "add the bus")
+            self._shared = False
         self.machine = MasterNode(config, random.getrandbits(32), self.where)
-        self.lock = threading.RLock()
-        self.changed = threading.Condition(self.lock)
-        self._waiters = 0
-        self._stop = threading.Event()
-        self.received = 0
-        self.dropped = 0
-        self.io_cpu = 0.0
-        self._messages: dict[CanFrame, can.Message] = {}  # poll commands repeat: built once
-        self.errors: collections.deque[str] = collections.deque(maxlen=100)
+        self.engine = MasterEngine(self.machine)
+        self._kept = False
+        self._closed = False
+        self._close_lock = threading.Lock()
         self.started = time.monotonic()
-        self._wall_offset = time.time() - clock()
-        with self.lock:
-            self._send(self.machine.start(clock()))
-        self._thread = threading.Thread(target=self._run, name=f"devicenet-scanner {self.where}", daemon=True)
-        self._thread.start()
+        self._wall_offset = time.time() - self.clock()
+        try:
+            self.driver.call(lambda now: self.driver.add(self.engine, CAN_FILTERS), "add the master")
+            self._run(Begin())
+        except BaseException:
+            self._give_back()
+            raise
 
     # -- state --------------------------------------------------------------------------------------------------
 
@@ -113,93 +140,122 @@ class Scanner:
     def links(self) -> dict[int, MasterLink]:
         return self.machine.links
 
+    @property
+    def received(self) -> int:
+        """Frames read from the bus (past its filters; every engine's on a shared bus)."""
+        return self.driver.received
+
+    @property
+    def dropped(self) -> int:
+        """Of them, frames no engine on the bus wanted."""
+        return self.driver.dropped
+
+    @property
+    def errors(self) -> Any:
+        """Malformed frames and failures of the engines on the bus (the last 100)."""
+        return self.driver.errors
+
+    @property
+    def io_cpu(self) -> float:
+        """CPU seconds of the bus's I/O: the loop's own thread while it runs (all of it: the wait, the wake-ups,
+        every driver it serves), else the driver's steps in whichever thread led; plus the bus's reader thread."""
+        for thread in threading.enumerate():
+            if thread.name == "starterbus-io" and thread.ident is not None:
+                try:
+                    return time.clock_gettime(time.pthread_getcpuclockid(thread.ident)) + self.driver.reader_cpu
+                except (OSError, AttributeError):
+                    break
+        return self.driver.io_cpu
+
     def wall_time(self, at: float) -> float:
         """Wall-clock time of a machine time (samples carry the machine's clock)."""
         return at + self._wall_offset
 
     def link_error(self, link: MasterLink) -> Exception | None:
-        with self.lock:
-            return self.machine.link_error(link)
+        return self.machine.link_error(link)
+
+    # -- tickets ------------------------------------------------------------------------------------------------
+
+    def _run(self, request: MasterRequest) -> Ticket[MasterRequest, Any]:
+        what = f"DeviceNet master on {self.where}: {type(request).__name__}"
+        # submit + wait, not Scheduler.run: a caller leading when another one makes the loop's own thread start
+        # (keep_running) follows it from then on, where run would end its lead as a stall
+        future = self.loop.submit(self.driver, ToEngine(self.engine, request))
+        try:
+            ticket: Ticket[MasterRequest, Any] = self.loop.wait(future, request.timeout + STALL, what)
+        except BaseException:  # a stalled loop, an interrupt: the ticket is withdrawn at the loop's next turn
+            driver = self.driver
+            if not future.cancel():
+                self.loop.call(lambda now: driver.cancel([future], now))
+            raise
+        return ticket
+
+    def _outcome(self, request: MasterRequest) -> Any:
+        return self._run(request).outcome()
+
+    def drive(self, steps: Generator[MasterRequest, Any, T]) -> T:
+        """Run a sequence of tickets written as a generator (it yields a request, is sent the ticket's result or
+        thrown its error, and returns its own result): the blocking form of what a fleet's poll task runs."""
+        try:
+            request = next(steps)
+            while True:
+                try:
+                    value = self._outcome(request)
+                except StarterbusError as exc:
+                    request = steps.throw(exc)
+                else:
+                    request = steps.send(value)
+        except StopIteration as stop:
+            result: T = stop.value
+            return result
+
+    def _keep(self) -> None:
+        """From now on the master polls unattended (a polled I/O connection): the loop's own thread runs."""
+        if not self._kept:
+            self._kept = True
+            keep_running(self.loop)
 
     # -- user side ----------------------------------------------------------------------------------------------
 
-    def _call(self, frames: list[CanFrame]) -> None:
-        """Send what a machine call returned and wake the waiters (under the lock)."""
-        self._send(frames)
-        if self._waiters:
-            self.changed.notify_all()
-
     def attach(self, config: LinkConfig) -> MasterLink:
-        with self.lock:
-            link = self.machine.attach(config, self.clock())
-            self._call(self.machine.take())
-            return link
+        if config.io:
+            self._keep()
+        link: MasterLink = self._outcome(Attach(config))
+        return link
 
     def detach(self, link: MasterLink, release: bool = True) -> None:
         """Stop scanning a slave; release its connection set first if it is established."""
-        if release:
-            with self.lock:
-                transaction = self.machine.release(link, self.clock())
-                self._call(self.machine.take())
-            if transaction is not None:
-                self.wait_for(lambda: transaction.done, self.config.timeout * 2)
-                if transaction.error is not None:
-                    link.note(self.clock(), f"release on close failed: {transaction.error}")
-        with self.lock:
-            self.machine.detach(link)
-            self._call(self.machine.take())
+        error = self._outcome(Detach(link, release, self.config.timeout * 2))
+        if error is not None:
+            link.note(self.clock(), f"release on close failed: {error}")
 
     def request(
         self, link: MasterLink, request: ExplicitRequest, *, unconnected: bool = False, timeout: float | None = None
     ) -> ExplicitResponse:
         """Send an explicit request and wait for its (success) response."""
-        transaction = Transaction(request, unconnected)
-        with self.lock:
-            self.machine.submit(link, transaction, self.clock())
-            self._call(self.machine.take())
         wait = self.config.timeout * 4 if timeout is None else timeout
-        if not self.wait_for(lambda: transaction.done, wait):
-            raise TimeoutError(f"{link.describe()}: no response to {request.describe()} within {wait:g} s")
-        if transaction.error is not None:
-            raise transaction.error
-        assert transaction.response is not None
-        return transaction.response
+        response: ExplicitResponse = self._outcome(Explicit(link, request, unconnected, wait))
+        return response
 
     def take_control(self, link: MasterLink, timeout: float) -> None:
         """Establish the polled I/O connection of a monitored slave (the outputs set before go out with its
         first poll); raises why it could not."""
-        with self.lock:
-            self.machine.take_control(link, self.clock())
-            self._call(self.machine.take())
-
-        def settled() -> bool:
-            return link.io in (IoPhase.HELD, IoPhase.NONE) or self.machine.link_error(link) is not None
-
-        self.wait_for(settled, timeout)
-        with self.lock:
-            if link.polling:
-                return
-            error = self.machine.link_error(link) or link.io_error or link.last_error
-        if error is not None:
-            raise error
-        raise TimeoutError(f"{link.describe()}: the polled I/O connection was not established within {timeout:g} s")
+        self._keep()
+        self._outcome(TakeControl(link, timeout))
 
     def release_control(self, link: MasterLink) -> None:
         """Give the polled I/O connection back (monitoring over explicit messaging goes on)."""
-        with self.lock:
-            transaction = self.machine.release_control(link, self.clock())
-            self._call(self.machine.take())
-        if transaction is not None:
-            self.wait_for(lambda: transaction.done, self.config.timeout * 2)
+        self._outcome(ReleaseControl(link, self.config.timeout * 2))
 
     def wait_for(self, predicate: Callable[[], bool], timeout: float) -> bool:
-        """Wait (on the scanner's condition) until ``predicate`` holds; True if it did."""
-        with self.changed:
-            self._waiters += 1
-            try:
-                return self.changed.wait_for(predicate, timeout)
-            finally:
-                self._waiters -= 1
+        """Until ``predicate`` holds (evaluated in the loop after every change); True if it did."""
+        return bool(self._outcome(Until(predicate, timeout)))
+
+    def fresh_input(self, link: MasterLink, max_age: float, timeout: float) -> InputSample | None:
+        """The latest input sample once at most ``max_age`` old (polled at once if older); None at the timeout;
+        raises the link's error (a communication fault, a duplicate responder)."""
+        sample: InputSample | None = self._outcome(FreshInput(link, max_age, timeout))
+        return sample
 
     def set_outputs(
         self,
@@ -211,33 +267,30 @@ class Scanner:
         polls: int = 1,
     ) -> int:
         """Change a slave's outputs (polled at once); returns the output sequence number to wait for."""
-        with self.lock:
-            seq = self.machine.set_outputs(link, self.clock(), run=run, reset=reset, select=select, polls=polls)
-            self._call(self.machine.tick(self.clock()))
-            return seq
+        seq: int = self._outcome(Outputs(link, run, reset, select, polls))
+        return seq
 
     def expedite(self, link: MasterLink, polls: int = 1) -> None:
         """Poll ``link`` now (a reader wants fresh inputs)."""
-        with self.lock:
-            self.machine.expedite(link, self.clock(), polls)
-            self._call(self.machine.tick(self.clock()))
+        self._outcome(Expedite(link, polls))
 
     def wait_acked(self, link: MasterLink, seq: int, timeout: float) -> bool:
-        def settled() -> bool:
-            return link.acked_seq >= seq or link.state is LinkState.CLOSED or self.machine.link_error(link) is not None
-
-        return self.wait_for(settled, timeout) and link.acked_seq >= seq
+        """Whether a poll carrying output sequence ``seq`` was answered within ``timeout``."""
+        return bool(self._outcome(Acked(link, seq, timeout)))
 
     def reset(self) -> None:
         """Leave the communication fault now (the duplicate MAC ID check runs again)."""
-        with self.lock:
-            self._call(self.machine.reset(self.clock()))
+        self._outcome(Reset())
+
+    def wait_online(self, timeout: float) -> None:
+        self._outcome(Online(timeout))
 
     def close(self) -> None:
-        with self.lock:
-            links = list(self.machine.links.values())
-        for link in links:
-            self.detach(link)
+        for link in list(self.machine.links.values()):
+            try:
+                self.detach(link)
+            except StarterbusError:
+                pass
         self._halt()
 
     def abandon(self) -> None:
@@ -245,25 +298,29 @@ class Scanner:
         self._halt()
 
     def _halt(self) -> None:
-        self._stop.set()
-        if self._thread is not threading.current_thread():
-            self._thread.join(2.0)
-        with self.lock:
-            self.machine.close()
-            self.changed.notify_all()
-        if self._owns_bus:
-            shutdown_bus(self.bus)
+        with self._close_lock:
+            if self._closed:
+                return
+            self._closed = True
+        try:
+            driver, engine = self.driver, self.engine
 
-    def _not_online(self) -> Exception:
-        return self.machine.not_online()
+            def remove(now: float) -> None:
+                driver.remove(engine, now)
+                self.machine.close()
 
-    def wait_online(self, timeout: float) -> None:
-        if not self.wait_for(lambda: self.machine.state is not ScannerState.CHECKING, timeout):
-            raise TimeoutError(
-                f"DeviceNet master on {self.where}: duplicate MAC ID check did not finish in {timeout:g} s"
-            )
-        if self.machine.state is not ScannerState.ONLINE:
-            raise self.machine.not_online()
+            driver.call(remove, "remove the master")
+        finally:
+            self._give_back()
+
+    def _give_back(self) -> None:
+        if self._kept:
+            self._kept = False
+            let_go(self.loop)
+        if self._shared:
+            self.driver.release()
+        else:
+            self.driver.close()
 
     def stats(self) -> dict[str, float]:
         elapsed = time.monotonic() - self.started
@@ -276,54 +333,3 @@ class Scanner:
             "received": self.received,
             "dropped": self.dropped,
         }
-
-    # -- the I/O thread -----------------------------------------------------------------------------------------
-
-    def _send(self, frames: list[CanFrame]) -> None:
-        messages = self._messages
-        for frame in frames:
-            message = messages.get(frame)
-            if message is None:
-                message = can.Message(arbitration_id=frame.can_id, data=frame.data, is_extended_id=False)
-                if len(messages) >= MESSAGE_CACHE:
-                    messages.clear()
-                messages[frame] = message
-            try:
-                self.bus.send(message)
-            except can.CanError as exc:
-                log.warning("DeviceNet send %s failed: %s", frame.text(), exc)
-
-    def _run(self) -> None:
-        cpu0 = time.thread_time()
-        machine, bus, clock, lock, stop = self.machine, self.bus, self.clock, self.lock, self._stop
-        while not stop.is_set():
-            try:
-                now = clock()
-                if now >= machine.deadline:
-                    with lock:
-                        self._call(machine.tick(now))
-                    self.io_cpu = time.thread_time() - cpu0
-                message = bus.recv(min(max(machine.deadline - clock(), 0.0), MAX_WAIT))
-                if message is None:
-                    continue
-                self.received += 1
-                can_id = message.arbitration_id
-                if can_id not in machine.wanted or message.is_extended_id or message.is_remote_frame:
-                    self.dropped += 1
-                    continue
-                data = bytes(message.data)
-                if len(data) > 8:  # CAN FD: not DeviceNet
-                    self.dropped += 1
-                    continue
-                with lock:
-                    self._call(machine.receive(can_id, data, clock()))
-            except StarterbusError as exc:  # a malformed frame; never stop the master
-                self.errors.append(str(exc))
-            except Exception as exc:  # a bug must not stop the master either; keep it visible
-                if stop.is_set():
-                    break
-                log.exception("DeviceNet scanner on %s", self.where)
-                self.errors.append(f"{type(exc).__name__}: {exc}")
-                with lock:  # a timer that failed must not be retried in a tight loop
-                    machine.deadline = max(machine.deadline, clock() + BUG_BACKOFF)
-        self.io_cpu = time.thread_time() - cpu0

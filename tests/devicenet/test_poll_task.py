@@ -1,0 +1,65 @@
+"""A fleet's DeviceNet poll as a PollTask (no thread per bus): monitoring reads the input assembly over explicit
+messaging with no output data; a master that polls answers from a fresh sample; status parameters and taking
+control again poll by blocking."""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+
+import pytest
+
+from starterbus.core import Device, ManualClock, MotorState, Profile, SimulatedStarter, open_device, run_task
+from starterbus.transports.devicenet.codec.ids import poll_command_id
+from starterbus.transports.devicenet.simulator import DeviceNetSlaveSimulator
+from starterbus.transports.devicenet.transport import DeviceNetTransport
+
+FAST = "dup_mac_wait=0.05&timeout=0.5&epr=50&poll=10"
+
+
+@pytest.fixture
+def simulated(channel: str, jjr8000: Profile) -> Iterator[SimulatedStarter]:
+    starter = SimulatedStarter(jjr8000, ManualClock(0.0))
+    with DeviceNetSlaveSimulator(starter, ("virtual", channel), 5, dup_mac_wait=0.05):
+        yield starter
+
+
+def transport(device: Device) -> DeviceNetTransport:
+    assert isinstance(device.transport, DeviceNetTransport)
+    return device.transport
+
+
+def test_a_monitoring_poll_is_a_task_that_sends_no_output_data(
+    channel: str, simulated: SimulatedStarter, sniffer: object, jjr8000: Profile
+) -> None:
+    phase_a = jjr8000.phase_currents()[0]
+    with open_device(f"devicenet://virtual/{channel}?mac=5&{FAST}", jjr8000) as device:
+        before = {t.name for t in threading.enumerate()}
+        task = transport(device).start_poll([phase_a], True)
+        assert task is not None
+        result = run_task(task, time.monotonic)
+        assert result.status is not None and result.status.state is MotorState.STOPPED
+        assert [r.point.key for r in result.readings] == [phase_a.key] and result.readings[0].scale == 1.0
+        assert {t.name for t in threading.enumerate()} <= before  # the task started no thread
+    commands = [t for t in sniffer.texts() if t.startswith(f"{poll_command_id(5):03X}#")]  # type: ignore[attr-defined]
+    assert commands == []
+
+
+def test_a_polling_master_answers_from_a_fresh_sample(channel: str, simulated: SimulatedStarter) -> None:
+    with open_device(f"devicenet://virtual/{channel}?mac=5&{FAST}&control=open", "jjr8000") as device:
+        link = transport(device).link
+        assert link is not None and link.polling
+        polls = link.responses
+        task = transport(device).start_poll([], True)
+        assert task is not None
+        result = run_task(task, time.monotonic)
+        assert result.status is not None and result.status.state is MotorState.STOPPED
+        assert result.status.raw["selected_address"] is not None  # from a poll answer, not the explicit read
+        assert link.responses > polls
+
+
+def test_status_parameters_poll_by_blocking(channel: str, simulated: SimulatedStarter, jjr8000: Profile) -> None:
+    with open_device(f"devicenet://virtual/{channel}?mac=5&{FAST}&control=open", jjr8000) as device:
+        assert transport(device).start_poll([jjr8000.point("m3")], True) is None
+        assert "phase_b_current" in device.read("m3")
