@@ -75,8 +75,6 @@ class SdoPoll(PollTask):
     poller that advances the task from the scheduler's loop): called when a transfer ends, so the task is advanced
     again without a descriptor; without it the task turns the loop itself, or waits on a pipe of its own."""
 
-    on_progress: Callable[[], None] | None = None
-
     def __init__(self, bus: CanBus, engine: SdoEngine, steps: Steps[PollResult]) -> None:
         self.bus, self.engine, self.steps = bus, engine, steps
         self._future: Future[Any] | None = None
