@@ -231,11 +231,15 @@ class BusWorker:
                 pass
 
     def open_for_poll(self, runtime: DeviceRuntime) -> None:
-        """Open the device for its next poll (in a pool thread, the bus lent); a failure is that poll's error."""
-        try:
-            self._ensure_open(runtime)
-        except StarterbusError as exc:
-            runtime.open_error = exc
+        """Open the device for its next poll (in a pool thread, the bus lent), and every device of the bus never
+        polled yet (the first round: one lend, not one per device); a failure is that device's next poll's
+        error."""
+        for other in [runtime, *(r for r in self.devices if r.polls == 0 and r is not runtime)]:
+            if other.device is None and other.open_error is None:
+                try:
+                    self._ensure_open(other)
+                except StarterbusError as exc:
+                    other.open_error = exc
 
     def run_after_the_end(self, job: Job) -> None:
         """A job that came after :meth:`shut_down`: run in the calling thread, on its device opened for it."""

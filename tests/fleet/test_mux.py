@@ -71,7 +71,7 @@ def test_one_thread_polls_every_line_for_the_rounds_asked(lines: Lines, samples:
     poller.start()
     poller.join(30.0)
     assert not poller.running and not poller.mux.thread.is_alive()
-    assert set(samples.threads) == {"bus-mux"} and threads_alive and not any(threads_alive)
+    assert set(samples.threads) == {"starterbus-io"} and threads_alive and not any(threads_alive)
     assert all(w.thread.ident is None for w in poller.workers), "no bus got a thread of its own"
     assert sorted(s.device for s in samples.list) == sorted([*DEVICES, *DEVICES]), "two polls of every device"
     for device in DEVICES:
@@ -98,7 +98,7 @@ def test_threads_put_the_same_on_the_wire_and_give_the_same_samples(lines: Lines
         samples = Samples()
         poller = _run_rounds(lines, samples, multiplex)
         assert (poller.mux is not None) is multiplex
-        expected = {"bus-mux"} if multiplex else {"bus-line0", "bus-line1", "bus-line2"}
+        expected = {"starterbus-io"} if multiplex else {"bus-line0", "bus-line1", "bus-line2"}
         assert set(samples.threads) == expected
         by_device = {d: [_seen(s) for s in samples.list if s.device == d] for d in DEVICES}
         stats = {name: (s.polls, s.probes, _totals(s.wire)) for name, s in poller.line_stats().items()}
@@ -119,7 +119,7 @@ def test_a_bus_that_polls_only_by_blocking_is_handed_a_thread_and_waited_for(lin
     assert poller.mux.buses[1].handed_over and not poller.mux.buses[0].handed_over
     assert poller.workers[1].thread.ident is not None and not poller.workers[1].thread.is_alive()
     by_thread = {(s.bus, t) for s, t in zip(samples.list, samples.threads, strict=True)}
-    assert by_thread == {("line0", "bus-mux"), ("line1", "bus-line1")}
+    assert by_thread == {("line0", "starterbus-io"), ("line1", "bus-line1")}
     for device in ("b0u1", "b1u1", "b1u2", "b1u3"):
         polls = samples.of(device)
         assert len(polls) == 2 and all(s.online for s in polls), (device, [s.error for s in polls])
@@ -139,7 +139,7 @@ def test_buses_of_other_transports_keep_threads_of_their_own(demo: DemoFleet, sa
     assert all(s.online for s in samples.list), [(s.device, s.error) for s in samples.list]
     for sample, thread in zip(samples.list, samples.threads, strict=True):
         multiplexed = sample.bus.startswith("rtu-") or sample.bus == "devicenet"
-        assert thread == ("bus-mux" if multiplexed else f"bus-{sample.bus}")
+        assert thread == ("starterbus-io" if multiplexed else f"bus-{sample.bus}")
 
 
 def test_a_job_has_the_bus_while_the_other_buses_go_on(lines: Lines, samples: Samples) -> None:
@@ -250,7 +250,7 @@ def test_a_device_that_goes_away_is_probed_and_comes_back_while_its_neighbours_g
             samples.wait_for(lambda ss: any(s.device == "b0u2" and s.online for s in ss[back:]))
     finally:
         sim.starters[2] = gone
-    assert set(samples.threads) == {"bus-mux"}
+    assert set(samples.threads) == {"starterbus-io"}
     away = samples.of("b0u2", mark)
     first = away[0]
     assert not first.online and not first.probe and first.values == {} and first.status is None
