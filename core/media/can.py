@@ -148,8 +148,8 @@ class CanDriver:
         self._periodics: list[Periodic] = []
         self._messages: dict[CanFrame, can.Message] = {}
         self.errors: collections.deque[str] = collections.deque(maxlen=100)
-        self.received = 0  # frames read from the bus (past its filters)
-        self.dropped = 0  # of them, frames no engine wanted (or not classic 11-bit data frames)
+        self._received = 0
+        self._dropped = 0
         self.sent = 0
         self.crashes = 0
         self.closed = False
@@ -227,7 +227,7 @@ class CanDriver:
             return
         self.engines = [*self.engines, engine]
         self._filters[engine] = filters
-        self._seen = []
+        self._route()
         self._set_filters()
 
     def remove(self, engine: CanEngine, now: float) -> None:
@@ -237,8 +237,7 @@ class CanDriver:
         self.engines = [e for e in self.engines if e is not engine]
         self._filters.pop(engine, None)
         self._held.pop(engine, None)
-        self._seen = []
-        self._routes = {}
+        self._route()
         error = TransportError(f"{self.name}: the engine was removed from the bus")
         for ticket, owner in list(self._owner.items()):
             if owner is engine:
@@ -291,6 +290,18 @@ class CanDriver:
         return at
 
     @property
+    def received(self) -> int:
+        """Frames read from the bus (past its filters)."""
+        reader = self._reader
+        return self._received + (reader.received if reader is not None else 0)
+
+    @property
+    def dropped(self) -> int:
+        """Of them, frames no engine wanted (or not classic 11-bit data frames)."""
+        reader = self._reader
+        return self._dropped + (reader.dropped if reader is not None else 0)
+
+    @property
     def pending(self) -> int:
         return len(self._futures)
 
@@ -341,20 +352,18 @@ class CanDriver:
             messages = self._reader.take()
         if not messages:
             return
-        self.received += len(messages)
-        if len(self._seen) != len(self.engines) or any(
-            e.wanted is not s for e, s in zip(self.engines, self._seen, strict=True)
-        ):
-            self._route()
+        if self._reader is None:
+            self._received += len(messages)
+        self._sync_routes()
         routes = self._routes
         touched: set[CanEngine] = set()
         for message in messages:
             engines = routes.get(message.arbitration_id)
             if engines is None or message.is_extended_id or message.is_remote_frame or message.is_error_frame:
-                self.dropped += 1
+                self._dropped += 1
                 continue
             if message.is_fd or message.dlc > 8:
-                self.dropped += 1
+                self._dropped += 1
                 continue
             frame = CanFrame(message.arbitration_id, bytes(message.data))
             for engine in engines:
@@ -366,6 +375,17 @@ class CanDriver:
         for engine in touched:  # answers go out after the burst, each engine's in order
             self._flush(engine, now)
 
+    def _sync_routes(self) -> None:
+        """Route again if an engine's ``wanted`` changed (compared by identity: an engine gives a new set)."""
+        engines, seen = self.engines, self._seen
+        if len(seen) == len(engines):
+            for engine, wanted in zip(engines, seen, strict=True):
+                if engine.wanted is not wanted:
+                    break
+            else:
+                return
+        self._route()
+
     def _route(self) -> None:
         routes: dict[int, list[CanEngine]] = {}
         for engine in self.engines:
@@ -373,9 +393,13 @@ class CanDriver:
                 routes.setdefault(can_id, []).append(engine)
         self._routes = {can_id: tuple(engines) for can_id, engines in routes.items()}
         self._seen = [engine.wanted for engine in self.engines]
+        if self._reader is not None:
+            self._reader.wanted = frozenset(self._routes)
 
     def _flush(self, engine: CanEngine, now: float) -> None:
-        """Write what the engine has to send; end the futures of its tickets that ended."""
+        """Write what the engine has to send; end the futures of its tickets that ended. The routes follow its
+        ``wanted`` first: the reader must queue the answer to what goes out now."""
+        self._sync_routes()
         try:
             out = engine.take_output(now)
         except Exception as exc:
@@ -390,8 +414,6 @@ class CanDriver:
     def _loop_back(self, sender: CanEngine, frames: Sequence[CanFrame], now: float) -> None:
         """What one engine wrote reaches the others on the bus that want it, as it reaches separate sockets on
         one interface (python-can delivers no frame back to the bus that sent it)."""
-        if len(self._seen) != len(self.engines):
-            self._route()
         touched: list[CanEngine] = []
         for frame in frames:
             for engine in self._routes.get(frame.can_id, ()):

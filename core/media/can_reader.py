@@ -29,6 +29,11 @@ class CanReader:
         os.set_blocking(self._wake_w, False)
         self._stop = threading.Event()
         self._cpu = 0.0
+        #: identifiers worth queuing (the driver's routes; None: every frame): a frame no engine wants is
+        #: dropped here, without waking the loop (a flood of foreign traffic costs this thread only)
+        self.wanted: frozenset[int] | None = None
+        self.received = 0
+        self.dropped = 0
         self.thread = threading.Thread(target=self._run, name=f"can-reader {name}", daemon=True)
         self.thread.start()
 
@@ -85,6 +90,11 @@ class CanReader:
                 continue
             if message is None:
                 self._cpu = time.thread_time()
+                continue
+            self.received += 1
+            wanted = self.wanted
+            if wanted is not None and message.arbitration_id not in wanted:
+                self.dropped += 1
                 continue
             with lock:
                 first = not queue
