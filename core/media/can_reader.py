@@ -49,8 +49,7 @@ class CanReader:
     def take(self) -> list[can.Message]:
         """Every frame queued so far (the wake bytes read first: a frame queued after is woken for again)."""
         try:
-            while os.read(self._wake_r, 512):
-                pass
+            os.read(self._wake_r, 4096)  # one byte per wake-up the loop has not served: never this many
         except (BlockingIOError, OSError):
             pass
         with self._lock:
