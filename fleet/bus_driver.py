@@ -34,23 +34,13 @@ class Bus:
     handed_over: bool = False  # to a thread of its own
     over: bool = False  # nothing left to do now (its rounds done, or the poller stopping)
     next_at: float = 0.0  # when to step it while no poll is under way
+    # what the loop reads of every bus at every turn: plain attributes, set by the multiplexer after each step
+    fd: int = -1  # the poll's descriptor (-1: none)
+    deadline: float = 0.0  # the poll's ``wake_at``, or ``next_at`` between polls
+    writing: bool = False
 
     def __post_init__(self) -> None:
         self.name = self.worker.name
-
-    @property
-    def fd(self) -> int:
-        task = self.task
-        return task.fd if task is not None else -1
-
-    @property
-    def writing(self) -> bool:
-        return False
-
-    @property
-    def deadline(self) -> float:
-        task = self.task
-        return task.wake_at if task is not None else self.next_at
 
     def step(self, now: float, ready: bool) -> None:
         self.on_step(self, now)

@@ -254,11 +254,12 @@ class Multiplexer:
 
     def _plan(self, bus: Bus) -> None:
         """When the bus is next stepped without news, whether it is over; the fleet ends once every bus is."""
+        if bus.task is not None:  # the poll's descriptor and time (the usual case: a poll follows a poll)
+            bus.fd, bus.deadline = bus.task.fd, bus.task.wake_at
+            return
         worker, now = bus.worker, self.poller.clock()
         over = False
-        if bus.task is not None:
-            pass
-        elif bus.handed_over:
+        if bus.handed_over:
             over = True
         elif worker.lent:
             bus.next_at = INF  # the lent work steps it when it gives the bus back
@@ -270,6 +271,7 @@ class Multiplexer:
             bus.next_at = now
         else:
             bus.next_at = worker.next_due(now)[0]
+        bus.fd, bus.deadline = -1, bus.next_at
         if over is not bus.over:
             bus.over = over
             if over and all(b.over for b in self.buses):
