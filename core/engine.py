@@ -52,7 +52,7 @@ class TicketState(enum.Enum):
     CANCELLED = "cancelled"
 
 
-_ENDED = frozenset((TicketState.DONE, TicketState.FAILED, TicketState.CANCELLED))
+_QUEUED, _SENT = TicketState.QUEUED, TicketState.SENT
 
 
 @dataclass(eq=False, slots=True)
@@ -72,7 +72,8 @@ class Ticket(Generic[Req, Res]):
 
     @property
     def ended(self) -> bool:
-        return self.state in _ENDED
+        state = self.state  # by identity: hashing an enum member is a Python-level call (hot in every wait)
+        return state is not _QUEUED and state is not _SENT
 
     def sent(self, now: float) -> None:
         """One more send of the request (the first moves it to SENT)."""
