@@ -27,7 +27,6 @@ import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import cast
 
 from starterbus.core import (
     CW_RESET,
@@ -136,6 +135,8 @@ class StationEngine:
         self._next_at = -math.inf  # cycle > 0: the next exchange
         self._ready_at = 0.0  # cycle == 0: due since
         self._waiting: list[StationTicket] = []
+        self._fresh: list[StationTicket] = []  # of which FreshInputs
+        self._limit = FOREVER  # the earliest give_up of the waiting tickets
         self._done: list[StationTicket] = []
 
     # -- what is in force -----------------------------------------------------------------------------------
@@ -156,7 +157,7 @@ class StationEngine:
 
     @property
     def deadline(self) -> float:
-        due = min((t.give_up for t in self._waiting), default=FOREVER)
+        due = self._limit
         if self._out:
             return min(due, self._out_at + self.reply_within)
         if self.cycle > 0:
@@ -193,9 +194,11 @@ class StationEngine:
         else:
             ticket.after = self.attempts
             ticket.give_up = now + request.timeout
+            self._fresh.append(ticket)
         if not self._waiting:
             self._ready_at = now
         self._waiting.append(ticket)
+        self._limit = min(self._limit, ticket.give_up)
         return ticket
 
     def cancel(self, ticket: Ticket[StationRequest, object], now: float) -> None:
@@ -240,7 +243,7 @@ class StationEngine:
         if data is None:
             return
         n, got = data
-        words = cast("tuple[int, ...]", got)  # checked below
+        words: tuple[int, ...] = got  # type: ignore[assignment]  # checked below (no cast: a call per exchange)
         if n != self._out or not n:
             self.stray += 1
             return
@@ -257,8 +260,7 @@ class StationEngine:
         self.exchanges += 1
         self.last_in = tuple(words)
         self.last_ok = True
-        if self.ppo is Ppo.PPO1:
-            self.pkw.receive(PkwResponse(words[0], words[1]), now)
+        finished = self.pkw.receive(PkwResponse(words[0], words[1]), now) if self.ppo is Ppo.PPO1 else None
         plan = self._plan
         if plan:
             step = plan[0]
@@ -267,7 +269,7 @@ class StationEngine:
                 plan.popleft()
                 if plan:
                     plan[0][2] = now + self.pulse
-        self._after(n, now, None)
+        self._after(n, now, None, finished is not None)
 
     def refused(self, unit: DpOut, error: StarterbusError, now: float) -> None:
         """The peer raised on the exchange ``unit``: it failed."""
@@ -280,12 +282,13 @@ class StationEngine:
             n, self._out = self._out, 0
             self._failed(n, TransportError(f"{PROTOCOL}: DP exchange {n} not answered ({self.where})"), now)
         job = self.pkw.current
-        if job is not None and job.started is not None and now - job.started > self.pkw.limits.timeout:
-            self.pkw.expire(now)
-        for ticket in list(self._waiting):
-            if now >= ticket.give_up and not ticket.ended:
-                self._give_up(ticket, now)
-        self._sweep(now)
+        late = job is not None and job.started is not None and now - job.started > self.pkw.limits.timeout
+        if late and self.pkw.expire(now) is not None:  # its time limit, without an exchange to apply it
+            self._sweep(now)
+        if now >= self._limit:
+            for ticket in list(self._waiting):
+                if now >= ticket.give_up and not ticket.ended:
+                    self._give_up(ticket, now)
 
     def take_completed(self) -> list[StationTicket]:
         done, self._done = self._done, []
@@ -309,24 +312,28 @@ class StationEngine:
         self.failures += 1
         self.last_error = error
         self.last_ok = False
-        self.pkw.fail(error, now)
-        self._after(n, now, error)
+        failed = self.pkw.fail(error, now)
+        self._after(n, now, error, bool(failed))
 
-    def _after(self, n: int, now: float, error: StarterbusError | None) -> None:
-        """Exchange ``n`` ended (``error``: it failed): the tickets it ends, and when the next one is due."""
+    def _after(self, n: int, now: float, error: StarterbusError | None, job_ended: bool) -> None:
+        """Exchange ``n`` ended (``error``: it failed; ``job_ended``: it ended a PKW job): the tickets it ends,
+        and when the next one is due."""
         if self.cycle > 0:
             self._next_at = max(self._next_at + self.cycle, now)  # an overrun: at once, without catching up
         self._ready_at = now
-        plan_ticket = self._plan_ticket
-        for ticket in self._waiting:
-            if isinstance(ticket.request, FreshInputs) and n > ticket.after:
+        for ticket in self._fresh:
+            if n > ticket.after:
                 if error is None:
                     ticket.done(self.last_in, now)
                 else:
                     ticket.failed(error, now)
-            elif ticket is plan_ticket and not self._plan:
-                ticket.done(None, now)
-        self._sweep(now)
+                job_ended = True
+        plan_ticket = self._plan_ticket
+        if plan_ticket is not None and not self._plan:
+            plan_ticket.done(None, now)
+            job_ended = True
+        if job_ended:
+            self._sweep(now)
 
     def _sweep(self, now: float) -> None:
         for ticket in list(self._waiting):
@@ -348,6 +355,9 @@ class StationEngine:
             self._plan_ticket = None
         if ticket in self._waiting:
             self._waiting.remove(ticket)
+            self._limit = min((t.give_up for t in self._waiting), default=FOREVER)
+        if ticket in self._fresh:
+            self._fresh.remove(ticket)
         self._done.append(ticket)
 
     def _give_up(self, ticket: StationTicket, now: float) -> None:
