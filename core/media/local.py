@@ -72,7 +72,7 @@ class LocalDriver(Driver[E]):
         for _ in range(BURST):
             if now >= engine.deadline:
                 engine.advance(now)
-            self.complete(now)
+                self.complete(now)  # a batch that failed is withdrawn before its next request could go out
             out = engine.take_output(now)
             if not out:
                 return
