@@ -25,7 +25,7 @@ import threading
 import time
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
-from typing import cast
+from typing import TypeVar, cast
 
 from starterbus.core import (
     SW_FAULT,
@@ -54,6 +54,7 @@ from starterbus.transports.profibus_pkw.master.station import (
 )
 
 Clock = Callable[[], float]
+T = TypeVar("T")
 
 #: the outer bound of a wait beyond the requests' own time limits: only a stalled loop gets there
 STALL = 30.0
@@ -172,9 +173,19 @@ class CyclicLink:
             loop.add(driver)
             return word
 
-        word = loop.wait(loop.call(add), STALL, f"{self.name}: open")
+        word = self._in_loop(add, "open")
         self._opened = self._added = True
         return word
+
+    def _in_loop(self, fn: Callable[[float], T], what: str) -> T:
+        """``fn(now)`` in the loop: at once when the caller can lead it, else queued and waited for."""
+        loop = self._loop
+        if loop.lead():
+            try:
+                return fn(loop.clock())
+            finally:
+                loop.release()
+        return loop.wait(loop.call(fn), STALL, f"{self.name}: {what}")
 
     @property
     def last_inputs(self) -> tuple[int, ...] | None:
@@ -201,7 +212,7 @@ class CyclicLink:
                     driver.engine.close(TransportError(f"{self.name or self.channel.describe()}: closed"), now)
                     driver.complete(now)
 
-                loop.wait(loop.call(remove), STALL, f"{self.name}: close")
+                self._in_loop(remove, "close")
             station = driver.engine
             if self._opened and station.last_ok and self.ppo is Ppo.PPO1:
                 self.channel.exchange(output_words_of(self.ppo, NO_TASK, station.control))
