@@ -16,9 +16,10 @@ costs most; ``mixed`` alternates p3 and p4. Level ``open`` opens a session and r
 (what a new session costs before its first value: the start fence reads included); "cycles/read" is then the
 exchanges per session.
 
-``cycle=0`` runs exchanges back to back on demand; ``cycle>0`` is a background DP cycle, so a read costs at
-least two cycle times. The ``floor`` line is a bare pymodbus FC16 + FC03 pair against the same gateway: one
-exchange with nothing of ours in it. "cycles/read" counts exchanges per read (mean).
+``cycle=0`` runs exchanges back to back on demand; ``cycle>0`` exchanges every cycle (deadlines of the I/O loop,
+driven here by the reading thread while it waits), so a read costs at least two cycle times. The ``floor``
+line is a bare pymodbus FC16 + FC03 pair against the same gateway: one exchange with nothing of ours in it.
+"cycles/read" counts exchanges per read (mean).
 """
 
 from __future__ import annotations
