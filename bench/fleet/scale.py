@@ -98,7 +98,7 @@ def thread_group(name: str) -> str:
         return "rtu_workers"
     if name.startswith("bus-"):
         return "dnet_workers"
-    if name.startswith(("devicenet-scanner", "can-reader", "starterbus-io")):  # the master's I/O (since step 5)
+    if name.startswith(("devicenet-scanner", "can-reader")):  # since step 5 the master runs in starterbus-io
         return "scanners"
     if name.startswith("modbus-rtu"):
         return "rtu_sims"

@@ -3,10 +3,11 @@
 The poll is written as a generator of the master's tickets (:class:`Steps`): it yields a request, is sent the
 ticket's result (or thrown its error) and returns the :class:`~starterbus.core.PollResult`. The task submits
 each request to the master's engine on the bus's driver, then each :meth:`~DeviceNetPoll.advance` runs one turn
-of the scheduler without waiting (the multiplexer waits on the driver's descriptor and deadline for it), as
-``MbapPoll`` does for Modbus TCP. While another thread runs the loop (a master that keeps the loop's own thread
-for its polled I/O connection, a job on the bus), the task waits on a pipe of its own that the ticket's future
-writes to when it ends, rather than looking again every millisecond.
+of the scheduler without waiting (the poller waits on the driver's descriptor and deadline for it). Run by the
+fleet inside the loop (``on_progress`` set: docs/engine.md, step 4), the ticket's future calls ``on_progress``
+when it ends and the task waits on nothing else. Run outside it while another thread leads (a master that
+keeps the loop's own thread for its polled I/O connection), the task waits on a pipe of its own that the
+ticket's future writes to when it ends, rather than looking again every millisecond.
 """
 
 from __future__ import annotations
@@ -37,6 +38,7 @@ class DeviceNetPoll(PollTask):
         self._result: PollResult | None = None
         self._error: StarterbusError | None = None
         self._pipe: tuple[int, int] | None = None
+        self._notified: Future[Any] | None = None
         self._until = 0.0
 
     def advance(self, now: float) -> None:
@@ -56,6 +58,9 @@ class DeviceNetPoll(PollTask):
             future = self._future
             assert future is not None
             if not future.done():
+                if self.on_progress is not None:  # the fleet's loop runs this task: the future's end wakes it
+                    self._notify_on(future)
+                    return
                 if loop.try_turn():
                     self.fd, self.wake_at = driver.fd, driver.deadline
                     if not future.done():
@@ -83,6 +88,20 @@ class DeviceNetPoll(PollTask):
         scanner = self.scanner
         self._future = scanner.loop.submit(scanner.driver, ToEngine(scanner.engine, request))
         self._until = now + request.timeout + STALL
+
+    def _notify_on(self, future: Future[Any]) -> None:
+        """In the loop's own thread (a fleet on the scheduler): the ticket's end calls ``on_progress`` (the task
+        is advanced at the loop's next turn); meanwhile only the outer bound is watched."""
+        if self._notified is not future:
+            self._notified = future
+            progress = self.on_progress
+
+            def ended(_: Future[Any]) -> None:
+                if progress is not None and not self.done:
+                    progress()
+
+            future.add_done_callback(ended)
+        self.fd, self.wake_at = -1, self._until
 
     def _wait_on(self, future: Future[Any], now: float) -> None:
         """Another thread leads: wake when the ticket's future ends (or at the outer bound: a stalled loop)."""
