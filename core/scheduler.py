@@ -442,7 +442,8 @@ class Scheduler:
                 os.fstat(fd)
             except OSError as exc:
                 self._watch(driver, -1, False)
-                driver.crash(TransportError(f"{driver.name}: the descriptor was closed under the wait: {exc}"), 0.0)
+                error = TransportError(f"{driver.name}: the descriptor was closed under the wait: {exc}")
+                driver.crash(error, self.clock())
 
     def _drain(self) -> None:
         try:

@@ -1,0 +1,125 @@
+"""What the fleet (and a sync caller's fast path) use of the scheduler: a driver marked due is stepped at the
+next turn from any thread, the leadership taken and given back without a turn, the loop's own thread given by
+the caller, and the loop failing raised out of ``serve``."""
+
+from __future__ import annotations
+
+import math
+import threading
+from collections.abc import Sequence
+from concurrent.futures import Future
+from typing import Any
+
+import pytest
+
+from starterbus.core.engine import Ticket
+from starterbus.core.errors import StarterbusError
+from starterbus.core.scheduler import Scheduler, Waiter
+from starterbus.testing import wait_until
+
+
+class Counting:
+    """A driver with no descriptor and no deadline: stepped only when marked due; ``again`` times it marks
+    itself due from inside its own step."""
+
+    def __init__(self, loop: Scheduler, again: int = 0) -> None:
+        self.name = "counting"
+        self.loop, self.again = loop, again
+        self.steps = 0
+        self.in_loop: list[bool] = []
+        self.fd, self.writing, self.deadline = -1, False, math.inf
+
+    def step(self, now: float, ready: bool) -> None:
+        self.steps += 1
+        self.in_loop.append(self.loop.in_loop())
+        if self.again:
+            self.again -= 1
+            self.loop.due(self)
+
+    def submit(
+        self, requests: Sequence[Any], now: float, futures: Sequence[Future[Any] | None]
+    ) -> list[Ticket[Any, Any]]:
+        raise AssertionError("no requests")
+
+    def withdraw(self, tickets: Sequence[Ticket[Any, Any]], now: float) -> None:
+        pass
+
+    def cancel(self, futures: Sequence[Future[Any]], now: float) -> None:
+        pass
+
+    def crash(self, error: StarterbusError, now: float) -> None:
+        raise AssertionError(f"crashed: {error}")
+
+
+def state(loop: Scheduler) -> tuple[bool, threading.Thread | None]:
+    return loop.running, loop.thread
+
+
+def test_a_driver_marked_due_is_stepped_at_the_next_turn_and_one_not_served_is_left_alone() -> None:
+    loop = Scheduler()
+    served, other = Counting(loop, again=2), Counting(loop)
+    assert loop.start()
+    try:
+        loop.wait(loop.call(lambda now: loop.add(served)), 5.0, "add")
+        loop.due(served)  # from this thread: through the inbox
+        loop.due(other)  # never added
+        assert wait_until(lambda: served.steps == 3, 5.0), served.steps  # twice more, marked due from its step
+        loop.wait(loop.call(lambda now: None), 5.0, "one more turn")
+        assert served.steps == 3 and other.steps == 0
+        assert served.in_loop == [True, True, True] and not loop.in_loop()
+    finally:
+        loop.stop()
+
+
+def test_the_leadership_is_taken_and_given_back_without_a_turn() -> None:
+    loop = Scheduler()
+    assert loop.lead() and loop.in_loop()
+    elsewhere: list[bool] = []
+    thread = threading.Thread(target=lambda: elsewhere.append(loop.lead()))
+    thread.start()
+    thread.join(5.0)
+    assert elsewhere == [False], "another thread leads"
+    loop.release()
+    assert not loop.in_loop()
+    loop.call(lambda now: None)  # queued, not served: the next leader must serve it first
+    assert not loop.lead()
+    loop.wait(loop.call(lambda now: None), 5.0, "served")  # the caller led a turn and served both
+    assert loop.lead()
+    loop.release()
+    assert loop.start()
+    try:
+        assert not loop.lead(), "the loop's own thread leads"
+        assert not loop.start(), "already running"
+    finally:
+        loop.stop()
+
+
+def test_the_loop_s_own_thread_may_be_the_caller_s_and_a_failing_loop_raises_out_of_serve(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    loop = Scheduler()
+    raised: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            loop.serve()
+        except RuntimeError as exc:
+            raised.append(exc)
+
+    thread = threading.Thread(target=run, name="given")
+    assert loop.start(thread)
+    assert state(loop) == (True, thread)
+    original = Waiter.wait
+
+    def broken(self: Waiter[Any], timeout: float) -> list[Any]:
+        if threading.current_thread() is thread:
+            raise RuntimeError("the selector broke")
+        return original(self, timeout)
+
+    monkeypatch.setattr(Waiter, "wait", broken)
+    loop.wake()
+    thread.join(5.0)
+    assert [str(e) for e in raised] == ["the selector broke"]
+    assert state(loop) == (False, None)
+    monkeypatch.setattr(Waiter, "wait", original)
+    assert loop.wait(loop.call(lambda now: 7), 5.0, "led again") == 7, "callers lead again"
