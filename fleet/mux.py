@@ -57,7 +57,7 @@ class Multiplexer:
         self._started = False
         self._finishing = False  # the end is decided: the buses are no longer stepped
         self._ended = threading.Event()  # every bus given back and shut down
-        self._stopped_loop = False  # the fleet was the last on the loop and stopped the thread it started
+        self._stopped: threading.Thread | None = None  # the loop's thread this fleet stopped, the last one on it
         for bus in self.buses:
             bus.worker.notify = functools.partial(self._poke, bus)
 
@@ -114,7 +114,8 @@ class Multiplexer:
 
     @property
     def alive(self) -> bool:
-        return self.driving or bool(self.pool.alive) or (self._stopped_loop and self.thread.is_alive())
+        stopped = self._stopped
+        return self.driving or bool(self.pool.alive) or (stopped is not None and stopped.is_alive())
 
     def join(self, timeout: float | None = None) -> None:
         """Wait for the end: every bus shut down, the loop's thread (if the fleet started it) and the pool's."""
@@ -125,8 +126,8 @@ class Multiplexer:
 
         if self._started and not self._ended.wait(left()):
             return
-        if self._stopped_loop:
-            self.thread.join(left())
+        if self._stopped is not None:
+            self._stopped.join(left())
         for thread in self.pool.alive:
             thread.join(left())
 
@@ -352,8 +353,8 @@ class Multiplexer:
                     _FLEETS[loop] = left
                 elif loop in _STARTED:
                     _STARTED.discard(loop)
-                    self._stopped_loop = True
-            if self._stopped_loop:
+                    self._stopped = loop.thread  # (another fleet's, if that one started it)
+            if self._stopped is not None:
                 loop.stop()
             self._ended.set()
 

@@ -3,6 +3,7 @@ the end, and its selector beyond ``select``'s descriptor limit."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import threading
 from concurrent.futures import Future
@@ -162,6 +163,7 @@ def test_after_the_end_the_poller_wakes_nothing(lines: Lines, samples: Samples) 
     loop = poller.mux.loop
     assert not loop.running and not [bus for bus in poller.mux.buses if bus in loop.drivers]
     queued = len(loop._inbox)
+    loop._drain()  # the byte of the loop's own stop, if its last turn did not read it
     poller.stop()
     assert len(loop._inbox) == queued
     with pytest.raises(BlockingIOError):
@@ -236,3 +238,27 @@ def test_the_waiter_takes_descriptors_beyond_select_s_limit() -> None:
         waiter.close()
         for fd in (low_r, low_w, high_r, high_w, far):
             os.close(fd)
+
+
+def test_two_fleets_share_the_loop_and_the_last_one_out_stops_it(lines: Lines) -> None:
+    """A fleet that ends while another polls on the same scheduler leaves the loop's thread running for it; the
+    last one stops the thread the first one started."""
+    from starterbus.tests.fleet.conftest import Samples
+
+    config = lines.fleet(buses=2)
+    short, long = Samples(), Samples()
+    first = FleetPoller(dataclasses.replace(config, buses=config.buses[:1]), short, rounds=1)
+    second = FleetPoller(dataclasses.replace(config, buses=config.buses[1:]), long)
+    assert first.mux is not None and second.mux is not None
+    first.start()
+    second.start()
+    try:
+        first.join(30.0)
+        assert not first.running and len(short.list) == 3
+        assert first.mux.thread.is_alive(), "the thread the first fleet started still serves the second"
+        mark = long.mark()
+        long.wait_for(lambda ss: len(ss) >= mark + 6)  # the second fleet goes on
+    finally:
+        second.stop()
+    assert not second.running and not first.mux.thread.is_alive() and not first.mux.loop.running
+    assert all(s.online for s in [*short.list, *long.list])
