@@ -73,9 +73,9 @@ from starterbus.transports.devicenet.codec.identity import ATTRIBUTE_NAMES, deco
 from starterbus.transports.devicenet.codec.ids import poll_command_id
 from starterbus.transports.devicenet.driver.poll import DeviceNetPoll, Steps
 from starterbus.transports.devicenet.driver.scanner import Scanner, SlaveLink
-from starterbus.transports.devicenet.master.engine import Explicit, FreshInput, MasterRequest, Until
 from starterbus.transports.devicenet.master.link import InputSample, LinkState
 from starterbus.transports.devicenet.master.polling import POLL_RESPONSE_TIMEOUT
+from starterbus.transports.devicenet.master.requests import Explicit, FreshInput, MasterRequest, Until
 from starterbus.transports.devicenet.master.sequence import input_request
 from starterbus.transports.devicenet.settings import devicenet_settings
 from starterbus.transports.devicenet.url import NAME, parse_url

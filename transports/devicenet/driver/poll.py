@@ -20,7 +20,7 @@ from typing import Any
 
 from starterbus.core import PollResult, PollTask, StarterbusError, ToEngine, TransportError
 from starterbus.transports.devicenet.driver.scanner import STALL, Scanner
-from starterbus.transports.devicenet.master.engine import MasterRequest
+from starterbus.transports.devicenet.master.requests import MasterRequest
 
 __all__ = ["DeviceNetPoll", "Steps"]
 

@@ -35,23 +35,7 @@ from starterbus.core import (
     process_scheduler,
 )
 from starterbus.transports.devicenet.codec.explicit import ExplicitRequest, ExplicitResponse
-from starterbus.transports.devicenet.master.engine import (
-    Acked,
-    Attach,
-    Begin,
-    Detach,
-    Expedite,
-    Explicit,
-    FreshInput,
-    MasterEngine,
-    MasterRequest,
-    Online,
-    Outputs,
-    ReleaseControl,
-    Reset,
-    TakeControl,
-    Until,
-)
+from starterbus.transports.devicenet.master.engine import MasterEngine
 from starterbus.transports.devicenet.master.link import (
     InputSample,
     LinkConfig,
@@ -60,6 +44,22 @@ from starterbus.transports.devicenet.master.link import (
     ScannerState,
 )
 from starterbus.transports.devicenet.master.node import MasterNode
+from starterbus.transports.devicenet.master.requests import (
+    Acked,
+    Attach,
+    Begin,
+    Detach,
+    Expedite,
+    Explicit,
+    FreshInput,
+    MasterRequest,
+    Online,
+    Outputs,
+    ReleaseControl,
+    Reset,
+    TakeControl,
+    Until,
+)
 
 __all__ = ["CAN_FILTERS", "VIRTUAL_HINT", "Scanner", "SlaveLink"]
 
