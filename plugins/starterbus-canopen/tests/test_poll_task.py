@@ -101,3 +101,37 @@ def test_a_cancelled_poll_leaves_the_node_quiet_and_fails_typed(transport: Canop
             )
             assert wait_until(lambda: engine.stale == 1)
         assert engine.pending == 0
+
+
+def test_a_fleet_polls_a_canopen_bus_from_the_scheduler_without_a_thread_of_its_own(channel: str) -> None:
+    from starterbus.fleet.config import parse_fleet
+    from starterbus.fleet.poller import FleetPoller, Sample
+
+    starter = SimulatedStarter(get_profile(MODEL), ManualClock(0.0))
+    starter.params["current_limit"] = 410
+    config = parse_fleet(
+        f"""
+[poll]
+period = 0.05
+
+[[bus]]
+name = "can"
+url = "canopen://virtual/{channel}?heartbeat=50"
+
+  [[bus.device]]
+  name = "fan"
+  model = "{MODEL}"
+  address = 5
+  parameters = ["current_limit"]
+""",
+        "fleet.toml",
+    )
+    samples: list[tuple[str, Sample]] = []
+    with CanopenSimulator(("virtual", channel), heartbeat_ms=0) as sim:
+        sim.add_node(starter, 5)
+        poller = FleetPoller(config, lambda s: samples.append((threading.current_thread().name, s)), rounds=3)
+        poller.start()
+        poller.join(30)
+        assert not poller.running
+    assert len(samples) == 3 and all(s.online and s.values["current_limit"].raw == 410 for _, s in samples)
+    assert {thread for thread, _ in samples} == {"starterbus-io"}  # the loop's thread: no bus-can thread polled
