@@ -114,8 +114,16 @@ class Multiplexer:
 
     @property
     def alive(self) -> bool:
-        stopped = self._stopped
-        return self.driving or bool(self.pool.alive) or (stopped is not None and stopped.is_alive())
+        return self.driving or bool(self.pool.alive) or any(t.is_alive() for t in self._loop_threads())
+
+    def _loop_threads(self) -> list[threading.Thread]:
+        """The loop's threads this fleet waits for at its end: the one it stopped (the last on the loop), and its
+        own while it ends without serving the loop (it failed: the supervisor records that as it ends)."""
+        threads = [] if self._stopped is None else [self._stopped]
+        mine = self.thread
+        if mine.ident is not None and mine is not self.loop.thread and mine not in threads:
+            threads.append(mine)
+        return threads
 
     def join(self, timeout: float | None = None) -> None:
         """Wait for the end: every bus shut down, the loop's thread (if the fleet started it) and the pool's."""
@@ -126,8 +134,9 @@ class Multiplexer:
 
         if self._started and not self._ended.wait(left()):
             return
-        if self._stopped is not None:
-            self._stopped.join(left())
+        for thread in self._loop_threads():
+            if thread is not threading.current_thread():
+                thread.join(left())
         for thread in self.pool.alive:
             thread.join(left())
 
