@@ -1,6 +1,6 @@
 """A fleet's DeviceNet poll as a PollTask (no thread per bus): monitoring reads the input assembly over explicit
-messaging with no output data; a master that polls answers from a fresh sample; status parameters and taking
-control again poll by blocking."""
+messaging with no output data; a master that polls answers from a fresh sample and selects status parameters in
+turn; taking control again (control=open after a loss) polls by blocking."""
 
 from __future__ import annotations
 
@@ -59,7 +59,24 @@ def test_a_polling_master_answers_from_a_fresh_sample(channel: str, simulated: S
         assert link.responses > polls
 
 
-def test_status_parameters_poll_by_blocking(channel: str, simulated: SimulatedStarter, jjr8000: Profile) -> None:
+def test_status_parameters_are_selected_by_the_task(
+    channel: str, simulated: SimulatedStarter, jjr8000: Profile
+) -> None:
     with open_device(f"devicenet://virtual/{channel}?mac=5&{FAST}&control=open", jjr8000) as device:
-        assert transport(device).start_poll([jjr8000.point("m3")], True) is None
-        assert "phase_b_current" in device.read("m3")
+        points = [jjr8000.point("m3"), jjr8000.point("status_word")]
+        task = transport(device).start_poll(points, True)
+        assert task is not None
+        result = run_task(task, time.monotonic)
+        assert result.status is not None and result.status.state is MotorState.STOPPED
+        by_key = {r.point.key: r.raw for r in result.readings}
+        assert by_key["phase_b_current"] == simulated.read(jjr8000.point("m3"))
+        assert by_key["status_word"] == simulated.read(jjr8000.point("status_word"))
+
+
+def test_taking_control_again_polls_by_blocking(channel: str, simulated: SimulatedStarter) -> None:
+    with open_device(f"devicenet://virtual/{channel}?mac=5&{FAST}&control=open", "jjr8000") as device:
+        link = transport(device).link
+        assert link is not None
+        transport(device).scanner.release_control(link)  # type: ignore[union-attr]  # as a loss would leave it
+        assert not link.polling and transport(device).start_poll([], True) is None
+        assert device.status().state is MotorState.STOPPED and link.polling  # the blocking path took it again

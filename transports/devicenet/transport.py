@@ -75,7 +75,7 @@ from starterbus.transports.devicenet.driver.poll import DeviceNetPoll, Steps
 from starterbus.transports.devicenet.driver.scanner import Scanner, SlaveLink
 from starterbus.transports.devicenet.master.link import InputSample, LinkState
 from starterbus.transports.devicenet.master.polling import POLL_RESPONSE_TIMEOUT
-from starterbus.transports.devicenet.master.requests import Explicit, FreshInput, MasterRequest, Until
+from starterbus.transports.devicenet.master.requests import Explicit, FreshInput, MasterRequest, Outputs, Until
 from starterbus.transports.devicenet.master.sequence import input_request
 from starterbus.transports.devicenet.settings import devicenet_settings
 from starterbus.transports.devicenet.url import NAME, parse_url
@@ -359,61 +359,94 @@ class DeviceNetTransport(Transport):
         address = point.address_for(NAME)
         if address is None or not 0 <= address <= 0xFF:
             raise self.unsupported(f"read {point.key}", "it has no DeviceNet status parameter address")
-        settle = self.link_config.settle
         with self._select_lock:
+            return scanner.drive(self._status_parameter_steps(scanner, link, point, address))
+
+    def _status_parameter_steps(
+        self, scanner: Scanner, link: SlaveLink, point: PointDef, address: int
+    ) -> Generator[MasterRequest, Any, Reading]:
+        """Select the status parameter in the outputs, then its value once ``settle`` answers carried it (the
+        input does not echo the address: the answers are counted)."""
+        settle = self.link_config.settle
+        error = scanner.link_error(link)
+        if error is not None:
+            raise error
+        yield Outputs(link, select=address, polls=settle)
+
+        def reported() -> bool:
+            sample = link.sample
+            return sample is not None and sample.select == address and sample.select_count >= settle
+
+        def settled() -> bool:
+            return reported() or not link.established or scanner.machine.link_error(link) is not None
+
+        done = yield Until(settled, self.timeout)
+        if not done or not reported():
             error = scanner.link_error(link)
             if error is not None:
                 raise error
-            scanner.set_outputs(link, select=address, polls=settle)
-
-            def reported() -> bool:
-                sample = link.sample
-                return sample is not None and sample.select == address and sample.select_count >= settle
-
-            def settled() -> bool:
-                return reported() or not link.established or scanner.machine.link_error(link) is not None
-
-            if not scanner.wait_for(settled, self.timeout) or not reported():
-                error = scanner.link_error(link)
-                if error is not None:
-                    raise error
-                raise TimeoutError(
-                    f"{self.describe()}: status parameter 0x{address:02X} ({point.key}) was not reported within "
-                    f"{self.timeout:g} s (connection {link.state.value})"
-                )
-            current = link.sample
-            assert current is not None
-            inputs = decode_input(current.data, 101)
-            if inputs.selected_value is None:
-                raise DecodeError("input assembly 101 without bytes 4-5", current.data, "selected_value")
-            return Reading(point, inputs.selected_value)
+            raise TimeoutError(
+                f"{self.describe()}: status parameter 0x{address:02X} ({point.key}) was not reported within "
+                f"{self.timeout:g} s (connection {link.state.value})"
+            )
+        current = link.sample
+        assert current is not None
+        inputs = decode_input(current.data, 101)
+        if inputs.selected_value is None:
+            raise DecodeError("input assembly 101 without bytes 4-5", current.data, "selected_value")
+        return Reading(point, inputs.selected_value)
 
     # -- the fleet's poll without blocking ------------------------------------------------------------------------
 
     def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
-        """The status and the L1 current as tickets (monitoring: one explicit read of the input assembly; while
-        this master polls: the latest fresh sample). Status parameters (selected in the outputs) and taking
-        control again (``control=open``) poll by blocking (None)."""
+        """The poll as tickets: monitoring, the status and the L1 current from one explicit read of the input
+        assembly; while this master polls, the latest fresh sample and each status parameter selected in turn.
+        What the blocking path refuses or must decide by blocking (taking control again with ``control=open``)
+        polls by blocking (None)."""
         scanner, link = self._require()
         phases = self.profile.phase_currents()
         l1 = phases[0].key if phases else None
-        if any(point.key != l1 for point in points) or (self.control == "open" and not link.polling):
+        if self.control == "open" and not link.polling:
             return None
-        if points and link.polling and link.assemblies is not AssemblySet.BASIC:
-            return None  # extended: the L1 current is read as a status parameter (0.1 A), as read_points does
-        return DeviceNetPoll(scanner, self._poll_steps(scanner, link, points, status))
+        if not link.polling or link.assemblies is AssemblySet.BASIC:
+            if any(point.key != l1 for point in points):
+                return None  # refused by the blocking path, with its message
+            return DeviceNetPoll(scanner, self._poll_steps(scanner, link, points, status, {}))
+        addresses: dict[str, int] = {}
+        for point in points:
+            address = point.address_for(NAME)
+            if address is None or not 0 <= address <= 0xFF:
+                return None  # refused by the blocking path, with its message
+            addresses[point.key] = address
+        return DeviceNetPoll(scanner, self._poll_steps(scanner, link, points, status, addresses))
 
-    def _poll_steps(self, scanner: Scanner, link: SlaveLink, points: Sequence[PointDef], status: bool) -> Steps:
-        if link.polling:
+    def _poll_steps(
+        self,
+        scanner: Scanner,
+        link: SlaveLink,
+        points: Sequence[PointDef],
+        status: bool,
+        addresses: dict[str, int],
+    ) -> Steps:
+        """``addresses``: the status parameter of each point (extended assemblies, this master polling); none:
+        the points are the L1 current of the input assembly. Without the select lock of the blocking path: a
+        concurrent select on the link can only make this one time out (its answers are counted by address)."""
+        value: Status | None = None
+        if not link.polling:
+            inputs = yield from self._explicit_steps(scanner, link)
+            value = inputs.to_status(self.profile, timestamp=time.time(), source=NAME)
+        elif status or not addresses:
             sample = yield from self._fresh_steps(link, scanner)
             assemblies = link.assemblies or AssemblySet.EXTENDED
             inputs = decode_input(sample.data, assemblies.input_instance)
             timestamp = scanner.wall_time(sample.at)
             value = inputs.to_status(self.profile, selected_address=sample.select, timestamp=timestamp, source=NAME)
-        else:
-            inputs = yield from self._explicit_steps(scanner, link)
-            value = inputs.to_status(self.profile, timestamp=time.time(), source=NAME)
-        readings = [Reading(point, inputs.current_a, CURRENT_RESOLUTION_A) for point in points]
+        readings = []
+        for point in points:
+            if addresses:
+                readings.append((yield from self._status_parameter_steps(scanner, link, point, addresses[point.key])))
+            else:
+                readings.append(Reading(point, inputs.current_a, CURRENT_RESOLUTION_A))
         return PollResult(value if status else None, readings)
 
     # -- identity ------------------------------------------------------------------------------------------------
