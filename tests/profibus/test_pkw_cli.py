@@ -192,7 +192,7 @@ def test_cli_against_starterbus_simulate(
     simulate_process: tuple[subprocess.Popen[str], str], capsys: pytest.CaptureFixture[str], audit: list[str]
 ) -> None:
     proc, url = simulate_process
-    assert url.endswith("?ppo=1&out=4&in=4&unit=1")  # the second station, PPO1: four words further
+    assert "?ppo=1&out=4&in=4&unit=1&stale_time=" in url  # the second station, PPO1: four words further
     assert run_json(capsys, "status", url, "--model", "jjr5000")["status"]["state"] == "ready"  # type: ignore[index]
     assert run(capsys, "write", url, "0x0102=30", "--model", "jjr5000", *audit)[0] == 0
     values = run_json(capsys, "read", url, "soft_stop_time", "0x0147", "--model", "jjr5000")

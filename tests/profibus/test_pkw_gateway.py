@@ -123,7 +123,7 @@ def test_split_image_read_inputs_write_outputs(gateway_factory: Factory, jjr8000
     starter = SimulatedStarter(jjr8000)
     sim = gateway_factory(starter, port=0, ppo=1, cycle=0.002).start()
     assert sim.port != 0 and sim.client_urls() == {1: sim.url(0)}
-    assert sim.url(0) == f"profibus-pkw+gateway://127.0.0.1:{sim.port}?ppo=1&out=0&in=0&unit=1"
+    assert sim.url(0) == f"profibus-pkw+gateway://127.0.0.1:{sim.port}?ppo=1&out=0&in=0&unit=1&stale_time=0.004"
     channel = GatewayChannel("127.0.0.1", sim.port, Ppo.PPO1, out=0, inp=0, unit=1)
     try:
         assert channel.snapshot().outputs is None  # same registers: reads show the inputs
@@ -160,7 +160,7 @@ def test_stations_share_one_connection(gateway_factory: Factory, jjr8000: Profil
     a, b = SimulatedStarter(jjr8000), SimulatedStarter(jjr8000)
     sim = gateway_factory([a, b], port=0, ppo=1, out=0, inp=100, cycle=0.002, stations=[4, 5]).start()
     urls = sim.client_urls()
-    assert urls[5].endswith("out=4&in=104&unit=1")
+    assert urls[5].endswith("out=4&in=104&unit=1&stale_time=0.004")
     with open_device(urls[4] + "&cycle=0", jjr8000) as d4, open_device(urls[5] + "&cycle=0", jjr8000) as d5:
         assert GATEWAYS.users(("127.0.0.1", sim.port)) == 2
         d5.write("ramp_time", 30)

@@ -182,3 +182,22 @@ def test_after_a_defect_the_fresh_engine_leaves_the_control_word_alone(jjr8000: 
         assert sent[-1][2:] == (None, None) and link.control is None and starter.phase is Phase.STARTING
     finally:
         link.close()
+
+
+@pytest.mark.parametrize(
+    ("stale_cycles", "stale_time", "first_fresh"), [(0, 0.0, 1), (1, 0.0, 2), (0, 0.0035, 5), (4, 0.0065, 8)]
+)
+def test_fresh_inputs_come_from_an_exchange_the_staleness_allows(
+    stale_cycles: int, stale_time: float, first_fresh: int
+) -> None:
+    """A gateway's image lags (its own DP cycle): a status read takes the input of an exchange that started more
+    than ``stale_cycles`` exchanges and at least ``stale_time`` seconds after the request, never one before."""
+    limits = Limits(max_cycles=20, timeout=0.5, stale_cycles=stale_cycles, stale_time=stale_time)
+    engine = StationEngine(Ppo.PPO1, PkwEngine(limits=limits), cycle=0.0, hold=2, reply_within=0.05)
+    fresh = engine.submit(FreshInputs(0.5), 0.0)
+    n = 0
+    while not fresh.ended:
+        n += 1
+        assert n <= 10, "fresh inputs never came"
+        exchange(engine, 0.001 * (n - 1))  # exchange n starts at (n - 1) ms
+    assert n == first_fresh and fresh.state is TicketState.DONE and fresh.result == engine.last_in

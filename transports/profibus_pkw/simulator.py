@@ -128,6 +128,7 @@ class ProfibusGatewaySimulator(RunningSimulator):
         return (
             f"{PROTOCOL}+gateway://{host}:{self.port}?ppo={self.ppo.value}"
             f"&out={self.out + k * words}&in={self.inp + k * words}&unit={self.unit}"
+            f"&stale_time={2 * self.cycle:g}"  # the image lags up to a DP cycle: a status read waits past it
         )
 
     def client_urls(self) -> dict[int, str]:

@@ -91,11 +91,15 @@ StationRequest = PkwTask | ControlWords | FreshInputs
 @dataclass(eq=False, slots=True)
 class StationTicket(Ticket[StationRequest, object]):
     """A station's ticket: ``job`` for a PKW task; ``give_up``: when it fails if nothing ended it before;
-    ``after``: the exchanges started before it (fresh inputs come from a later one)."""
+    ``after``: the exchanges started before it (fresh inputs come from a later one, and from one started more
+    than ``stale_cycles`` exchanges and at least ``stale_time`` seconds after the request: ``fresh_after``,
+    ``not_before``, the input then shows the slave at a moment after the request)."""
 
     job: PkwJob | None = None
     give_up: float = FOREVER
     after: int = 0
+    fresh_after: int = 0
+    not_before: float = 0.0
 
 
 class StationEngine:
@@ -192,7 +196,10 @@ class StationEngine:
             self.control = words[-1]
             ticket.give_up = now + request.timeout + len(words) * (self.hold * self.cycle + self.pulse)
         else:
+            limits = self.pkw.limits
             ticket.after = self.attempts
+            ticket.fresh_after = self.attempts + limits.stale_cycles
+            ticket.not_before = now + limits.stale_time if limits.stale_time > 0 else -math.inf
             ticket.give_up = now + request.timeout
             self._fresh.append(ticket)
         if not self._waiting:
@@ -322,11 +329,13 @@ class StationEngine:
             self._next_at = max(self._next_at + self.cycle, now)  # an overrun: at once, without catching up
         self._ready_at = now
         for ticket in self._fresh:
-            if n > ticket.after:
-                if error is None:
-                    ticket.done(self.last_in, now)
-                else:
-                    ticket.failed(error, now)
+            if n <= ticket.after:
+                continue
+            if error is not None:
+                ticket.failed(error, now)
+                job_ended = True
+            elif n > ticket.fresh_after and self._out_at >= ticket.not_before:  # exchange n started at _out_at
+                ticket.done(self.last_in, now)
                 job_ended = True
         plan_ticket = self._plan_ticket
         if plan_ticket is not None and not self._plan:
