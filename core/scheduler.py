@@ -4,8 +4,12 @@ Other threads reach the loop only through its inbox (:meth:`Scheduler.call`, :me
 pipe interrupts the wait). Whoever waits drives: a thread waiting on a future (:meth:`Scheduler.wait`) while no
 thread runs the loop becomes its leader and runs it in its own thread until its future is done, then hands over
 to the next waiter. A CLI ``read`` or a script thus starts no thread. A service starts the scheduler's own
-thread (:meth:`Scheduler.start`, named ``starterbus-io``), and every other thread waits as a follower. Only the
-leader ever calls a driver or an engine: that is the lock rule, once.
+thread (named ``starterbus-io``), and every other thread waits as a follower. Only the leader ever calls a driver
+or an engine: that is the lock rule, once.
+
+The loop's own thread has one set of owners: its :class:`Holder` s (:meth:`Scheduler.hold` / :meth:`Scheduler.unhold`;
+fleets, devices that must be served while nobody waits). The first holder starts it, the last one to let go stops
+it, and the loop itself failing (not a driver: those are contained) is told to every holder, whoever started it.
 
 A driver whose step raises fails its own tickets (a :class:`TransportError` for anything not a
 :class:`StarterbusError`); the other drivers go on. A wait has an outer bound only (timeouts belong to the
@@ -15,21 +19,26 @@ callback calling the sync API) would wait on itself and is refused at once (:cla
 
 from __future__ import annotations
 
+import logging
 import os
 import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future
+from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
 from starterbus.core.engine import Ticket, TicketState
 from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
 from starterbus.core.media.waiter import FD_SETSIZE, Waiter, precise_timers
+from starterbus.core.supervision import describe
 
 __all__ = [
-    "FD_SETSIZE", "THREAD_NAME", "Scheduler", "SchedulerReentryError", "Served", "Waiter", "precise_timers",
-    "scheduler",
+    "FD_SETSIZE", "THREAD_NAME", "Holder", "Scheduler", "SchedulerReentryError", "Served", "Waiter",
+    "precise_timers", "scheduler",
 ]  # fmt: skip
+
+log = logging.getLogger(__name__)
 
 T = TypeVar("T")
 
@@ -88,6 +97,15 @@ class Served(Protocol):
         ...
 
 
+@dataclass(eq=False)
+class Holder:
+    """One who needs the loop's own thread to run (:meth:`Scheduler.hold`). ``on_failure(error)``: the loop itself
+    failed (called in the loop's thread as it ends, after the loop was given up: callers lead again)."""
+
+    name: str
+    on_failure: Callable[[Exception], None] | None = None
+
+
 class Scheduler:
     """The loop of every driver of the process (:func:`scheduler` gives the process's one)."""
 
@@ -100,6 +118,9 @@ class Scheduler:
         self._thread: threading.Thread | None = None
         self._stopping = False
         self._serving = threading.Event()  # the loop's own thread leads
+        self._holders: tuple[Holder, ...] = ()  # replaced whole under _holding: read without a lock
+        self._holding = threading.Lock()  # hold/unhold: the thread's start and stop decided and done in turn
+        self._held_thread = False  # the thread running was started by a holder (the last one stops it)
         self.drivers: list[Served] = []
         self._due: list[Served] = []  # to step at the next turn (a submission)
         self._watched: dict[Served, tuple[int, bool]] = {}
@@ -308,15 +329,44 @@ class Scheduler:
         with self._lock:
             self._changed.notify_all()
 
+    def hold(self, holder: Holder) -> threading.Thread | None:
+        """The loop's own thread runs at least until ``holder`` lets go (:meth:`unhold`); started now if it does
+        not run. The thread it runs in (None: it failed already). Holding twice is holding once."""
+        with self._holding:
+            if holder not in self._holders:
+                self._holders = (*self._holders, holder)
+            if self._thread is None:
+                if self.in_loop():  # the new thread would wait for this caller's lead to end
+                    raise SchedulerReentryError(f"{holder.name}: the I/O loop's thread started from inside the loop")
+                self._held_thread = self.start()
+            return self._thread
+
+    def unhold(self, holder: Holder) -> None:
+        """``holder`` lets go; the last one stops the thread a holder started (and waits for its end, unless it is
+        the calling thread). A holder not holding: nothing."""
+        with self._holding:
+            if holder not in self._holders:
+                return
+            self._holders = tuple(h for h in self._holders if h is not holder)
+            if not self._holders and self._held_thread:
+                self._held_thread = False
+                self.stop()
+
+    @property
+    def holders(self) -> list[str]:
+        """The names of the loop thread's holders now."""
+        return [h.name for h in self._holders]
+
     def start(self, thread: threading.Thread | None = None) -> bool:
         """Run the loop in a thread of its own (``starterbus-io``) until :meth:`stop`; waiters are followers.
-        ``thread``: a thread not yet started whose target calls :meth:`serve` (a supervisor's, so that the loop
-        failing is its worker failing). False: the loop's own thread runs already (``thread`` is not started)."""
+        ``thread``: a thread not yet started whose target calls :meth:`serve`. False: the loop's own thread runs
+        already (``thread`` is not started). A thread started here is not held: its starter stops it
+        (:meth:`hold` is how the owners of a shared loop share its thread)."""
         with self._lock:
             if self._thread is not None:
                 return False
             self._stopping = False
-            self._thread = thread or threading.Thread(target=self.serve, name=THREAD_NAME, daemon=True)
+            self._thread = thread or threading.Thread(target=self._serve_own, name=THREAD_NAME, daemon=True)
             self._serving.clear()
         self._thread.start()
         self.wake()  # a caller leading now hands over at its next turn
@@ -345,22 +395,50 @@ class Scheduler:
 
     def serve(self) -> None:
         """The loop, in the calling thread, until :meth:`stop` (the target of the thread :meth:`start` runs); an
-        exception out of the loop itself (not a driver's: those are contained) ends it and is raised."""
+        exception out of the loop itself (not a driver's: those are contained) ends it, is told to every holder
+        (logged when none has an ``on_failure``) and is raised."""
         precise_timers()
         with self._lock:
             while self._leader is not None:  # a caller leading now hands over at its next check
                 self._changed.wait()
             self._leader = threading.get_ident()
         self._serving.set()
+        failure: Exception | None = None
         try:
             while not self._stopping:
                 self._turn(self.clock(), self.clock() + IDLE, None)
+        except Exception as exc:
+            failure = exc
+            raise
         finally:
+            holders = self._holders  # those who held it while it ran (before another holder may start one anew)
             with self._lock:
                 self._leader = None
+                self._held_thread = False  # (before the thread is gone: a holder starting one anew sets it)
                 self._thread = None
                 self._stopping = False
                 self._changed.notify_all()
+            if failure is not None:
+                self._tell(holders, failure)
+
+    def _tell(self, holders: Sequence[Holder], failure: Exception) -> None:
+        told = [h for h in holders if h.on_failure is not None]
+        for holder in told:
+            assert holder.on_failure is not None
+            try:
+                holder.on_failure(failure)
+            except Exception as exc:  # one holder failing to take it must not keep it from the others
+                log.error("%s: told that the I/O loop failed: %s", holder.name, describe(exc))
+        if not told:
+            names = ", ".join(h.name for h in holders) or "none"
+            log.error("%s failed: %s (holders: %s)", THREAD_NAME, describe(failure), names)
+
+    def _serve_own(self) -> None:
+        """The target of the loop's own thread when :meth:`start` made it: a failure was told or logged there."""
+        try:
+            self.serve()
+        except Exception:
+            log.debug("%s: the traceback", THREAD_NAME, exc_info=True)
 
     # -- in the loop --------------------------------------------------------------------------------------------
 

@@ -15,9 +15,10 @@ The bus is lent meanwhile (``BusWorker.lent``): its polls wait, the other buses 
 polls only by blocking (``start_poll`` gives None: a pyserial port without a file descriptor) is handed to a
 thread of its own at its first poll.
 
-The fleet starts the loop's own thread when it is not running (under the poller's supervisor: the loop itself
-failing is fatal); the last fleet on the loop to end stops it if a fleet started it. A loop already running
-(started by someone else) is used as it is: its failing is then not this fleet's to see.
+The fleet holds the loop's own thread (``Scheduler.hold``: started if it does not run) from its start to its
+end, counted with the loop's other holders (other fleets, devices kept running): the last one to let go stops
+it, whoever started it. The loop itself failing is told to every holder: fatal for the fleet (its supervisor's
+failure, named ``starterbus-io``), whoever started the thread.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from collections.abc import Callable
 
 from starterbus.core.errors import StarterbusError, TransportError
 from starterbus.core.polling import PollResult, PollTask
-from starterbus.core.scheduler import FD_SETSIZE, THREAD_NAME, Scheduler, Waiter, scheduler
+from starterbus.core.scheduler import FD_SETSIZE, THREAD_NAME, Holder, Scheduler, Waiter, scheduler
 from starterbus.fleet.bus_driver import Bus
 from starterbus.fleet.bus_worker import Attempt, BusWorker, DeviceRuntime
 from starterbus.fleet.jobs import POOL_SIZE, JobPool
@@ -39,11 +40,6 @@ __all__ = ["FD_SETSIZE", "Multiplexer", "Waiter"]  # Waiter: core.scheduler's, t
 
 INF = float("inf")
 
-#: per scheduler, the fleets on it now, and whether one of them started its thread (the last one out stops it)
-_FLEETS: dict[Scheduler, int] = {}
-_STARTED: set[Scheduler] = set()
-_FLEETS_LOCK = threading.Lock()
-
 
 class Multiplexer:
     """Polls the given buses from the scheduler's loop (:meth:`start`); stops with the poller."""
@@ -52,12 +48,13 @@ class Multiplexer:
         self.poller = poller
         self._loop = loop  # the process's, made at start (a poller never started holds no descriptor)
         self.buses = [Bus(w, self.serve) for w in workers]
-        self.thread = poller.supervisor.thread(THREAD_NAME, self._run_loop)  # if the fleet starts the loop
+        #: the loop's thread the fleet runs on (held from its start to its end; before, a thread never started)
+        self.thread = threading.Thread(name=THREAD_NAME, daemon=True)
+        self._holder = Holder(f"fleet ({len(self.buses)} buses)", self._loop_failed)
         self.pool = JobPool(poller.supervisor, min(POOL_SIZE, len(workers)))
         self._started = False
         self._finishing = False  # the end is decided: the buses are no longer stepped
         self._ended = threading.Event()  # every bus given back and shut down
-        self._stopped: threading.Thread | None = None  # the loop's thread this fleet stopped, the last one on it
         for bus in self.buses:
             bus.worker.notify = functools.partial(self._poke, bus)
 
@@ -74,23 +71,23 @@ class Multiplexer:
             bus.worker.deferred = True  # closed in the pool: a transport's close may wait on the loop
         self._started = True
         loop = self.loop
-        with _FLEETS_LOCK:
-            _FLEETS[loop] = _FLEETS.get(loop, 0) + 1
-            if loop.start(self.thread):
-                _STARTED.add(loop)
+        self.thread = loop.hold(self._holder) or self.thread
         loop.call(self._add)
 
     def _add(self, now: float) -> None:
+        if self._finishing:  # the loop failed as it started: abandoned already
+            return
         for bus in self.buses:
             self.loop.add(bus)
             self.loop.due(bus)
 
-    def _run_loop(self) -> None:
-        try:
-            self.loop.serve()
-        finally:
-            if not self._finishing:  # the loop itself failed (the fleet's end stops it only once decided)
-                self._abandon()
+    def _loop_failed(self, error: Exception) -> None:
+        """The loop itself failed (in its thread, as that ends; whoever started it): fatal for the fleet, which
+        is abandoned unless its end was decided already."""
+        self.thread = threading.current_thread()
+        self.poller.supervisor.fail(THREAD_NAME, error)
+        if not self._finishing:
+            self._abandon()
 
     def _poke(self, bus: Bus) -> None:
         """Step ``bus`` at the loop's next turn (any thread): a job was queued, its lent work is over."""
@@ -117,16 +114,14 @@ class Multiplexer:
         return self.driving or bool(self.pool.alive) or any(t.is_alive() for t in self._loop_threads())
 
     def _loop_threads(self) -> list[threading.Thread]:
-        """The loop's threads this fleet waits for at its end: the one it stopped (the last on the loop), and its
-        own while it ends without serving the loop (it failed: the supervisor records that as it ends)."""
-        threads = [] if self._stopped is None else [self._stopped]
+        """The loop's thread this fleet ran on, once it no longer serves the loop (stopped by the last holder, or
+        failed): the fleet's end waits for it. One still serving the loop for other holders is not waited for."""
         mine = self.thread
-        if mine.ident is not None and mine is not self.loop.thread and mine not in threads:
-            threads.append(mine)
-        return threads
+        return [mine] if mine.ident is not None and mine is not self.loop.thread else []
 
     def join(self, timeout: float | None = None) -> None:
-        """Wait for the end: every bus shut down, the loop's thread (if the fleet started it) and the pool's."""
+        """Wait for the end: every bus shut down, the pool's threads, and the loop's thread the fleet ran on once
+        it no longer serves the loop (it stopped with the fleet's end, or failed)."""
         deadline = None if timeout is None else time.monotonic() + timeout
 
         def left() -> float | None:
@@ -348,23 +343,14 @@ class Multiplexer:
         self.pool.run("fleet-end", self._shut_down)
 
     def _shut_down(self) -> None:
-        """The jobs queued until now run, the devices are closed; then the loop's thread stops if the fleet
-        started it."""
+        """The jobs queued until now run, the devices are closed; then the fleet lets go of the loop's thread
+        (stopped if it was the last holder)."""
         try:
             for bus in self.buses:
                 if not bus.handed_over:
                     bus.worker.shut_down()
         finally:
-            loop = self.loop
-            with _FLEETS_LOCK:
-                left = _FLEETS.pop(loop, 1) - 1
-                if left:
-                    _FLEETS[loop] = left
-                elif loop in _STARTED:
-                    _STARTED.discard(loop)
-                    self._stopped = loop.thread  # (another fleet's, if that one started it)
-            if self._stopped is not None:
-                loop.stop()
+            self.loop.unhold(self._holder)
             self._ended.set()
 
     def _abandon(self) -> None:

@@ -1,49 +1,49 @@
 """Engines that need the time while no caller waits (a cyclic exchange whose peer has a watchdog): the
-scheduler's own thread runs while at least one holds it (:func:`keep_running` / :func:`let_go`)."""
+scheduler's own thread runs while at least one holds it (:func:`keep_running` / :func:`let_go`).
+
+Each :func:`keep_running` is one :class:`~starterbus.core.scheduler.Holder` of the loop's thread, counted with
+the others (fleets): the thread stops when the last holder of any kind lets go, never under another."""
 
 from __future__ import annotations
 
 import threading
 from typing import Protocol
 
-__all__ = ["Runnable", "keep_running", "let_go"]
+from starterbus.core.scheduler import Holder
+
+__all__ = ["KEEPER", "Runnable", "keep_running", "let_go"]
+
+#: the name of a :func:`keep_running` holder (``Scheduler.holders``)
+KEEPER = "keep_running"
 
 
 class Runnable(Protocol):
     """What is needed of the scheduler (:class:`starterbus.core.Scheduler`)."""
 
-    @property
-    def running(self) -> bool: ...
-    def start(self) -> object: ...
-    def stop(self) -> object: ...
+    def hold(self, holder: Holder) -> object: ...
+    def unhold(self, holder: Holder) -> None: ...
 
 
-_kept: dict[int, int] = {}  # id(loop) -> holders
-_started: set[int] = set()  # loops whose own thread a holder started
+_kept: dict[Runnable, list[Holder]] = {}  # loop -> its keep_running holders
 _lock = threading.Lock()
 
 
 def keep_running(loop: Runnable) -> None:
-    """The loop's own thread runs until every holder let go (:func:`let_go`). A thread started here is stopped
-    by the last :func:`let_go`; one started by someone else (a fleet, a service) is left alone."""
+    """The loop's own thread runs (started now if it does not) until this holder lets go (:func:`let_go`) and
+    every other holder of it too."""
+    holder = Holder(KEEPER)
+    loop.hold(holder)
     with _lock:
-        _kept[id(loop)] = _kept.get(id(loop), 0) + 1
-        start = _kept[id(loop)] == 1 and not loop.running
-        if start:
-            _started.add(id(loop))
-    if start:
-        loop.start()
+        _kept.setdefault(loop, []).append(holder)
 
 
 def let_go(loop: Runnable) -> None:
-    """One holder of :func:`keep_running` fewer."""
+    """One holder of :func:`keep_running` fewer (the thread stops if it was the last holder of any kind)."""
     with _lock:
-        users = _kept.get(id(loop), 0) - 1
-        if users > 0:
-            _kept[id(loop)] = users
+        held = _kept.get(loop)
+        if not held:
             return
-        _kept.pop(id(loop), None)
-        stop = id(loop) in _started
-        _started.discard(id(loop))
-    if stop:
-        loop.stop()
+        holder = held.pop()
+        if not held:
+            del _kept[loop]
+    loop.unhold(holder)
