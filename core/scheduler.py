@@ -25,11 +25,11 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future
-from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
 from starterbus.core.engine import Ticket, TicketState
 from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
+from starterbus.core.media.keeper import Holder
 from starterbus.core.media.waiter import FD_SETSIZE, Waiter, precise_timers
 from starterbus.core.supervision import describe
 
@@ -95,15 +95,6 @@ class Served(Protocol):
     def crash(self, error: StarterbusError, now: float) -> None:
         """A step raised: fail every ticket with ``error`` and drop the medium (made again on demand)."""
         ...
-
-
-@dataclass(eq=False)
-class Holder:
-    """One who needs the loop's own thread to run (:meth:`Scheduler.hold`). ``on_failure(error)``: the loop itself
-    failed (called in the loop's thread as it ends, after the loop was given up: callers lead again)."""
-
-    name: str
-    on_failure: Callable[[Exception], None] | None = None
 
 
 class Scheduler:

@@ -1,20 +1,29 @@
 """Engines that need the time while no caller waits (a cyclic exchange whose peer has a watchdog): the
 scheduler's own thread runs while at least one holds it (:func:`keep_running` / :func:`let_go`).
 
-Each :func:`keep_running` is one :class:`~starterbus.core.scheduler.Holder` of the loop's thread, counted with
-the others (fleets): the thread stops when the last holder of any kind lets go, never under another."""
+Each :func:`keep_running` is one :class:`Holder` of the loop's thread (``Scheduler.hold``), counted with the
+others (fleets): the thread stops when the last holder of any kind lets go, never under another."""
 
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Protocol
 
-from starterbus.core.scheduler import Holder
-
-__all__ = ["KEEPER", "Runnable", "keep_running", "let_go"]
+__all__ = ["KEEPER", "Holder", "Runnable", "keep_running", "let_go"]
 
 #: the name of a :func:`keep_running` holder (``Scheduler.holders``)
 KEEPER = "keep_running"
+
+
+@dataclass(eq=False)
+class Holder:
+    """One who needs the loop's own thread to run (``Scheduler.hold``). ``on_failure(error)``: the loop itself
+    failed (called in the loop's thread as it ends, after the loop was given up: callers lead again)."""
+
+    name: str
+    on_failure: Callable[[Exception], None] | None = None
 
 
 class Runnable(Protocol):
