@@ -45,6 +45,25 @@ from starterbus.serve.session import EdgeSession, SessionOptions
 PROFILE = get_profile("jjr5000")
 
 
+class _Stream:
+    """The synthetic samples as a subscriber's stream: nothing waits in it at a stop (generated on demand)."""
+
+    def __init__(self, source: AsyncIterator[Sample]) -> None:
+        self._source = source
+
+    def __aiter__(self) -> _Stream:
+        return self
+
+    async def __anext__(self) -> Sample:
+        return await self._source.__anext__()
+
+    def drain(self) -> list[Sample]:
+        return []
+
+    def close(self) -> None:
+        pass
+
+
 class SyntheticFleet:
     """``devices`` JJR5000s, each sampled once per ``period``, spread evenly over it, all values changing."""
 
@@ -67,6 +86,10 @@ class SyntheticFleet:
             raw = p.raw_min + (config.address or 0) + j + round_ % 50
             values[p.key] = Value.from_raw(p, min(raw, p.raw_max))
         return Sample(config.name, "l1", "jjr5000", time.time(), True, self.status, values, None, 0)
+
+    def subscribe(self) -> _Stream:
+        """What serve's driver reads (as :meth:`AsyncFleet.subscribe <starterbus.aio.AsyncFleet.subscribe>`)."""
+        return _Stream(self.samples())
 
     async def samples(self) -> AsyncIterator[Sample]:
         slot = 0.005
