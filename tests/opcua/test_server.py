@@ -310,11 +310,16 @@ def test_subscription_sees_the_current_change_poll_by_poll(rig: Rig) -> None:
             pump.params["ramp_time"] = 60  # the current rises over 0.75 s: several polls, on a loaded machine too
             pump.start()  # on the simulator itself: the ramp makes the current rise poll after poll
             seen: list[ua.DataValue] = []
-            while len({v.Value.Value for v in seen if v.Value is not None}) < 3:
+
+            def good(v: ua.DataValue) -> bool:
+                return v.StatusCode is None or v.StatusCode.is_good()
+
+            while len({v.Value.Value for v in seen if good(v) and v.Value is not None}) < 3:
                 seen.append(await asyncio.wait_for(handler.queue.get(), 10))
             stamps = [v.SourceTimestamp for v in seen]
             assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
-            assert all(v.StatusCode is not None and v.StatusCode.is_good() for v in seen)
+            # a poll that failed (line-2's 0.05 s timeout on a loaded machine) is a Bad value with none given
+            assert all(good(v) or v.Value is None or v.Value.Value is None for v in seen), seen
             await sub.delete()
 
     rig.run(scenario)
