@@ -148,7 +148,10 @@ class PtyPeer:
         self.path = os.ttyname(self.slave)
         self.received: list[bytes] = []
         self.arrivals: list[float] = []
-        self.replied_at: list[float] = []
+        self.replied_at: list[float] = []  # after the answer's last write returned
+        # before that last write began: the answer's last byte went out after it, so "the master kept the silence
+        # after it" is checked against this time, whenever the peer's own thread was held up (a loaded machine)
+        self.last_write_from: list[float] = []
         self._thread: threading.Thread | None = None
 
     def read_frame(self, size: int = 8, timeout: float = 3.0) -> bytes:
@@ -189,11 +192,14 @@ class PtyPeer:
                 if reply is None:
                     continue
                 parts = [reply] if isinstance(reply, bytes) else list(reply)
+                began = time.monotonic()
                 for part in parts:
                     if isinstance(part, float):
                         time.sleep(part)
                     else:
+                        began = time.monotonic()
                         self.write(part)
+                self.last_write_from.append(began)
                 self.replied_at.append(time.monotonic())
 
         self._thread = threading.Thread(target=run, daemon=True)

@@ -180,7 +180,7 @@ def test_the_silent_interval_is_kept_between_frames(peer: PtyPeer) -> None:
     with device(peer, FAST + "&silence=0.02") as d:
         for _ in range(3):
             d.read("motor_rated_current")
-    gaps = [arrival - replied for replied, arrival in zip(peer.replied_at, peer.arrivals[1:], strict=False)]
+    gaps = [arrival - began for began, arrival in zip(peer.last_write_from, peer.arrivals[1:], strict=False)]
     assert len(gaps) == 2 and min(gaps) >= 0.02
 
 

@@ -106,7 +106,7 @@ def test_io_pyserial_on_a_pty_keeps_the_silence_and_the_exact_length(peer: PtyPe
             device.read("motor_rated_current")
         assert info.value.field == "trailing"
         assert device.read_value("motor_rated_current").value == 390
-    gaps = [arrival - replied for replied, arrival in zip(peer.replied_at, peer.arrivals[1:], strict=False)]
+    gaps = [arrival - began for began, arrival in zip(peer.last_write_from, peer.arrivals[1:], strict=False)]
     assert len(gaps) == 3 and min(gaps) >= 0.02
     assert gaps[2] >= 0.15  # after the suspect answer: the quarantine (the timeout)
 
