@@ -13,6 +13,7 @@ from starterbus.core.device import open_device
 from starterbus.core.errors import ConfigurationError, DecodeError, TransportError
 from starterbus.core.registry import get_profile
 from starterbus.core.url import DeviceUrl
+from starterbus.testing import wait_until
 from starterbus.transports.modbus.client import ModbusRtuTransport
 from starterbus.transports.modbus.config import ModbusRtuConfig
 from starterbus.transports.modbus.frames import ReadRequest, ReadResponse
@@ -126,19 +127,28 @@ ATTEMPTS = 5
 def test_wire_check_on_refuses_an_answer_faster_than_the_wire(peer: PtyPeer, io: str) -> None:
     """Forced on a pty at 9600 baud: request + answer take 14 ms on a wire, the pty delivers at once. A master
     or peer held up by a loaded machine may see the answer only later, when a wire could have brought it: then
-    it is delivered, and must have been seen no sooner than the wire allows; the case is tried again."""
+    it is delivered, and must have been seen no sooner than the wire allows; the case is tried again. A peer
+    held up past the master's wait spoils the case too (a timeout, nothing delivered), but only if the peer's
+    own record says its answer was not all written before the wait ran out."""
     peer.serve([GOOD] * ATTEMPTS, wait=1.0)  # the peer stops 1 s after the last request it got
     url = f"modbus-rtu://{peer.path}?unit=2&baudrate=9600&{FAST}&wire_check=on&io={io}"
     with open_device(url, "jjr5000") as device:
         transport = device.transport
         assert isinstance(transport, ModbusRtuTransport)
         guard = transport.line.guard
-        for _ in range(ATTEMPTS):
+        for attempt in range(ATTEMPTS):
             try:
                 value = device.read_value("motor_rated_current")
             except DecodeError as exc:
                 assert exc.field == "timing" and exc.data == GOOD and "sooner than request and answer" in str(exc)
                 break
+            except TimeoutError:
+                waited_until = guard.started + 0.15  # the master's wait ended no sooner than this
+                answered = attempt + 1
+                assert wait_until(lambda: len(peer.replied_at) >= answered), "the peer never answered"  # noqa: B023
+                # replied_at is taken after the answer's write returned: at or after the answer was all there
+                assert peer.replied_at[attempt] > waited_until, "an answer there in time was taken as a timeout"
+                continue
             seen_after = guard.trail_until - guard.silence - guard.started  # the master's own view
             assert value.value == 390 and seen_after >= (len(READ) + len(GOOD)) * guard.min_char_time
         else:
