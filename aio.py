@@ -1,7 +1,14 @@
 """The asyncio API: an async device and an async fleet (samples as an async stream, guarded remote commands).
 
-Blocking I/O never runs on the event loop: a device's calls run in a worker thread (one at a time per device),
-a fleet's polls and commands run in the poller's bus threads and come back through futures and a queue.
+Blocking I/O never runs on the event loop. A device's operations are jobs with futures (awaited through
+:func:`asyncio.wrap_future`): one at a time per device, in the order called, run by the process's small edge pool
+(:func:`edge_pool`: at most :data:`POOL_SIZE` threads for every :class:`AsyncDevice`, none per call), where each
+leads or follows the I/O scheduler as the sync API does. A fleet's polls run on the scheduler and its commands in
+the fleet's job pool; both come back through futures and a queue (``call_soon_threadsafe``).
+
+Cancelling the task that awaits an operation withdraws it if it has not started (nothing was sent); one that
+has started (a write may be on the wire) runs to its end, its outcome not awaited by anyone (a failure is logged),
+and the device's next operation starts only after it: a device is never left half way through one.
 
 ```python
 import asyncio
@@ -21,20 +28,150 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import logging
+import os
+import threading
+import time
+from collections import deque
 from collections.abc import AsyncIterator, Callable, Mapping
+from concurrent.futures import Future
 from types import TracebackType
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import StarterbusError
 from starterbus.core.guarded import Outcome
 from starterbus.core.model import Value
 from starterbus.core.status import Command, Status
-from starterbus.core.supervision import ServiceFailed, Supervisor
+from starterbus.core.supervision import ServiceFailed, Supervisor, describe
 from starterbus.fleet.config import DeviceConfig, FleetConfig
 from starterbus.fleet.poller import FleetPoller, Sample
 
+log = logging.getLogger(__name__)
+
 T = TypeVar("T")
+
+#: threads of the edge pool at most, whatever the number of devices and awaits
+POOL_SIZE = 8
+#: the name of the edge pool's threads
+POOL_THREAD = "aio-jobs"
+#: seconds an idle pool thread waits for more work before it ends (a device awaited every second keeps its thread)
+LINGER = 10.0
+
+
+class EdgePool:
+    """A few threads for the blocking work of the asyncio edge: a thread starts when work comes and none is idle
+    (at most ``size``), and ends after ``linger`` seconds without work. Work runs in the order given."""
+
+    def __init__(self, size: int = POOL_SIZE, linger: float = LINGER) -> None:
+        self.size = max(1, size)
+        self.linger = linger
+        self._work: deque[Callable[[], None]] = deque()
+        self._cond = threading.Condition()
+        self._alive = 0  # threads started that have not decided to end
+        self._idle = 0  # of them, waiting for work
+        self.started = 0  # threads started since the pool was made
+
+    def run(self, work: Callable[[], None]) -> None:
+        """Run ``work()`` in a pool thread (any thread); it must not raise (an exception is logged)."""
+        with self._cond:
+            self._work.append(work)
+            start = self._idle < len(self._work) and self._alive < self.size
+            if start:
+                self._alive += 1
+                self.started += 1
+            else:
+                self._cond.notify()
+        if start:
+            threading.Thread(target=self._serve, name=POOL_THREAD, daemon=True).start()
+
+    def submit(self, fn: Callable[[], T]) -> Future[T]:
+        """``fn()`` in a pool thread; its result (or exception) in the future (withdrawn if cancelled before)."""
+        future: Future[T] = Future()
+        self.run(functools.partial(_settle, future, fn))
+        return future
+
+    def _serve(self) -> None:
+        while True:
+            with self._cond:
+                give_up = time.monotonic() + self.linger
+                while not self._work:
+                    remaining = give_up - time.monotonic()
+                    if remaining <= 0:
+                        self._alive -= 1
+                        return
+                    self._idle += 1
+                    self._cond.wait(remaining)
+                    self._idle -= 1
+                work = self._work.popleft()
+            try:
+                work()
+            except Exception:  # the machinery around a job (a job's own error is its future's)
+                log.exception("%s: work failed", POOL_THREAD)
+
+
+def _settle(future: Future[T], fn: Callable[[], T]) -> None:
+    """Run ``fn`` for ``future`` unless it was cancelled before it started (then nothing runs)."""
+    if future.set_running_or_notify_cancel():
+        try:
+            future.set_result(fn())
+        except BaseException as exc:  # the awaiting task's to see, typed as raised
+            future.set_exception(exc)
+
+
+_pool: list[EdgePool] = []
+_pool_lock = threading.Lock()
+
+
+def edge_pool() -> EdgePool:
+    """The process's edge pool (made at first use)."""
+    if not _pool:
+        with _pool_lock:
+            if not _pool:
+                _pool.append(EdgePool())
+    return _pool[0]
+
+
+os.register_at_fork(after_in_child=_pool.clear)  # a child has none of the parent's threads
+
+
+class SerialJobs:
+    """The jobs of one device: one at a time, in the order submitted, in the edge pool. A device with work
+    waiting goes back to the end of the pool's queue after each job, so a busy device does not starve others."""
+
+    def __init__(self, pool: Callable[[], EdgePool] = edge_pool) -> None:
+        self._pool = pool
+        self._lock = threading.Lock()
+        self._queue: deque[tuple[Future[Any], Callable[[], Any]]] = deque()
+        self._active = False  # a job of this device is queued in the pool or runs
+
+    @property
+    def waiting(self) -> int:
+        """Jobs submitted that have not started (a cancelled one counts until its turn comes)."""
+        with self._lock:
+            return len(self._queue)
+
+    def submit(self, fn: Callable[[], T]) -> Future[T]:
+        future: Future[T] = Future()
+        with self._lock:
+            self._queue.append((future, fn))
+            start = not self._active
+            self._active = True
+        if start:
+            self._pool().run(self._next)
+        return future
+
+    def _next(self) -> None:
+        with self._lock:
+            future, fn = self._queue.popleft()
+        try:
+            _settle(future, fn)
+        finally:
+            with self._lock:
+                more = bool(self._queue)
+                self._active = more
+            if more:
+                self._pool().run(self._next)
 
 
 class SampleStream:
@@ -75,19 +212,31 @@ class RemoteNotAllowed(StarterbusError):
 
 
 class AsyncDevice:
-    """:class:`~starterbus.core.device.Device` for asyncio code: the same operations, awaited."""
+    """:class:`~starterbus.core.device.Device` for asyncio code: the same operations, awaited; each a job of the
+    device's :class:`SerialJobs` (``jobs``) in the edge pool. The module's docstring says what a cancelled await
+    does."""
 
     def __init__(self, device: Device) -> None:
         self.device = device
-        self._lock = asyncio.Lock()
+        self.jobs = SerialJobs()
 
     @classmethod
     def open_url(cls, url: str, model: str, **kwargs: object) -> AsyncDevice:
         return cls(open_device(url, model, **kwargs))  # type: ignore[arg-type]
 
     async def _run(self, fn: Callable[..., T], *args: object, **kwargs: object) -> T:
-        async with self._lock:
-            return await asyncio.to_thread(functools.partial(fn, *args, **kwargs))
+        future = self.jobs.submit(functools.partial(fn, *args, **kwargs))
+        try:
+            return await asyncio.wrap_future(future)
+        except asyncio.CancelledError:
+            if not future.cancel():  # under way: it runs to its end, and the device's next job waits for it
+                future.add_done_callback(functools.partial(self._unawaited, getattr(fn, "__name__", "a call")))
+            raise
+
+    def _unawaited(self, what: str, future: Future[Any]) -> None:  # a pool thread
+        error = future.exception()
+        if error is not None:
+            log.warning("%s: %s, whose await was cancelled, failed: %s", self.device.describe(), what, describe(error))
 
     async def open(self) -> AsyncDevice:
         await self._run(self.device.open)
@@ -167,7 +316,7 @@ class AsyncFleet:
         """Stop polling and wait until every bus is done (again: nothing more happens). Then every sample polled is
         in the subscribers' streams: a service stopping on request publishes or stores them before it goes."""
         if self.poller is not None:
-            await asyncio.to_thread(self.poller.stop)
+            await asyncio.wrap_future(edge_pool().submit(self.poller.stop))
         await asyncio.sleep(0)  # the hand-overs the buses made before they ended come first
 
     def _on_sample(self, sample: Sample) -> None:  # a bus thread

@@ -1,0 +1,189 @@
+"""AsyncDevice's operations as jobs with futures: serialised per device in the order called, a cancelled await
+never leaves the device half way through an operation, a bounded pool of threads (none per call), errors typed."""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from collections.abc import Callable, Iterator
+from typing import Any
+
+import pytest
+
+from starterbus.aio import POOL_SIZE, POOL_THREAD, AsyncDevice, EdgePool, SerialJobs, edge_pool
+from starterbus.core.device import open_device
+from starterbus.core.errors import UnknownPointError
+from starterbus.core.guarded import Proposal
+from starterbus.core.registry import get_profile
+from starterbus.core.simulator import SimulatedStarter
+from starterbus.testing import wait_until
+from starterbus.testing.waits import wait_until_async
+from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+
+UNITS = (4, 5, 6)
+
+
+@pytest.fixture
+def sim() -> Iterator[tuple[ModbusRtuSimulator, dict[int, SimulatedStarter]]]:
+    profile = get_profile("ssd1")
+    starters = {unit: SimulatedStarter(profile) for unit in UNITS}
+    simulator = ModbusRtuSimulator(starters, pty=True).start()
+    try:
+        yield simulator, starters
+    finally:
+        simulator.close()
+
+
+NESTED = threading.local()  # a write's read-back calls read: only the outermost call is an operation
+
+
+def recording(fn: Callable[..., Any], log: list[tuple[str, object]], threads: list[threading.Thread]) -> Any:
+    """``fn`` noting its start and end (with its first argument) and the thread it ran in."""
+
+    def call(*args: Any, **kwargs: Any) -> Any:
+        if getattr(NESTED, "depth", 0):
+            return fn(*args, **kwargs)
+        what = args[0] if args else fn.__name__
+        log.append(("start", what))
+        threads.append(threading.current_thread())
+        NESTED.depth = 1
+        try:
+            return fn(*args, **kwargs)
+        finally:
+            NESTED.depth = 0
+            log.append(("end", what))
+
+    return call
+
+
+def test_concurrent_awaits_on_one_device_run_one_at_a_time_in_order_each_with_its_answer(
+    sim: tuple[ModbusRtuSimulator, dict[int, SimulatedStarter]],
+) -> None:
+    simulator, starters = sim
+    log: list[tuple[str, object]] = []
+    threads: list[threading.Thread] = []
+
+    async def scenario() -> list[Any]:
+        async with AsyncDevice.open_url(simulator.client_urls()[4], "ssd1") as device:
+            device.device.read = recording(device.device.read, log, threads)  # type: ignore[method-assign]
+            device.device.write_many = recording(device.device.write_many, log, threads)  # type: ignore[method-assign]
+            calls = []
+            for value in range(20, 30):  # each read must see the write just before it, and only that one
+                calls += [device.write({"ramp_time": value}), device.read("ramp_time")]
+            answers: list[Any] = await asyncio.gather(*calls)
+            return answers
+
+    answers = asyncio.run(scenario())
+    for index, value in enumerate(range(20, 30)):
+        (outcome,) = answers[2 * index]
+        assert outcome.ok
+        assert answers[2 * index + 1]["ramp_time"].raw == value, (index, answers[2 * index + 1])
+    starts = [what for event, what in log if event == "start"]
+    assert len(starts) == 20 and all(log[i][0] == "start" and log[i + 1][0] == "end" for i in range(0, 40, 2))
+    assert {t.name for t in threads} == {POOL_THREAD}  # never the event loop's thread
+    assert starters[4].params["ramp_time"] == 29
+
+
+def test_a_cancelled_await_withdraws_what_has_not_started_and_lets_what_has_run_to_its_end(
+    sim: tuple[ModbusRtuSimulator, dict[int, SimulatedStarter]],
+) -> None:
+    simulator, starters = sim
+    entered, release = threading.Event(), threading.Event()
+    proposals: list[Proposal] = []
+
+    def confirm(proposal: Proposal) -> bool:  # holds the first write in its job, before anything is sent
+        proposals.append(proposal)
+        entered.set()
+        return release.wait(10)
+
+    device = AsyncDevice(open_device(simulator.client_urls()[5], "ssd1", confirm=confirm))
+
+    async def scenario() -> int:
+        await device.open()
+        try:
+            under_way = asyncio.create_task(device.write({"ramp_time": 20}))
+            assert await wait_until_async(entered.is_set)
+            read = asyncio.create_task(device.read("ramp_time"))
+            not_started = asyncio.create_task(device.write({"ramp_time": 30}))
+            assert await wait_until_async(lambda: device.jobs.waiting == 2)
+            under_way.cancel()
+            not_started.cancel()
+            for task in (under_way, not_started):
+                with pytest.raises(asyncio.CancelledError):
+                    await task
+            assert device.jobs.waiting == 2 and not read.done()  # the read waits for the write under way
+            assert starters[5].params["ramp_time"] == 10  # nothing written yet: the write is held in confirm
+            release.set()
+            value = (await read)["ramp_time"].raw
+            assert isinstance(value, int)
+            return value
+        finally:
+            await device.close()
+
+    assert asyncio.run(scenario()) == 20  # the cancelled write ran to its end, before the read
+    assert len(proposals) == 1  # the write withdrawn before it started never reached its confirmation
+    assert starters[5].params["ramp_time"] == 20
+
+
+def test_no_thread_per_call_a_bounded_pool_shared_across_event_loops(
+    sim: tuple[ModbusRtuSimulator, dict[int, SimulatedStarter]],
+) -> None:
+    simulator, _ = sim
+    devices = [AsyncDevice(open_device(simulator.client_urls()[unit], "ssd1")) for unit in UNITS]
+    log: list[tuple[str, object]] = []
+    threads: list[threading.Thread] = []  # the thread objects themselves: a new thread is a new object
+    for device in devices:
+        device.device.status = recording(device.device.status, log, threads)  # type: ignore[method-assign]
+    started = edge_pool().started
+
+    async def one(device: AsyncDevice) -> None:
+        assert (await device.status()).ready
+
+    async def burst() -> None:
+        await asyncio.gather(*(one(device) for device in devices for _ in range(10)))
+
+    for device in devices:
+        asyncio.run(device.open())
+    try:
+        for _ in range(10):  # a new event loop each time: asyncio.to_thread would start a new executor's threads
+            asyncio.run(one(devices[0]))
+        asyncio.run(burst())
+    finally:
+        for device in devices:
+            asyncio.run(device.close())
+    assert len(threads) == 40
+    assert len({id(t) for t in threads}) <= POOL_SIZE and {t.name for t in threads} == {POOL_THREAD}
+    assert edge_pool().started - started <= POOL_SIZE
+
+
+def test_errors_come_through_typed_as_raised(sim: tuple[ModbusRtuSimulator, dict[int, SimulatedStarter]]) -> None:
+    simulator, _ = sim
+
+    async def scenario() -> None:
+        async with AsyncDevice.open_url(simulator.client_urls()[6], "ssd1") as device:
+            with pytest.raises(UnknownPointError, match="no_such_point"):
+                await device.read("no_such_point")
+            assert (await device.status()).ready  # the device goes on after an error
+
+    asyncio.run(scenario())
+
+
+def test_the_pool_runs_at_most_its_size_at_once_and_its_idle_threads_end() -> None:
+    pool = EdgePool(size=2, linger=0.05)
+    jobs = [SerialJobs(lambda: pool) for _ in range(4)]
+    release = threading.Event()
+    running: list[int] = []
+    lock = threading.Lock()
+
+    def job(n: int) -> int:
+        with lock:
+            running.append(n)
+        release.wait(10)
+        return n
+
+    futures = [jobs[n].submit(lambda n=n: job(n)) for n in range(4)]  # type: ignore[misc]
+    assert wait_until(lambda: len(running) == 2)
+    assert pool.started == 2 and len(running) == 2  # two devices wait for a thread, none started for them
+    release.set()
+    assert [f.result(10) for f in futures] == [0, 1, 2, 3] and pool.started == 2
+    assert wait_until(lambda: pool._alive == 0)  # lingered, then ended
