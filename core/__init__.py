@@ -51,7 +51,7 @@ if TYPE_CHECKING:
         UncertainValueError,
     )
     from starterbus.core.media import Driver, StreamDriver, TcpDriver
-    from starterbus.core.media.can import CanDriver, CanEngine, ToEngine
+    from starterbus.core.media.can import CanDriver, CanEngine, Periodic, ToEngine
     from starterbus.core.media.keeper import keep_running, let_go
     from starterbus.core.media.local import LocalDriver, LocalEngine
     from starterbus.core.model import Access, EnumTable, Kind, Label, PointDef, Reading, Value
@@ -86,6 +86,7 @@ if TYPE_CHECKING:
         status_with_currents,
     )
     from starterbus.core.textinput import check_loopback, parse_hex, parse_host_port
+    from starterbus.core.ticket_poll import TicketPoll, run_steps, wait_ticket
     from starterbus.core.transport import (
         ALL_CAPABILITIES,
         Annotation,
@@ -205,6 +206,7 @@ _LAZY = {
     "TcpDriver": "starterbus.core.media",
     "CanDriver": "starterbus.core.media.can",
     "CanEngine": "starterbus.core.media.can",
+    "Periodic": "starterbus.core.media.can",
     "ToEngine": "starterbus.core.media.can",
     "keep_running": "starterbus.core.media.keeper",
     "let_go": "starterbus.core.media.keeper",
@@ -213,6 +215,9 @@ _LAZY = {
     "Scheduler": "starterbus.core.scheduler",
     "SchedulerReentryError": "starterbus.core.scheduler",
     "process_scheduler": "starterbus.core.scheduler:scheduler",
+    "TicketPoll": "starterbus.core.ticket_poll",
+    "run_steps": "starterbus.core.ticket_poll",
+    "wait_ticket": "starterbus.core.ticket_poll",
 }
 
 
@@ -275,6 +280,7 @@ __all__ = [
     "NotOpenError",
     "OptionValues",
     "Outcome",
+    "Periodic",
     "Phase",
     "PlannedRequest",
     "PluginError",
@@ -303,6 +309,7 @@ __all__ = [
     "StreamEngine",
     "TcpDriver",
     "Ticket",
+    "TicketPoll",
     "TicketState",
     "TicketStateError",
     "TimeoutError",
@@ -337,7 +344,9 @@ __all__ = [
     "parse_host_port",
     "process_scheduler",
     "resolve_options",
+    "run_steps",
     "run_task",
     "shutdown_bus",
     "status_with_currents",
+    "wait_ticket",
 ]

@@ -16,6 +16,7 @@ due, so a call after a quiet spell sees the present state.
 
 from __future__ import annotations
 
+import functools
 import random
 import threading
 import time
@@ -33,6 +34,8 @@ from starterbus.core import (
     keep_running,
     let_go,
     process_scheduler,
+    run_steps,
+    wait_ticket,
 )
 from starterbus.transports.devicenet.codec.explicit import ExplicitRequest, ExplicitResponse
 from starterbus.transports.devicenet.master.engine import MasterEngine
@@ -105,6 +108,7 @@ class Scanner:
             self._shared = False
         self.machine = MasterNode(config, random.getrandbits(32), self.where)
         self.engine = MasterEngine(self.machine)
+        self._wrap = functools.partial(ToEngine, self.engine)
         self._kept = False
         self._closed = False
         self._close_lock = threading.Lock()
@@ -177,18 +181,7 @@ class Scanner:
     # -- tickets ------------------------------------------------------------------------------------------------
 
     def _run(self, request: MasterRequest) -> Ticket[MasterRequest, Any]:
-        what = f"DeviceNet master on {self.where}: {type(request).__name__}"
-        # submit + wait, not Scheduler.run: a caller leading when another one makes the loop's own thread start
-        # (keep_running) follows it from then on, where run would end its lead as a stall
-        future = self.loop.submit(self.driver, ToEngine(self.engine, request))
-        try:
-            ticket: Ticket[MasterRequest, Any] = self.loop.wait(future, request.timeout + STALL, what)
-        except BaseException:  # a stalled loop, an interrupt: the ticket is withdrawn at the loop's next turn
-            driver = self.driver
-            if not future.cancel():
-                self.loop.call(lambda now: driver.cancel([future], now))
-            raise
-        return ticket
+        return wait_ticket(self.loop, self.driver, request, self._what(request), wrap=self._wrap, stall=STALL)
 
     def _outcome(self, request: MasterRequest) -> Any:
         return self._run(request).outcome()
@@ -196,18 +189,10 @@ class Scanner:
     def drive(self, steps: Generator[MasterRequest, Any, T]) -> T:
         """Run a sequence of tickets written as a generator (it yields a request, is sent the ticket's result or
         thrown its error, and returns its own result): the blocking form of what a fleet's poll task runs."""
-        try:
-            request = next(steps)
-            while True:
-                try:
-                    value = self._outcome(request)
-                except StarterbusError as exc:
-                    request = steps.throw(exc)
-                else:
-                    request = steps.send(value)
-        except StopIteration as stop:
-            result: T = stop.value
-            return result
+        return run_steps(self.loop, self.driver, steps, self._what, wrap=self._wrap, stall=STALL)
+
+    def _what(self, request: MasterRequest) -> str:
+        return f"DeviceNet master on {self.where}: {type(request).__name__}"
 
     def _keep(self) -> None:
         """From now on the master polls unattended (a polled I/O connection): the loop's own thread runs."""
