@@ -21,6 +21,7 @@ from starterbus.transports.modbus.frames import (
     FunctionCode,
     ReadRequest,
     ReadResponse,
+    WriteRegistersResponse,
     WriteRequest,
     WriteResponse,
     decode_request,
@@ -216,6 +217,10 @@ class Annotator:
             title = (
                 f"response: write 0x{response.value:04X} to 0x{response.address:04X} confirmed by unit {response.unit}"
             )
+        elif isinstance(response, WriteRegistersResponse):  # a gateway's answer to FC16
+            fields.append(("address", _hex(frame[2:4]), self.register_text(response.address)))
+            fields.append(("count", _hex(frame[4:6]), f"{response.count} register(s)"))
+            title = f"response: write of {response.count} register(s) from 0x{response.address:04X} confirmed"
         else:
             fields.append(("exception code", f"{response.code:02X}", exception_meaning(self.profile, response.code)))
             title = f"exception response from unit {response.unit} to FC{response.function:02X}"

@@ -42,6 +42,7 @@ from starterbus.transports.modbus.frames import (
     ReadResponse,
     Request,
     Response,
+    WriteRegistersRequest,
     WriteRequest,
 )
 from starterbus.transports.modbus.line import Exchange, Link, RtuLine
@@ -162,6 +163,8 @@ class ModbusRtuTransport(Transport):
         """The device's refusal; a gateway's 0x0A / 0x0B: no answer from the device behind it (TimeoutError)."""
         if isinstance(request, ReadRequest):
             what = f"FC03 read {request.count} register(s) from 0x{request.address:04X}"
+        elif isinstance(request, WriteRegistersRequest):
+            what = f"FC16 write {len(request.values)} register(s) from 0x{request.address:04X}"
         else:
             what = f"FC06 write 0x{request.value:04X} to 0x{request.address:04X}"
         if response.code in GATEWAY_CODES:

@@ -17,6 +17,8 @@ from starterbus.transports.modbus.frames import (
     ReadResponse,
     Request,
     Response,
+    WriteRegistersRequest,
+    WriteRegistersResponse,
     WriteResponse,
     expected_response_length,
 )
@@ -72,7 +74,13 @@ class Exchange:
         if isinstance(request, ReadRequest):
             self.prefix = bytes((request.unit, request.function, 2 * request.count))
             self.prefix_crc = crc16(self.prefix)  # the CRC check of an answer starts after its known header
-            self.words = struct.Struct(f">{request.count}H")
+            if request.function == ReadRequest.function:  # FC04 (a gateway's, over MBAP): the full decoder
+                self.words = struct.Struct(f">{request.count}H")
+        elif isinstance(request, WriteRegistersRequest):
+            self.prefix = self.frame[:6]  # a good FC16 answer: unit, function, address, count of the request
+            self.prefix_crc = 0  # unused: a good answer is the one below, compared whole
+            answer = WriteRegistersResponse(request.unit, request.address, len(request.values))
+            self.last = (answer.encode(), answer)
         else:
             self.prefix = self.frame  # a good FC06 answer is the request, byte for byte
             self.prefix_crc = 0  # unused: the echo is compared whole

@@ -1,4 +1,5 @@
-"""Modbus RTU frames as these soft starters speak them: FC03 and FC06 requests, responses and exceptions.
+"""Modbus RTU frames as these soft starters speak them: FC03 and FC06 requests, responses and exceptions; and what a
+register gateway adds (FC04 reads, FC16 writes: a Profibus gateway's images, docs/profibus.md).
 
 Pure functions and frozen dataclasses, no I/O. A frame is ``unit id + PDU + CRC``; :meth:`encode` gives the
 whole frame, :func:`decode_request` / :func:`decode_response` take a whole frame and either return a value or
@@ -19,7 +20,9 @@ from starterbus.transports.modbus.crc import CRC_LENGTH, append_crc, strip_crc
 
 class FunctionCode(enum.IntEnum):
     READ_HOLDING_REGISTERS = 0x03
+    READ_INPUT_REGISTERS = 0x04
     WRITE_SINGLE_REGISTER = 0x06
+    WRITE_MULTIPLE_REGISTERS = 0x10
 
 
 class ExceptionCode(enum.IntEnum):
@@ -38,6 +41,7 @@ EXCEPTION_BIT = 0x80
 BROADCAST = 0
 MAX_UNIT = 247  # 248-255 are reserved by Modbus
 MAX_READ_REGISTERS = 125  # Modbus application protocol limit for FC03
+MAX_WRITE_REGISTERS = 123  # and for FC16
 EXCEPTION_FRAME_LENGTH = 5  # unit, function | 0x80, code, CRC
 WRITE_FRAME_LENGTH = 8  # unit, 06, address, value, CRC (request and echo)
 READ_REQUEST_LENGTH = 8  # unit, 03, address, count, CRC
@@ -67,12 +71,21 @@ class ReadRequest:
 
     def encode(self) -> bytes:
         if not 1 <= self.count <= MAX_READ_REGISTERS:
-            raise EncodeError(f"{self.count} registers: FC03 reads 1..{MAX_READ_REGISTERS}", field="count")
+            raise EncodeError(
+                f"{self.count} registers: FC{self.function:02d} reads 1..{MAX_READ_REGISTERS}", field="count"
+            )
         if self.address + self.count - 1 > 0xFFFF:
             raise EncodeError(f"{self.count} registers from {self.address:#06x} pass 0xFFFF", field="count")
         return append_crc(
             bytes((self.unit, self.function)) + self.address.to_bytes(2, "big") + self.count.to_bytes(2, "big")
         )
+
+
+@dataclass(frozen=True, slots=True)
+class ReadInputRequest(ReadRequest):
+    """FC04: read ``count`` input registers from ``address`` (a gateway's input image; the FC03 layout)."""
+
+    function: ClassVar[int] = FunctionCode.READ_INPUT_REGISTERS
 
 
 @dataclass(frozen=True, slots=True)
@@ -118,8 +131,33 @@ class OtherRequest:
         return append_crc(bytes((self.unit, self.function)) + self.data)
 
 
-Request = ReadRequest | WriteRequest
-AnyRequest = ReadRequest | WriteRequest | OtherRequest
+@dataclass(frozen=True, slots=True)
+class WriteRegistersRequest:
+    """FC16: write ``values`` to the registers from ``address`` on (a gateway's output image)."""
+
+    unit: int
+    address: int
+    values: tuple[int, ...]
+    function: ClassVar[int] = FunctionCode.WRITE_MULTIPLE_REGISTERS
+
+    def __post_init__(self) -> None:
+        _check_field("unit", self.unit, 0, 0xFF)
+        _check_field("address", self.address, 0, 0xFFFF)
+        for i, value in enumerate(self.values):
+            _check_field(f"values[{i}]", value, 0, 0xFFFF)
+
+    def encode(self) -> bytes:
+        count = len(self.values)
+        if not 1 <= count <= MAX_WRITE_REGISTERS:
+            raise EncodeError(f"{count} registers: FC16 writes 1..{MAX_WRITE_REGISTERS}", field="values")
+        if self.address + count - 1 > 0xFFFF:
+            raise EncodeError(f"{count} registers from {self.address:#06x} pass 0xFFFF", field="values")
+        head = bytes((self.unit, self.function)) + self.address.to_bytes(2, "big") + count.to_bytes(2, "big")
+        return append_crc(head + bytes((2 * count,)) + b"".join(v.to_bytes(2, "big") for v in self.values))
+
+
+Request = ReadRequest | WriteRequest | WriteRegistersRequest
+AnyRequest = ReadRequest | WriteRequest | OtherRequest  # what a starter takes (FC04, FC16: other requests)
 
 
 # -- responses ----------------------------------------------------------------------------------------------
@@ -155,8 +193,35 @@ class ReadResponse:
 
 
 @dataclass(frozen=True, slots=True)
+class ReadInputResponse(ReadResponse):
+    """FC04 answer: the input register values, in order."""
+
+    function: ClassVar[int] = FunctionCode.READ_INPUT_REGISTERS
+
+
+@dataclass(frozen=True, slots=True)
 class WriteResponse(_SingleRegister):
     """FC06 answer: the echo of the request."""
+
+
+@dataclass(frozen=True, slots=True)
+class WriteRegistersResponse:
+    """FC16 answer: where the registers were written and how many."""
+
+    unit: int
+    address: int
+    count: int
+    function: ClassVar[int] = FunctionCode.WRITE_MULTIPLE_REGISTERS
+
+    def __post_init__(self) -> None:
+        _check_field("unit", self.unit, 0, 0xFF)
+        _check_field("address", self.address, 0, 0xFFFF)
+        _check_field("count", self.count, 0, 0xFFFF)
+
+    def encode(self) -> bytes:
+        return append_crc(
+            bytes((self.unit, self.function)) + self.address.to_bytes(2, "big") + self.count.to_bytes(2, "big")
+        )
 
 
 @dataclass(frozen=True, slots=True)
@@ -176,14 +241,20 @@ class ExceptionResponse:
         return append_crc(bytes((self.unit, self.function | EXCEPTION_BIT, self.code)))
 
 
-Response = ReadResponse | WriteResponse | ExceptionResponse
+Response = ReadResponse | WriteResponse | WriteRegistersResponse | ExceptionResponse
+
+
+_READS: dict[int, type[ReadResponse]] = {
+    FunctionCode.READ_HOLDING_REGISTERS: ReadResponse,
+    FunctionCode.READ_INPUT_REGISTERS: ReadInputResponse,
+}
 
 
 # -- lengths ------------------------------------------------------------------------------------------------
 
 
 def expected_response_length(request: Request) -> int:
-    """Length of the normal answer to ``request``: FC03 -> 5 + 2n, FC06 -> 8 (an exception is 5)."""
+    """Length of the normal answer to ``request``: FC03/FC04 -> 5 + 2n, FC06 and FC16 -> 8 (an exception is 5)."""
     if isinstance(request, ReadRequest):
         return 5 + 2 * request.count
     return WRITE_FRAME_LENGTH
@@ -250,6 +321,49 @@ def decode_request(frame: bytes, *, crc: bool = True) -> AnyRequest:
     return OtherRequest(unit, function, body[2:])
 
 
+def decode_register_request(frame: bytes, *, crc: bool = True) -> ReadRequest | WriteRegistersRequest:
+    """A whole FC03, FC04 or FC16 request frame (what a register gateway serves) -> request; anything else a
+    :class:`DecodeError`. (:func:`decode_request` is what the starters take: FC04 and FC16 are other requests.)"""
+    data = bytes(frame)
+    body = _body(data, crc)
+    unit, function = body[0], body[1]
+    if function in _READS:
+        if len(body) != 6:
+            raise DecodeError(
+                f"a FC{function:02d} request has 6 bytes before the CRC, this one {len(body)}", data, "length"
+            )
+        read = ReadRequest if function == FunctionCode.READ_HOLDING_REGISTERS else ReadInputRequest
+        return read(unit, int.from_bytes(body[2:4], "big"), int.from_bytes(body[4:6], "big"))
+    if function != FunctionCode.WRITE_MULTIPLE_REGISTERS:
+        raise DecodeError(f"function code {function:#04x} is not FC03, FC04 or FC16", data, "function")
+    count = int.from_bytes(body[4:6], "big") if len(body) >= 6 else -1
+    if len(body) < 7 or body[6] != 2 * count or len(body) != 7 + 2 * count:
+        raise DecodeError(
+            f"a FC16 request of {count} registers has {7 + 2 * count} bytes before the CRC (byte count {2 * count}), "
+            f"this one {len(body)}",
+            data,
+            "length",
+        )
+    values = tuple(int.from_bytes(body[i : i + 2], "big") for i in range(7, 7 + 2 * count, 2))
+    return WriteRegistersRequest(unit, int.from_bytes(body[2:4], "big"), values)
+
+
+def _registers(data: bytes, body: bytes, function: int) -> tuple[int, ...]:
+    """The register values of a FC03/FC04 answer's body."""
+    if len(body) < 3:
+        raise DecodeError(f"a FC{function:02d} response needs a byte count", data, "byte_count")
+    count = body[2]
+    if count == 0 or count % 2:
+        raise DecodeError(f"byte count {count} is not an even number of register bytes", data, "byte_count")
+    if len(body) != 3 + count:
+        raise DecodeError(
+            f"byte count {count} announces {3 + count} bytes before the CRC, this one has {len(body)}",
+            data,
+            "length",
+        )
+    return tuple(int.from_bytes(body[i : i + 2], "big") for i in range(3, 3 + count, 2))
+
+
 def decode_response(frame: bytes, *, crc: bool = True, request: Request | None = None) -> Response:
     """A whole response frame -> response; with ``request``, also checked as the answer to it."""
     data = bytes(frame)
@@ -266,20 +380,8 @@ def decode_response(frame: bytes, *, crc: bool = True, request: Request | None =
                 "length",
             )
         response = ExceptionResponse(unit, function & ~EXCEPTION_BIT, body[2])
-    elif function == FunctionCode.READ_HOLDING_REGISTERS:
-        if len(body) < 3:
-            raise DecodeError("a FC03 response needs a byte count", data, "byte_count")
-        count = body[2]
-        if count == 0 or count % 2:
-            raise DecodeError(f"byte count {count} is not an even number of register bytes", data, "byte_count")
-        if len(body) != 3 + count:
-            raise DecodeError(
-                f"byte count {count} announces {3 + count} bytes before the CRC, this one has {len(body)}",
-                data,
-                "length",
-            )
-        values = tuple(int.from_bytes(body[i : i + 2], "big") for i in range(3, 3 + count, 2))
-        response = ReadResponse.from_words(unit, values)
+    elif function in _READS:
+        response = _READS[function].from_words(unit, _registers(data, body, function))
     elif function == FunctionCode.WRITE_SINGLE_REGISTER:
         if len(body) != 6:
             raise DecodeError(
@@ -288,6 +390,12 @@ def decode_response(frame: bytes, *, crc: bool = True, request: Request | None =
                 "length",
             )
         response = WriteResponse(unit, int.from_bytes(body[2:4], "big"), int.from_bytes(body[4:6], "big"))
+    elif function == FunctionCode.WRITE_MULTIPLE_REGISTERS:
+        if len(body) != 6:
+            raise DecodeError(
+                f"a FC16 response has 6 bytes before the CRC (address, count), this one has {len(body)}", data, "length"
+            )
+        response = WriteRegistersResponse(unit, int.from_bytes(body[2:4], "big"), int.from_bytes(body[4:6], "big"))
     else:
         raise DecodeError(f"function code {function:#04x} is not one these devices answer with", data, "function")
     if request is not None:
@@ -302,7 +410,7 @@ def check_header(request: Request, data: bytes) -> None:
         raise DecodeError(f"answer from unit {unit}, the request went to unit {request.unit}", data, "unit")
     if function not in (request.function, request.function | EXCEPTION_BIT):
         raise DecodeError(
-            f"function code {function:#04x} does not answer a FC{request.function:02X} request", data, "function"
+            f"function code {function:#04x} does not answer a FC{request.function:02d} request", data, "function"
         )
 
 
@@ -313,20 +421,30 @@ def check_response(request: Request, response: Response, data: bytes = b"") -> N
     if isinstance(response, ExceptionResponse):
         if response.function != request.function:
             raise DecodeError(
-                f"exception for FC{response.function:02X} does not answer a FC{request.function:02X} request",
+                f"exception for FC{response.function:02d} does not answer a FC{request.function:02d} request",
                 data,
                 "function",
             )
         return
     if response.function != request.function:
         raise DecodeError(
-            f"FC{response.function:02X} response does not answer a FC{request.function:02X} request", data, "function"
+            f"FC{response.function:02d} response does not answer a FC{request.function:02d} request", data, "function"
         )
     if isinstance(request, ReadRequest):
         assert isinstance(response, ReadResponse)
         if len(response.values) != request.count:
             raise DecodeError(
                 f"{len(response.values)} registers returned, {request.count} requested", data, "byte_count"
+            )
+        return
+    if isinstance(request, WriteRegistersRequest):
+        assert isinstance(response, WriteRegistersResponse)
+        if (response.address, response.count) != (request.address, len(request.values)):
+            raise DecodeError(
+                f"not the answer to the write of {len(request.values)} registers at {request.address:#06x}: "
+                f"got {response.count} at {response.address:#06x}",
+                data,
+                "echo",
             )
         return
     assert isinstance(response, WriteResponse)

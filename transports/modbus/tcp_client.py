@@ -23,7 +23,14 @@ from starterbus.transports.modbus.annotate import exception_meaning
 from starterbus.transports.modbus.client import ModbusRtuTransport
 from starterbus.transports.modbus.config import DEFAULT_RETRIES, ModbusRtuConfig
 from starterbus.transports.modbus.exchange import TransactionPolicy
-from starterbus.transports.modbus.frames import ExceptionResponse, ReadRequest, ReadResponse, Request, Response
+from starterbus.transports.modbus.frames import (
+    ExceptionResponse,
+    ReadRequest,
+    ReadResponse,
+    Request,
+    Response,
+    WriteRegistersRequest,
+)
 from starterbus.transports.modbus.link import SerialSettings
 from starterbus.transports.modbus.mbap import encode_adu
 from starterbus.transports.modbus.poll_plan import sort_out
@@ -134,6 +141,8 @@ class ModbusTcpTransport(ModbusRtuTransport):
         """The device's own refusal, in the words of its manual (the gateway's 0x0A / 0x0B never get here)."""
         if isinstance(request, ReadRequest):
             what = f"FC03 read {request.count} register(s) from 0x{request.address:04X}"
+        elif isinstance(request, WriteRegistersRequest):
+            what = f"FC16 write {len(request.values)} register(s) from 0x{request.address:04X}"
         else:
             what = f"FC06 write 0x{request.value:04X} to 0x{request.address:04X}"
         return RemoteDeviceError(
