@@ -55,6 +55,7 @@ if TYPE_CHECKING:
     from starterbus.core.media.keeper import keep_running, let_go
     from starterbus.core.media.local import LocalDriver, LocalEngine
     from starterbus.core.model import Access, EnumTable, Kind, Label, PointDef, Reading, Value
+    from starterbus.core.plugin import Annotation, RunningSimulator, TransportPlugin
     from starterbus.core.plugin_options import OptionValues, PluginOption, SimOption, resolve_options
     from starterbus.core.polling import PlannedRequest, PollResult, PollTask, TransportCounters, run_task
     from starterbus.core.profile import Profile, load_profile_file
@@ -87,14 +88,7 @@ if TYPE_CHECKING:
     )
     from starterbus.core.textinput import check_loopback, parse_hex, parse_host_port
     from starterbus.core.ticket_poll import TicketPoll, run_steps, wait_ticket
-    from starterbus.core.transport import (
-        ALL_CAPABILITIES,
-        Annotation,
-        Capability,
-        RunningSimulator,
-        Transport,
-        TransportPlugin,
-    )
+    from starterbus.core.transport import ALL_CAPABILITIES, Capability, Transport
     from starterbus.core.url import DeviceUrl
 
     load_profile = get_profile
@@ -159,11 +153,11 @@ _LAZY = {
     "FaultTable": "starterbus.core.status",
     "MotorState": "starterbus.core.status",
     "Status": "starterbus.core.status",
-    "Annotation": "starterbus.core.transport",
+    "Annotation": "starterbus.core.plugin",
     "Capability": "starterbus.core.transport",
-    "RunningSimulator": "starterbus.core.transport",
+    "RunningSimulator": "starterbus.core.plugin",
     "Transport": "starterbus.core.transport",
-    "TransportPlugin": "starterbus.core.transport",
+    "TransportPlugin": "starterbus.core.plugin",
     "DeviceUrl": "starterbus.core.url",
     "load_profile": "starterbus.core.registry:get_profile",
     "PluginOption": "starterbus.core.plugin_options",
