@@ -1,6 +1,7 @@
-"""Issue 29's thread count: `poll` of a 16-line mixed fleet (Modbus RTU, Modbus TCP, Profibus PKW, DeviceNet and,
-where the plugin is installed, CANopen) runs on the scheduler's one thread, python-can's readers for buses without
-a descriptor and the fleet's small job pool (opening devices): nothing per bus."""
+"""Issue 29's thread count: `poll` of a 16-line mixed fleet (Modbus RTU, Modbus TCP, Profibus PKW in process and
+behind a Modbus TCP gateway, DeviceNet and, where the plugin is installed, CANopen) runs on the scheduler's one
+thread, python-can's readers for buses without a descriptor and the fleet's small job pool (opening devices):
+nothing per bus."""
 
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from starterbus.transports.devicenet.simulator import DeviceNetSimulator
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
 from starterbus.transports.modbus.tcp_server import ModbusTcpSimulator
 from starterbus.transports.profibus_pkw.driver.channels import attach_slave, detach_slave
+from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 
 RTU_LINES = 10
 POOL_MAX = 4  # fleet/jobs.py: the job pool's threads at most
@@ -45,11 +47,13 @@ def mixed_fleet() -> Iterator[tuple[str, list[str]]]:
             stack.callback(tcp.close)
             host, port = tcp.address
             text += _bus(f"tcp{n}", f"modbus-tcp://{host}:{port}?timeout=0.3", "jjr5000", 1)
-        for n in range(2):
-            name = f"{tag}-pkw{n}"
-            attach_slave(name, SimulatedStarter(get_profile("jjr8000")))
-            stack.callback(detach_slave, name)
-            text += _bus(f"pkw{n}", f"profibus-pkw+sim://{name}?ppo=1&cycle=0.01", "jjr8000", 2)
+        name = f"{tag}-pkw0"
+        attach_slave(name, SimulatedStarter(get_profile("jjr8000")))
+        stack.callback(detach_slave, name)
+        text += _bus("pkw0", f"profibus-pkw+sim://{name}?ppo=1&cycle=0.01", "jjr8000", 2)
+        gateway = ProfibusGatewaySimulator(SimulatedStarter(get_profile("jjr8000")), port=0, ppo=1, cycle=0.002)
+        stack.callback(gateway.start().close)
+        text += _bus("pkw1", f"{gateway.url(0)}&cycle=0.01", "jjr8000", 2)
         dnet = stack.enter_context(DeviceNetSimulator(("virtual", f"{tag}-dnet"), dup_mac_wait=0.05))
         dnet.add_node(SimulatedStarter(get_profile("jjr8000")), 5)
         text += _bus("dnet", f"devicenet://virtual/{tag}-dnet?assemblies=extended&dup_mac_wait=0.05", "jjr8000", 5)

@@ -183,6 +183,27 @@ class ProfibusPkwTransport(Transport):
         words = self.control.apply(command)
         link.send_control(words, self.settings.limits.timeout)
 
+    def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
+        """The poll as a task on the process's scheduler (the station's link is on it: a simulated slave, a
+        gateway's connection); None for a third-party channel on a loop of its own (the fleet gives it a thread)."""
+        link = self._link()
+        if not link.multiplexed:
+            return None
+        limits = self.settings.limits
+        requests: list[StationRequest] = [FreshInputs(limits.timeout)] if status else []
+        requests += [PkwTask(self.request_for(p), f"read {p.key} ({p.address})") for p in points]
+
+        def finish(tickets: list[StationTicket]) -> PollResult:
+            words = cast("tuple[int, ...]", tickets[0].result) if status else None
+            readings = []
+            for point, ticket in zip(points, tickets[1:] if status else tickets, strict=True):
+                assert ticket.job is not None and ticket.job.response is not None
+                readings.append(Reading(point, ticket.job.response.pwe))
+            return PollResult(self._status(words) if words is not None else None, readings)
+
+        bound = (limits.timeout + 1.0 + 4 * max(self.settings.cycle, 0.001)) * max(1, len(requests))
+        return StationPoll(link, requests, finish, bound)
+
     # -- previews (--dry-run) -----------------------------------------------------------------------------
 
     def _telegram_hex(self, pkw: PkwRequest, stw: int) -> str:
@@ -202,26 +223,5 @@ class ProfibusPkwTransport(Transport):
 
 
 class ProfibusSimTransport(ProfibusPkwTransport):
-    """``profibus-pkw+sim://``: the station's link runs on the process's scheduler, so a fleet polls it as a
-    :class:`PollTask` without a thread for the bus. (A gateway's channel blocks in pymodbus' client until it runs
-    on the Modbus TCP engine: its class offers no poll tasks, and the fleet gives its bus a thread.)"""
-
-    def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
-        """The poll as a task on the process's scheduler (the station's link is on it: a simulated slave)."""
-        link = self._link()
-        if not link.multiplexed:
-            return None
-        limits = self.settings.limits
-        requests: list[StationRequest] = [FreshInputs(limits.timeout)] if status else []
-        requests += [PkwTask(self.request_for(p), f"read {p.key} ({p.address})") for p in points]
-
-        def finish(tickets: list[StationTicket]) -> PollResult:
-            words = cast("tuple[int, ...]", tickets[0].result) if status else None
-            readings = []
-            for point, ticket in zip(points, tickets[1:] if status else tickets, strict=True):
-                assert ticket.job is not None and ticket.job.response is not None
-                readings.append(Reading(point, ticket.job.response.pwe))
-            return PollResult(self._status(words) if words is not None else None, readings)
-
-        bound = (limits.timeout + 1.0 + 4 * max(self.settings.cycle, 0.001)) * max(1, len(requests))
-        return StationPoll(link, requests, finish, bound)
+    """``profibus-pkw+sim://`` (the same transport: since the gateway runs on the Modbus TCP engine, both offer poll
+    tasks; the name is kept for the plugin and for callers that import it)."""

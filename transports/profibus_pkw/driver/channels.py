@@ -9,31 +9,38 @@ returns the slave's input words. Two channels are built in:
 - :class:`GatewayChannel` (``profibus-pkw+gateway://HOST:PORT?out=0&in=0&unit=1``): a Profibus master gateway or
   PLC that shows the slave's output words as Modbus TCP holding registers (written with FC16) and its input
   words as holding registers (FC03) or input registers (FC04). One Modbus TCP connection per gateway is shared
-  by every station mapped on it (:data:`GATEWAYS`, a :class:`SharedPool`).
+  by every station mapped on it (:data:`GATEWAYS`, a :class:`SharedPool`), on the process's scheduler: a
+  station's cycle is a driver there (:meth:`Channel.driver`, ``gateway.py``), no thread and no blocking call.
 
-A third channel (a DP master card, pyprofibus) implements the same three methods; see docs/profibus.md.
+A third channel (a DP master card, pyprofibus) implements the same three methods; see docs/profibus.md. Its
+exchange is called by a :class:`LocalDriver` (:meth:`Channel.driver`'s default) on a loop of its own.
 """
 
 from __future__ import annotations
 
 import threading
 from abc import ABC, abstractmethod
-from collections.abc import Hashable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
-from typing import Any
 
 from starterbus.core import (
     ConfigurationError,
-    DecodeError,
-    RemoteDeviceError,
+    Driver,
+    LocalDriver,
+    Scheduler,
     SharedPool,
     SimulatedStarter,
     StarterbusError,
     TransportError,
 )
 from starterbus.transports.profibus_pkw.codec.codes import Ppo
+from starterbus.transports.profibus_pkw.driver.gateway import GatewayConnection, GatewayStation, StationDriver
 from starterbus.transports.profibus_pkw.driver.station_lock import hold_station, release_station
+from starterbus.transports.profibus_pkw.master.station import DpIn, DpOut, StationEngine
 from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
+
+Clock = Callable[[], float]
+ErrorOf = Callable[[Exception], StarterbusError]
 
 __all__ = [
     "GATEWAYS",
@@ -65,10 +72,28 @@ class Channel(ABC):
     #: the exchange is an in-process call that never blocks (a simulated slave): the link runs on the process's
     #: scheduler; otherwise on a loop of its own per :meth:`loop_key`, so a blocking call delays no other medium
     in_process: bool = False
+    #: an exchange not ended by then failed (a peer that dropped it); a channel whose own timeouts decide says more
+    reply_within: float = 1.0
 
     def loop_key(self) -> Hashable:
         """Channels with the same key share one loop (their exchanges take turns): by default one per type."""
         return (type(self).__module__, type(self).__qualname__)
+
+    def scheduler(self) -> Scheduler | None:
+        """The loop the channel's medium runs on, if it has one (the link's station runs there); None: the link
+        chooses (``link.py``: ``loop_for``)."""
+        return None
+
+    def driver(
+        self, name: str, make_engine: Callable[[], StationEngine], clock: Clock, error: ErrorOf
+    ) -> Driver[StationEngine]:
+        """The driver of a station on this channel: by default :meth:`exchange` called in the loop, once per DP
+        exchange (``clock``: the loop's; ``error``: a failure of the call as a starterbus error)."""
+
+        def exchange(unit: DpOut) -> DpIn:
+            return unit[0], self.exchange(unit[1])
+
+        return LocalDriver(name, make_engine, exchange, clock=clock, error=error)
 
     @abstractmethod
     def exchange(self, out_words: Sequence[int | None]) -> tuple[int, ...]:
@@ -162,73 +187,7 @@ class SimChannel(Channel):
 
 # -- Modbus TCP gateway --------------------------------------------------------------------------------------
 
-
-class GatewayConnection:
-    """One pymodbus sync TCP client for one gateway, shared by its stations; a lock serialises requests."""
-
-    def __init__(self, host: str, port: int, timeout: float) -> None:
-        from pymodbus.client import ModbusTcpClient  # the one place this transport touches pymodbus' client
-
-        self.host = host
-        self.port = port
-        self.lock = threading.Lock()
-        self._client: Any = ModbusTcpClient(host, port=port, timeout=timeout, retries=0, reconnect_delay=0)
-
-    def _call(self, what: str, fn: Any, *args: Any, **kwargs: Any) -> Any:
-        from pymodbus.exceptions import ModbusException
-
-        try:
-            response = fn(*args, **kwargs)
-        except (ModbusException, OSError) as exc:
-            self._client.close()  # reconnect on the next request
-            raise TransportError(f"gateway {self.host}:{self.port}: {what}: {exc}") from exc
-        if response.isError():
-            code = int(getattr(response, "exception_code", 0))
-            raise RemoteDeviceError(
-                "modbus-tcp",
-                code,
-                _MODBUS_EXCEPTIONS.get(code, "unknown exception"),
-                detail=f"gateway {self.host}:{self.port}: {what}",
-            )
-        return response
-
-    def write(self, address: int, values: Sequence[int], unit: int) -> None:
-        with self.lock:
-            self._call(
-                f"FC16 write {len(values)} registers at {address}",
-                self._client.write_registers,
-                address,
-                list(values),
-                device_id=unit,
-            )
-
-    def read(self, address: int, count: int, unit: int, function: int) -> tuple[int, ...]:
-        fn = self._client.read_input_registers if function == 4 else self._client.read_holding_registers
-        with self.lock:
-            response = self._call(
-                f"FC{function:02d} read {count} registers at {address}", fn, address, count=count, device_id=unit
-            )
-        registers = tuple(int(r) for r in response.registers)
-        if len(registers) != count:
-            raise DecodeError(f"gateway {self.host}:{self.port} returned {len(registers)} registers, asked {count}")
-        return registers
-
-    def close(self) -> None:
-        with self.lock:
-            self._client.close()
-
-
-_MODBUS_EXCEPTIONS = {
-    1: "illegal function",
-    2: "illegal data address",
-    3: "illegal data value",
-    4: "server device failure",
-    6: "server device busy",
-    10: "gateway path unavailable",
-    11: "gateway target device failed to respond",
-}
-
-#: one connection per (host, port) in this process
+#: one connection per (host, port) in this process, on the process's scheduler (``gateway.py``)
 GATEWAYS: SharedPool[GatewayConnection] = SharedPool("profibus-pkw gateways")
 
 
@@ -255,12 +214,14 @@ class GatewayChannel(Channel):
         self.host, self.port, self.ppo = host, port, ppo
         self.out, self.inp, self.unit, self.input_function = out, inp, unit, input_function
         self._key = (host, port)
+        self.reply_within = 2 * timeout + 1.0  # an FC16 and a read, each with its timeout: the connection decides
         self._station = hold_station(host, port, unit, out, f"station at gateway {host}:{port} unit {unit} out={out}")
         try:
             self._conn = GATEWAYS.acquire(self._key, lambda: GatewayConnection(host, port, timeout))
         except BaseException:
             release_station(self._station)
             raise
+        self.gateway = GatewayStation(self._conn, ppo.words, out=out, inp=inp, unit=unit, input_function=input_function)
         self._closed = False
 
     @property
@@ -271,28 +232,23 @@ class GatewayChannel(Channel):
         n = self.ppo.words
         return self.out + n <= self.inp or self.inp + n <= self.out
 
-    def loop_key(self) -> Hashable:
-        return ("gateway", self.host, self.port)  # the stations of one gateway take turns on its connection
+    def scheduler(self) -> Scheduler:
+        return self._conn.loop
+
+    def driver(
+        self, name: str, make_engine: Callable[[], StationEngine], clock: Clock, error: ErrorOf
+    ) -> Driver[StationEngine]:
+        """The station's cycle on the gateway's connection (the stations of a gateway take turns on it)."""
+        return StationDriver(name, make_engine, self.gateway)
 
     def exchange(self, out_words: Sequence[int | None]) -> tuple[int, ...]:
-        start = 0
-        words = list(out_words)
-        while start < len(words):  # one FC16 per run of words to write (None: leave the register alone)
-            if words[start] is None:
-                start += 1
-                continue
-            end = start
-            run: list[int] = []
-            while end < len(words) and (word := words[end]) is not None:
-                run.append(word)
-                end += 1
-            self._conn.write(self.out + start, run, self.unit)
-            start = end
-        return self._conn.read(self.inp, self.ppo.words, self.unit, self.input_function)
+        return self.gateway.exchange(out_words, "exchange")
 
     def snapshot(self) -> Snapshot:
-        inputs = self._conn.read(self.inp, self.ppo.words, self.unit, self.input_function)
-        outputs = self._conn.read(self.out, self.ppo.words, self.unit, 3) if self.outputs_readable else None
+        inputs = self.gateway.read_now(self.gateway.read, "read the inputs")
+        outputs = (
+            self.gateway.read_now(self.gateway.read_outputs(), "read the outputs") if self.outputs_readable else None
+        )
         return Snapshot(outputs, inputs)
 
     def close(self) -> None:

@@ -1,6 +1,7 @@
-"""The cycle driver of one station: its :class:`StationEngine` on a :class:`LocalDriver` of a scheduler (no thread of
-its own, no lock: docs/engine.md, step 6). Every exchange carries the control word (PZD) and the PKW engine's
-words; PZD and PKW are independent, so a start or stop is never delayed by a pending or stuck parameter task.
+"""The cycle driver of one station: its :class:`StationEngine` on a driver of a scheduler (a :class:`LocalDriver`,
+or a gateway's ``StationDriver``; no thread of its own, no lock: docs/engine.md, step 6). Every exchange carries
+the control word (PZD) and the PKW engine's words; PZD and PKW are independent, so a start or stop is never
+delayed by a pending or stuck parameter task.
 
 Two ways to run the cycles:
 
@@ -9,11 +10,12 @@ Two ways to run the cycles:
   command or a script drives the loop in its own thread for as long as it waits);
 - ``cycle == 0``: exchanges back to back while a caller waits for something (on demand), none otherwise.
 
-Which loop: a channel that exchanges in this process without blocking (:class:`SimChannel`) runs on the process's
-scheduler, so a fleet multiplexes it with every other medium. A channel that may block in its call (a gateway
-reached with pymodbus' sync client, a third-party card) runs on a loop of its own per gateway or channel type
-(:func:`loop_for`), so its round trips never delay another medium's I/O; a link with a clock of its own (a test's
-manual clock) gets a loop on that clock.
+Which loop: a channel on a medium of the engine (a gateway: its Modbus TCP connection, ``gateway.py``) names its
+loop, the process's scheduler, and gives the station's driver (:meth:`Channel.driver`); a channel that exchanges
+in this process without blocking (:class:`SimChannel`) runs on the process's scheduler too, so a fleet multiplexes
+both with every other medium. A channel that may block in its call (a third-party card) runs on a loop of its own
+per channel type (:func:`loop_for`), so its calls never delay another medium's I/O; a link with a clock of its own
+(a test's manual clock) gets a loop on that clock.
 
 A command's control words are each held for ``hold`` exchanges and at least ``pulse`` seconds (so a reset pulse
 reaches a slave behind a gateway whose own DP cycle is slower than ours); the last word stays in force.
@@ -31,7 +33,7 @@ from starterbus.core import (
     SW_FAULT,
     SW_RUNNING,
     SW_STARTING,
-    LocalDriver,
+    Driver,
     Scheduler,
     StarterbusError,
     TransportError,
@@ -40,11 +42,10 @@ from starterbus.core import (
 from starterbus.transports.profibus_pkw.codec.codes import Ppo
 from starterbus.transports.profibus_pkw.codec.telegram import NO_TASK, PkwRequest
 from starterbus.transports.profibus_pkw.driver.channels import Channel, channel_error
+from starterbus.transports.profibus_pkw.driver.gateway import StationDriver
 from starterbus.transports.profibus_pkw.master.handshake import PkwEngine, PkwJob
 from starterbus.transports.profibus_pkw.master.station import (
     ControlWords,
-    DpIn,
-    DpOut,
     FreshInputs,
     PkwTask,
     StationEngine,
@@ -65,6 +66,9 @@ _loops_lock = threading.Lock()
 
 def loop_for(channel: Channel, clock: Clock) -> Scheduler:
     """The loop a link on ``channel`` runs on (see the module's text)."""
+    own = channel.scheduler()
+    if own is not None:
+        return own
     if clock is time.monotonic and channel.in_process:
         return process_scheduler()
     if clock is not time.monotonic:
@@ -112,25 +116,20 @@ class CyclicLink:
 
         def make_station(pkw: PkwEngine | None = None) -> StationEngine:
             fresh = pkw or PkwEngine(engine.errors, engine.limits)
-            station = StationEngine(self.ppo, fresh, cycle=cycle, hold=hold, pulse=pulse, where=where)
+            station = StationEngine(
+                self.ppo, fresh, cycle=cycle, hold=hold, pulse=pulse, where=where, reply_within=channel.reply_within
+            )
             if pkw is None:  # after a defect crashed the old engine: nothing of its state is trusted, and the word
                 station.control = None  # in the output area is left as it is (never a word that could stop a run)
             return station
 
         first = [make_station(engine)]
         self._loop = loop_for(channel, clock)
-        self._driver: LocalDriver[StationEngine] = LocalDriver(
-            name or where,
-            lambda: first.pop() if first else make_station(),
-            self._exchange,
-            clock=self._loop.clock,
-            error=channel_error,
+        self._driver = channel.driver(
+            name or where, lambda: first.pop() if first else make_station(), self._loop.clock, channel_error
         )
         self._opened = False
         self._added = False
-
-    def _exchange(self, unit: DpOut) -> DpIn:
-        return unit[0], self.channel.exchange(unit[1])
 
     @property
     def loop(self) -> Scheduler:
@@ -138,13 +137,22 @@ class CyclicLink:
         return self._loop
 
     @property
-    def driver(self) -> LocalDriver[StationEngine]:
+    def driver(self) -> Driver[StationEngine]:
         """The station's driver on that loop."""
         return self._driver
 
+    def waits_on(self) -> tuple[int, float]:
+        """The descriptor (-1: none) and the time a poller outside the loop waits for before its next turn: the
+        station's deadline, and its gateway connection's descriptor and deadline when it has one."""
+        driver = self._driver
+        if isinstance(driver, StationDriver):
+            medium = driver.gateway.connection.driver
+            return medium.fd, min(driver.deadline, medium.deadline)
+        return -1, driver.deadline
+
     @property
     def multiplexed(self) -> bool:
-        """On the process's scheduler (an in-process channel): a fleet can poll it without a thread of its own."""
+        """On the process's scheduler (a gateway, an in-process channel): a fleet polls it without a thread."""
         return self._loop is process_scheduler()
 
     @property

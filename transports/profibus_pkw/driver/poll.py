@@ -56,7 +56,7 @@ class StationPoll(PollTask):
         if self.on_progress is not None:
             self.fd, self.wake_at = -1, now + self.bound
         elif loop.try_turn():
-            self.fd, self.wake_at = -1, driver.deadline
+            self.fd, self.wake_at = self.link.waits_on()
         else:
             self.fd, self.wake_at = -1, now + LOOK_AGAIN
         futures = self._futures
