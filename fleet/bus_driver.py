@@ -12,7 +12,8 @@ from typing import Any
 from starterbus.core.engine import Ticket
 from starterbus.core.errors import StarterbusError
 from starterbus.core.polling import PollTask
-from starterbus.fleet.bus_worker import Attempt, BusWorker
+from starterbus.fleet.bus_worker import BusWorker
+from starterbus.fleet.device_poll import Attempt
 
 __all__ = ["Bus"]
 

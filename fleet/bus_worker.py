@@ -6,7 +6,8 @@ points through the transport's poll plan (on Modbus RTU every register once, mer
 run by the bus's own thread (:meth:`BusWorker.run`) or, where the transports offer it, as a
 :class:`~starterbus.core.polling.PollTask` that one thread advances for many buses (:mod:`starterbus.fleet.mux`).
 A device is polled on a grid of its period, so a poll that starts late (the line was busy) does not push the
-following ones back.
+following ones back. What one poll of one device does (opening it, counting its wire, its state, next time and
+sample) is the base class's, :class:`~starterbus.fleet.device_poll.DevicePolls`.
 
 A device that stops answering is marked offline at once (its values are dropped, never shown as fresh). From
 then on it is only probed (:mod:`starterbus.fleet.probing`): one attempt with a short timeout, with exponential
@@ -20,84 +21,32 @@ Each bus worker adds up what its transports report putting on the wire (:meth:`F
 
 from __future__ import annotations
 
-import contextlib
 import heapq
 import threading
-import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
-from starterbus.core.device import Device, open_device
-from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
 from starterbus.core.media.waiter import precise_timers
-from starterbus.core.model import PointDef, Value
-from starterbus.core.polling import PollResult
-from starterbus.core.status import Status
-from starterbus.core.transport import TransportCounters
-from starterbus.fleet.config import BusConfig, DeviceConfig
+from starterbus.fleet.config import BusConfig
+from starterbus.fleet.device_poll import DevicePolls, DeviceRuntime
 from starterbus.fleet.jobs import Job, JobQueue
-from starterbus.fleet.line_stats import LineStats
-from starterbus.fleet.plan import poll_points
 from starterbus.fleet.poll_context import PollContext
-from starterbus.fleet.probing import ProbeBudget, backoff
-from starterbus.fleet.sample import Sample
 
 
-@dataclass
-class DeviceRuntime:
-    """What the poller knows about one device right now."""
-
-    config: DeviceConfig
-    device: Device | None = None
-    online: bool | None = None  # None: not polled yet
-    last_ok: float | None = None  # monotonic time of the last good poll
-    last_sample: Sample | None = None
-    errors: int = 0
-    polls: int = 0
-    failures_in_a_row: int = 0
-    next_due: float = 0.0
-    skipped: set[str] = field(default_factory=set)  # keys this transport cannot read, reported once
-    points: list[PointDef] | None = None  # what each poll reads, resolved once the device is open
-    status: bool = False  # whether each poll reads the status
-    slowest_request: float = 0.0  # longest time per request of a good poll, s (floor of the probe timeout)
-    probes: int = 0
-    slot: int = -1  # its place in its bus's list of devices
-    open_error: StarterbusError | None = None  # opening it (in a pool thread) failed: its next poll's error
-
-
-@dataclass(slots=True)
-class Attempt:
-    """One poll of one device being made: when it started, whether it is a probe, what it reads."""
-
-    runtime: DeviceRuntime
-    start: float
-    probe: bool
-    device: Device | None = None
-    points: list[PointDef] = field(default_factory=list)
-    before: TransportCounters | None = None
-
-
-class BusWorker:
+class BusWorker(DevicePolls):
     """One bus: the devices' schedule (a queue of due times), their polls and jobs, the line's counts."""
 
     def __init__(self, bus: BusConfig, poller: PollContext) -> None:
-        self.bus = bus
-        self.poller = poller
-        self.devices = [DeviceRuntime(d, slot=i) for i, d in enumerate(bus.devices)]
+        super().__init__(bus, poller)
         self.jobs = JobQueue()
         self.wake = threading.Event()
         self.name = f"bus-{bus.name}"  # its thread's, and its name for the supervisor
         self.thread = poller.supervisor.thread(self.name, self.run)
-        self.stats = LineStats(bus.name, started=poller.clock())
-        self.budget = ProbeBudget(poller.probing.share, poller.probing.timeout or 1.0, poller.clock())
         self.queue = [(0.0, i) for i in range(len(self.devices))]  # (due, device index), a heap
         self.rounds_left = poller.rounds
         self.done_in_round: set[int] = set()
         self.finished = False  # the rounds asked for are done
         self.notify: Callable[[], None] = self.wake.set  # tells whoever drives the bus that a job is queued
         self.lent = False  # a pool thread has the bus (a job, a device opened or closed): its polls wait
-        self.deferred = False  # devices are closed in a pool thread (:meth:`close_dropped`), not where dropped
-        self.dropped: list[Device] = []  # devices to close (``deferred``)
 
     @property
     def transactions(self) -> int:
@@ -151,10 +100,6 @@ class BusWorker:
             if wait > 0:
                 return now + wait
         return due
-
-    def _probing(self, runtime: DeviceRuntime) -> bool:
-        """An offline device is probed, not polled (unless probes are switched off)."""
-        return runtime.online is False and self.poller.probing.timeout is not None
 
     # -- the bus's own thread (transports that poll only by blocking) ------------------------------------------
 
@@ -216,31 +161,6 @@ class BusWorker:
             self._close_all()
         self.stats.stopped = self.poller.clock()
 
-    def _close_all(self) -> None:
-        for runtime in self.devices:
-            self._close(runtime)
-        self.close_dropped()
-
-    def close_dropped(self) -> None:
-        """Close the devices dropped while closing was ``deferred``."""
-        while self.dropped:
-            device = self.dropped.pop()
-            try:
-                device.close()
-            except StarterbusError:
-                pass
-
-    def open_for_poll(self, runtime: DeviceRuntime) -> None:
-        """Open the device for its next poll (in a pool thread, the bus lent), and every device of the bus never
-        polled yet (the first round: one lend, not one per device); a failure is that device's next poll's
-        error."""
-        for other in [runtime, *(r for r in self.devices if r.polls == 0 and r is not runtime)]:
-            if other.device is None and other.open_error is None:
-                try:
-                    self._ensure_open(other)
-                except StarterbusError as exc:
-                    other.open_error = exc
-
     def run_after_the_end(self, job: Job) -> None:
         """A job that came after :meth:`shut_down`: run in the calling thread, on its device opened for it."""
         with self.jobs.lock:  # one such job at a time: no other thread uses the bus any more
@@ -268,159 +188,5 @@ class BusWorker:
         except BaseException as exc:  # delivered to the caller through the future
             future.set_exception(exc)
 
-    # -- counting -----------------------------------------------------------------------------------------
 
-    @staticmethod
-    def _counters(device: Device) -> TransportCounters | None:
-        counters = device.transport.counters()
-        return counters.copy() if counters is not None else None
-
-    def _count(
-        self, device: Device, before: TransportCounters | None, began: float, ended: float | None = None
-    ) -> TransportCounters:
-        """What one poll or job put on the wire (a transport that does not count: one transaction)."""
-        after = device.transport.counters()
-        if before is None or after is None:
-            delta = TransportCounters(transactions=1, requests=1)
-        else:
-            delta = after.minus(before)
-        delta.busy_time = (self.poller.clock() if ended is None else ended) - began  # the time the line was held
-        self.stats.wire.add(delta)
-        return delta
-
-    # -- one device ---------------------------------------------------------------------------------------
-
-    def _ensure_open(self, runtime: DeviceRuntime) -> Device:
-        if runtime.device is None:
-            device = open_device(runtime.config.url, runtime.config.model)
-            device.open()
-            runtime.device = device
-        return runtime.device
-
-    def _close(self, runtime: DeviceRuntime) -> None:
-        if runtime.device is not None and self.deferred:
-            self.dropped.append(runtime.device)
-            runtime.device = None
-        if runtime.device is not None:
-            try:
-                runtime.device.close()
-            except StarterbusError:
-                pass
-            runtime.device = None
-
-    def _what_to_read(self, runtime: DeviceRuntime, device: Device) -> list[PointDef]:
-        """The points each poll reads, resolved once; keys the transport cannot read are reported once."""
-        if runtime.points is None:
-            points, runtime.status, skipped = poll_points(runtime.config, device)
-            runtime.skipped |= skipped
-            runtime.points = points
-        return runtime.points
-
-    def policy(self, attempt: Attempt, device: Device) -> contextlib.AbstractContextManager[None]:
-        """The rules the poll's requests follow: a probe's (one short attempt), else the transport's own."""
-        timeout = self.poller.probing.timeout_for(attempt.runtime.slowest_request) if attempt.probe else None
-        if timeout is None:
-            return contextlib.nullcontext()
-        return device.transport.probe_policy(timeout)
-
-    def begin(self, runtime: DeviceRuntime) -> Attempt:
-        """A poll of ``runtime`` starts now."""
-        return Attempt(runtime, self.poller.clock(), self._probing(runtime))
-
-    def prepare(self, attempt: Attempt) -> Device:
-        """The device opened (raises what opening raises), what the poll reads, the counters before it."""
-        runtime = attempt.runtime
-        error, runtime.open_error = runtime.open_error, None
-        if error is not None:
-            raise error
-        device = self._ensure_open(runtime)
-        attempt.points = self._what_to_read(runtime, device)
-        attempt.before = self._counters(device)
-        attempt.device = device
-        return device
-
-    def abandon(self, attempt: Attempt) -> None:
-        """A poll cut short (the poller stops): what it put on the line is counted; it gives no sample."""
-        if attempt.device is not None:
-            self._count(attempt.device, attempt.before, attempt.start)
-
-    def _poll(self, runtime: DeviceRuntime) -> None:
-        """One poll, blocking."""
-        attempt = self.begin(runtime)
-        result: PollResult | None = None
-        error: StarterbusError | None = None
-        try:
-            device = self.prepare(attempt)
-            with self.policy(attempt, device):
-                result = device.transport.poll(attempt.points, runtime.status)
-        except StarterbusError as exc:
-            error = exc
-        self.end(attempt, result, error)
-
-    def end(
-        self, attempt: Attempt, result: PollResult | None, error: StarterbusError | None, ended: float | None = None
-    ) -> None:
-        """A poll is over (``result``, or ``error``; ``ended``: when it gave the line back, if not now): count
-        it, set the device's state and next time, emit the sample."""
-        poller = self.poller
-        runtime, start, probe = attempt.runtime, attempt.start, attempt.probe
-        config = runtime.config
-        device = attempt.device
-        wire = self._count(device, attempt.before, start, ended) if device is not None else None
-        status: Status | None = None
-        values: dict[str, Value] = {}
-        if result is not None and device is not None:
-            try:
-                status = result.status
-                values = {r.point.key: r.value(device.transport.name) for r in result.readings}
-            except StarterbusError as exc:
-                error = exc
-        # online means answered: any error (no answer, an exception response, garbage, a URL or setting the
-        # device cannot be opened with) leaves the device offline, with no values and the error said
-        online = error is None
-        if online and status is not None and device is not None:
-            device.guard.note_status(status)  # a queued write's state rule need not read it again
-        if isinstance(error, TransportError) and not isinstance(error, TimeoutError):
-            self._close(runtime)  # port or socket gone: reopen on the next attempt
-        now = poller.clock()
-        if probe:
-            runtime.probes += 1
-            self.stats.probes += 1
-            self.budget.spend(now - start, now)
-        if error is not None:
-            runtime.errors += 1
-        runtime.polls += 1
-        if online:
-            runtime.failures_in_a_row = 0
-            # the next slot of the device's grid; a poll more than a period late starts a new grid
-            due = runtime.next_due + config.period
-            runtime.next_due = due if due > start else start + config.period
-            runtime.last_ok = now
-            if wire is not None and wire.requests and not probe:
-                runtime.slowest_request = max(runtime.slowest_request, (now - start) / wire.requests)
-        else:
-            runtime.failures_in_a_row += 1
-            runtime.next_due = now + backoff(
-                runtime.failures_in_a_row, config.period, poller.config.max_backoff, poller.rng
-            )
-        runtime.online = online
-        self.stats.polls += 1
-        sample = Sample(
-            device=config.name,
-            bus=config.bus,
-            model=config.model,
-            time=time.time(),
-            online=online,
-            status=status if online else None,
-            values=values if online else {},
-            error=None if error is None else str(error),
-            errors=runtime.errors,
-            unreadable=tuple(sorted(runtime.skipped)),
-            wire=wire,
-            probe=probe,
-        )
-        runtime.last_sample = sample
-        poller.emit(sample)
-
-
-__all__ = ["BusWorker", "DeviceRuntime"]
+__all__ = ["BusWorker"]

@@ -32,7 +32,8 @@ from starterbus.core.errors import StarterbusError, TransportError
 from starterbus.core.polling import PollResult, PollTask
 from starterbus.core.scheduler import FD_SETSIZE, THREAD_NAME, Holder, Scheduler, Waiter, scheduler
 from starterbus.fleet.bus_driver import Bus
-from starterbus.fleet.bus_worker import Attempt, BusWorker, DeviceRuntime
+from starterbus.fleet.bus_worker import BusWorker
+from starterbus.fleet.device_poll import Attempt, DeviceRuntime
 from starterbus.fleet.jobs import POOL_SIZE, JobPool
 from starterbus.fleet.poll_context import PollContext
 

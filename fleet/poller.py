@@ -24,8 +24,9 @@ from starterbus.core.errors import StarterbusError
 from starterbus.core.registry import get_profile, get_transport
 from starterbus.core.supervision import ServiceFailed, Supervisor
 from starterbus.core.url import DeviceUrl
-from starterbus.fleet.bus_worker import BusWorker, DeviceRuntime
+from starterbus.fleet.bus_worker import BusWorker
 from starterbus.fleet.config import BusConfig, FleetConfig
+from starterbus.fleet.device_poll import DeviceRuntime
 from starterbus.fleet.line_stats import LineStats
 from starterbus.fleet.mux import Multiplexer
 from starterbus.fleet.probing import ProbeSettings

@@ -14,8 +14,8 @@ from starterbus.cli.device_cmds import status_rows
 from starterbus.cli.watch import show
 from starterbus.core.registry import get_profile
 from starterbus.core.status import MotorState, Status, decode_status_word
-from starterbus.fleet.bus_worker import DeviceRuntime
 from starterbus.fleet.config import DeviceConfig
+from starterbus.fleet.device_poll import DeviceRuntime
 from starterbus.fleet.output import TABLE_HEADERS, CsvLog, table_rows
 from starterbus.fleet.sample import Sample
 from starterbus.opcua.address_space import STATE_ENUM_STRINGS, STATES, DeviceNodes

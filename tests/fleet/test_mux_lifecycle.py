@@ -13,8 +13,9 @@ import pytest
 
 from starterbus.core.device import Device, open_device
 from starterbus.core.sharing import leases
-from starterbus.fleet.bus_worker import Attempt, BusWorker
+from starterbus.fleet.bus_worker import BusWorker
 from starterbus.fleet.config import parse_fleet
+from starterbus.fleet.device_poll import Attempt
 from starterbus.fleet.mux import FD_SETSIZE, Waiter
 from starterbus.fleet.poller import FleetPoller
 from starterbus.fleet.sample import Sample
