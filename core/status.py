@@ -10,13 +10,10 @@ import enum
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import Protocol
 
-from starterbus.core.model import Label, Value
+from starterbus.core.model import Label, PointDef, Value
 from starterbus.core.timestamps import iso_time
-
-if TYPE_CHECKING:
-    from starterbus.core.profile import Profile
 
 
 class Command(str, enum.Enum):
@@ -180,8 +177,28 @@ def decode_status_word(
 PHASE_NAMES = ("a", "b", "c")
 
 
+class StatusBits(Protocol):
+    """How a model reads bit 12 of its status word (a profile's ``control`` traits)."""
+
+    @property
+    def bit12_is_mains_voltage(self) -> bool: ...
+
+
+class StatusModel(Protocol):
+    """What decoding a status needs of a device model; a :class:`~starterbus.core.profile.Profile` is one (the
+    profile loader sits above this module, so it is named by what it offers)."""
+
+    @property
+    def faults(self) -> FaultTable: ...
+
+    @property
+    def control(self) -> StatusBits: ...
+
+    def phase_currents(self) -> Sequence[PointDef]: ...
+
+
 def status_with_currents(
-    profile: Profile,
+    profile: StatusModel,
     word: int,
     currents: Sequence[int],
     *,
