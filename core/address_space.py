@@ -14,14 +14,15 @@ A table or a point field may name the space, or a transport that speaks it (``mo
 from __future__ import annotations
 
 import threading
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import Any, Protocol
 
-from starterbus.core.errors import ConfigurationError, StarterbusError
+from starterbus.core.entry_points import Registry
+from starterbus.core.errors import ConfigurationError, PluginError, StarterbusError
 
-if TYPE_CHECKING:
-    from starterbus.core.plugin import TransportPlugin
+TRANSPORT_GROUP = "starterbus.transports"
+SPACE_GROUP = "starterbus.address_spaces"
 
 
 class SpaceParser(Protocol):
@@ -33,6 +34,13 @@ class SpaceParser(Protocol):
     def parse_address(self, value: object) -> Any: ...
 
     def parse_settings(self, settings: Mapping[str, Any]) -> object: ...
+
+
+class SpaceSpeaker(SpaceParser, Protocol):
+    """A transport plugin as the address spaces see it: the space it speaks ("": one of its own name). The
+    plugin API (:class:`~starterbus.core.plugin.TransportPlugin`, above this module) is one."""
+
+    address_space: str
 
 
 class AddressSpace:
@@ -58,6 +66,32 @@ class AddressSpace:
         return MappingProxyType(dict(settings))
 
 
+def _to_space(name: str, obj: object) -> AddressSpace:
+    if isinstance(obj, type) and issubclass(obj, AddressSpace):
+        obj = obj()
+    if not isinstance(obj, AddressSpace):
+        raise PluginError(f"entry point {name!r} gives {obj!r}, not an AddressSpace")
+    if obj.name != name:
+        raise PluginError(f"entry point {name!r} gives an address space that calls itself {obj.name!r}")
+    return obj
+
+
+_transport_checks: list[Callable[[str, object], SpaceSpeaker]] = []
+
+
+def check_transports_with(check: Callable[[str, object], SpaceSpeaker]) -> None:
+    """How an entry point of the transports group becomes a plugin: given by the plugin API when it is imported
+    (it knows the ``TransportPlugin`` class, which sits above this module)."""
+    _transport_checks[:] = [check]
+
+
+def _to_transport(name: str, obj: object) -> SpaceSpeaker:
+    if not _transport_checks:
+        # the plugin API was never imported, so what the entry point gave cannot be a TransportPlugin
+        raise PluginError(f"entry point {name!r} gives {obj!r}, not a TransportPlugin")
+    return _transport_checks[0](name, obj)
+
+
 _lock = threading.Lock()
 _space_of: dict[str, str] = {}
 
@@ -68,10 +102,15 @@ def forget() -> None:
         _space_of.clear()
 
 
+#: the installed address spaces (``starterbus.address_spaces``)
+address_spaces: Registry[AddressSpace] = Registry(SPACE_GROUP, _to_space, forget)
+#: the installed transport plugins (``starterbus.transports``), each checked by the plugin API; the registry
+#: (:mod:`starterbus.core.registry`) hands them out typed as what they are, ``TransportPlugin``
+transports: Registry[SpaceSpeaker] = Registry(TRANSPORT_GROUP, _to_transport, forget)
+
+
 def registered_space(name: str) -> AddressSpace | None:
     """The ``starterbus.address_spaces`` entry of that name, or None (not registered, or it fails to load)."""
-    from starterbus.core.registry import address_spaces  # late: the registry imports the profile loader
-
     if name not in address_spaces.names():
         return None
     try:
@@ -80,9 +119,7 @@ def registered_space(name: str) -> AddressSpace | None:
         return None
 
 
-def _plugin(name: str) -> TransportPlugin | None:
-    from starterbus.core.registry import transports
-
+def _plugin(name: str) -> SpaceSpeaker | None:
     try:
         return transports.get(name)
     except StarterbusError:
@@ -95,8 +132,6 @@ def space_of(name: str) -> str:
     found = _space_of.get(name)
     if found is not None:
         return found
-    from starterbus.core.registry import address_spaces
-
     if name in address_spaces.names():
         space = name
     else:
@@ -121,8 +156,6 @@ def parser_of(space: str) -> SpaceParser | None:
 
 def speakers(space: str) -> list[str]:
     """The installed transport plugins that speak ``space`` (those that fail to load are left out)."""
-    from starterbus.core.registry import transports
-
     names = []
     for name in transports.names():
         plugin = _plugin(name)
@@ -131,4 +164,18 @@ def speakers(space: str) -> list[str]:
     return names
 
 
-__all__ = ["AddressSpace", "SpaceParser", "forget", "parser_of", "registered_space", "space_of", "speakers"]
+__all__ = [
+    "SPACE_GROUP",
+    "TRANSPORT_GROUP",
+    "AddressSpace",
+    "SpaceParser",
+    "SpaceSpeaker",
+    "address_spaces",
+    "check_transports_with",
+    "forget",
+    "parser_of",
+    "registered_space",
+    "space_of",
+    "speakers",
+    "transports",
+]

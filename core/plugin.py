@@ -1,6 +1,9 @@
 """The plugin object a ``starterbus.transports`` entry point resolves to, and what its optional hooks return.
 
-Import these names from :mod:`starterbus.core` (or :mod:`starterbus.core.transport`, which re-exports them).
+Import these names from :mod:`starterbus.core`. The plugin sits above the transport it opens
+(:mod:`starterbus.core.transport_template`) and the profile it reads; the transports registry below the profile loader
+(:mod:`starterbus.core.address_space`) takes an entry point's object for a plugin only through
+:func:`_to_transport`, handed down here.
 """
 
 from __future__ import annotations
@@ -12,7 +15,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
-from starterbus.core.errors import ConfigurationError, UnsupportedOperationError
+from starterbus.core.address_space import check_transports_with
+from starterbus.core.errors import ConfigurationError, PluginError, UnsupportedOperationError
 from starterbus.core.plugin_options import PluginOption
 from starterbus.core.profile import Profile
 from starterbus.core.url import DeviceUrl
@@ -21,7 +25,7 @@ if TYPE_CHECKING:
     import argparse
 
     from starterbus.core.simulator import SimulatedStarter
-    from starterbus.core.transport import Capability, Transport
+    from starterbus.core.transport_template import Capability, Transport
 
 
 @dataclass(frozen=True, slots=True)
@@ -178,3 +182,17 @@ class TransportPlugin(ABC):
             return len(inspect.signature(self.decode).parameters) == 2
         except (TypeError, ValueError):  # pragma: no cover - a builtin or C callable
             return False
+
+
+def _to_transport(name: str, obj: object) -> TransportPlugin:
+    """What a ``starterbus.transports`` entry point gives, as a plugin: an instance, or a class to instantiate."""
+    if isinstance(obj, type) and issubclass(obj, TransportPlugin):
+        obj = obj()
+    if not isinstance(obj, TransportPlugin):
+        raise PluginError(f"entry point {name!r} gives {obj!r}, not a TransportPlugin")
+    if obj.name != name:
+        raise PluginError(f"entry point {name!r} gives a plugin that calls itself {obj.name!r}")
+    return obj
+
+
+check_transports_with(_to_transport)

@@ -8,15 +8,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from types import MappingProxyType
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from starterbus.core.address_space import parser_of, space_of
 from starterbus.core.errors import ProfileError, StarterbusError
 from starterbus.core.model import PointDef
 from starterbus.core.profile_points import AddressParser, int_key, key_text, label, shown, table
-
-if TYPE_CHECKING:
-    from starterbus.core.plugin import TransportPlugin
 
 
 def parse_tables(data: Mapping[str, Any], source: str) -> tuple[dict[str, Mapping[str, Any]], dict[str, object]]:
@@ -68,16 +65,6 @@ def parse_transports(
         ):
             raise ProfileError(source, f"transports.{key_text(space)}", f"no point has a {space} address")
     return tables, parsed
-
-
-def plugin_named(name: str) -> TransportPlugin | None:
-    """The installed plugin of that name, or None (a profile may name a transport that is not installed)."""
-    from starterbus.core.registry import transports  # late: the registry imports this module
-
-    try:
-        return transports.get(name)
-    except StarterbusError:
-        return None
 
 
 def address_fields(data: Mapping[str, Any], source: str) -> dict[str, AddressParser]:

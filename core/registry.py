@@ -11,34 +11,32 @@ Groups:
 
 Built-ins are registered in ``pyproject.toml`` exactly like a third-party distribution would register its own.
 A plugin that fails to import is reported with its error and does not affect the others; two entry points
-with one name in one group is an error, never a silent override.
+with one name in one group is an error, never a silent override (:mod:`starterbus.core.entry_points`).
+
+This module is the top of the core's plugin layers: the transports and address spaces registries live below the
+profile loader (:mod:`starterbus.core.address_space`, which reads a profile's addresses with them), and this one
+adds the profiles, which are built by that loader.
 """
 
 from __future__ import annotations
 
 import logging
 import sys
-import threading
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Generic, TypeVar
+from typing import cast
 
-from starterbus.core.address_space import AddressSpace, forget
+from starterbus.core.address_space import SPACE_GROUP, TRANSPORT_GROUP, address_spaces
+from starterbus.core.address_space import transports as _installed_transports
+from starterbus.core.entry_points import PluginEntry, Registry
 from starterbus.core.errors import PluginError, ProfileError, StarterbusError
+from starterbus.core.plugin import TransportPlugin
 from starterbus.core.profile import Profile, build_profile, load_profile_file
 from starterbus.core.textinput import decode_text, read_text_file
-from starterbus.core.transport import TransportPlugin
 
-if TYPE_CHECKING:
-    from importlib.metadata import EntryPoint
-
-TRANSPORT_GROUP = "starterbus.transports"
 PROFILE_GROUP = "starterbus.profiles"
-SPACE_GROUP = "starterbus.address_spaces"
 OVERLAY_GROUP = "starterbus.overlays"
 
-T = TypeVar("T")
 _log = logging.getLogger("starterbus.registry")
 
 if sys.version_info >= (3, 11):
@@ -47,129 +45,9 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 
-@dataclass
-class PluginEntry(Generic[T]):
-    name: str
-    group: str
-    entry_points: list[EntryPoint]
-    loaded: T | None = None
-    error: str | None = None
-    _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
-
-    @property
-    def distributions(self) -> list[str]:
-        names = []
-        for ep in self.entry_points:
-            dist = ep.dist
-            names.append(f"{dist.name} {dist.version}" if dist is not None else "?")
-        return names
-
-    @property
-    def target(self) -> str:
-        return ", ".join(ep.value for ep in self.entry_points)
-
-
-class Registry(Generic[T]):
-    """Entry points of one group, by name; each loaded on first use and cached."""
-
-    def __init__(self, group: str, convert: Callable[[str, object], T]) -> None:
-        self.group = group
-        self._convert = convert
-        self._entries: dict[str, PluginEntry[T]] | None = None
-        self._lock = threading.Lock()
-
-    def _scan(self) -> dict[str, PluginEntry[T]]:
-        with self._lock:
-            if self._entries is None:
-                from importlib.metadata import entry_points  # only when a command needs plugins: start-up
-
-                entries: dict[str, PluginEntry[T]] = {}
-                seen: set[tuple[str, str]] = set()
-                for ep in entry_points(group=self.group):
-                    # one distribution visible twice on sys.path is one plugin, not a clash
-                    ident = (ep.name, ep.value)
-                    if ident in seen:
-                        continue
-                    seen.add(ident)
-                    entries.setdefault(ep.name, PluginEntry(ep.name, self.group, [])).entry_points.append(ep)
-                for entry in entries.values():
-                    if len(entry.entry_points) > 1:
-                        entry.error = (
-                            f"{len(entry.entry_points)} plugins claim the name {entry.name!r} in {self.group}: "
-                            f"{entry.target} (from {', '.join(entry.distributions)}); uninstall one"
-                        )
-                self._entries = entries
-            return self._entries
-
-    def names(self) -> list[str]:
-        return sorted(self._scan())
-
-    def entries(self) -> list[PluginEntry[T]]:
-        return [self._scan()[n] for n in self.names()]
-
-    def get(self, name: str) -> T:
-        entries = self._scan()
-        entry = entries.get(name)
-        if entry is None:
-            known = ", ".join(sorted(entries)) or "none installed"
-            raise PluginError(f"no {self.group} plugin named {name!r} (installed: {known})")
-        return self._load(entry)
-
-    def _load(self, entry: PluginEntry[T]) -> T:
-        with entry._lock:
-            if entry.loaded is not None:
-                return entry.loaded
-            if entry.error is None:
-                try:
-                    obj = entry.entry_points[0].load()
-                    entry.loaded = self._convert(entry.name, obj)
-                except Exception as exc:
-                    detail = f"{type(exc).__name__}: {exc}"
-                    entry.error = f"cannot load {self.group} plugin {entry.name!r} ({entry.target}): {detail}"
-            if entry.loaded is None:
-                raise PluginError(entry.error)
-            return entry.loaded
-
-    def load_all(self) -> list[PluginEntry[T]]:
-        """Try to load every plugin (for listings); failures stay in ``entry.error``."""
-        entries = self.entries()
-        for entry in entries:
-            try:
-                self._load(entry)
-            except PluginError:
-                pass
-        return entries
-
-    def reset(self) -> None:
-        """Forget what was scanned (after installing a distribution at run time)."""
-        with self._lock:
-            self._entries = None
-        forget()
-
-
-def _to_transport(name: str, obj: object) -> TransportPlugin:
-    if isinstance(obj, type) and issubclass(obj, TransportPlugin):
-        obj = obj()
-    if not isinstance(obj, TransportPlugin):
-        raise PluginError(f"entry point {name!r} gives {obj!r}, not a TransportPlugin")
-    if obj.name != name:
-        raise PluginError(f"entry point {name!r} gives a plugin that calls itself {obj.name!r}")
-    return obj
-
-
 def _is_resource(obj: object) -> bool:
     """An ``importlib.resources`` file (a Traversable): read it, do not call it."""
     return hasattr(obj, "read_text") and hasattr(obj, "is_file")
-
-
-def _to_space(name: str, obj: object) -> AddressSpace:
-    if isinstance(obj, type) and issubclass(obj, AddressSpace):
-        obj = obj()
-    if not isinstance(obj, AddressSpace):
-        raise PluginError(f"entry point {name!r} gives {obj!r}, not an AddressSpace")
-    if obj.name != name:
-        raise PluginError(f"entry point {name!r} gives an address space that calls itself {obj.name!r}")
-    return obj
 
 
 def _read_toml(name: str, obj: object) -> tuple[object, str]:
@@ -204,9 +82,10 @@ def _identity(name: str, obj: object) -> object:
     return obj
 
 
-transports: Registry[TransportPlugin] = Registry(TRANSPORT_GROUP, _to_transport)
+#: the transport plugins: the registry the address spaces look plugins up in; everything it loads passed the plugin
+#: API's check (``starterbus.core.plugin``), so it holds TransportPlugins
+transports = cast("Registry[TransportPlugin]", _installed_transports)
 profiles: Registry[Profile] = Registry(PROFILE_GROUP, _to_profile)
-address_spaces: Registry[AddressSpace] = Registry(SPACE_GROUP, _to_space)
 overlays: Registry[object] = Registry(OVERLAY_GROUP, _identity)
 #: overlay entry name -> why it was left out of its model (the model loads without it)
 overlay_errors: dict[str, str] = {}

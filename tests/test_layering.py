@@ -72,6 +72,22 @@ def test_a_late_import_that_closes_a_circle_breaks_the_acyclic_contract(copy: Pa
     assert "No cycles are allowed in starterbus.fleet" in result.stdout
 
 
+def test_a_type_only_import_that_reties_the_core_knot_breaks_the_core_layers(copy: Path) -> None:
+    """core/status.py naming the profile under TYPE_CHECKING (it names a StatusModel instead): the core's own
+    layers and the acyclic contract both break, with no exception left to hide it."""
+    append(copy / "starterbus" / "core" / "status.py", "if TYPE_CHECKING:\n    import starterbus.core.profile  # noqa")
+    status = copy / "starterbus" / "core" / "status.py"
+    status.write_text(
+        status.read_text(encoding="utf-8").replace("from typing import ", "from typing import TYPE_CHECKING, ", 1)
+    )
+    result = lint_imports(copy, pythonpath=copy)
+    assert result.returncode == 1, result.stdout
+    said = " ".join(result.stdout.split())
+    assert "starterbus.core.status -> starterbus.core.profile" in said
+    assert "status > model > address_space > entry_points BROKEN" in said
+    assert "No cycles are allowed in starterbus.core" in said
+
+
 def test_a_transport_importing_a_core_module_breaks_the_public_core_contract(copy: Path) -> None:
     """A built-in transport imports the public starterbus.core only, as a plugin must: the offender is named, with
     its line."""
