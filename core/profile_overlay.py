@@ -23,7 +23,7 @@ from collections.abc import Mapping
 from dataclasses import replace
 from typing import Any
 
-from starterbus.core.address_space import space_of
+from starterbus.core.address_space import parser_of, space_of
 from starterbus.core.errors import ProfileError
 from starterbus.core.model import PointDef
 from starterbus.core.profile import Profile
@@ -101,8 +101,6 @@ def _check_unique(profile: Profile, added: Mapping[str, Mapping[str, Any]], sour
 
 
 def _check_required(spaces: Mapping[str, object], points: Mapping[str, PointDef], source: str) -> None:
-    from starterbus.core.address_space import parser_of
-
     for space in spaces:
         parser = parser_of(space)
         required = parser is not None and parser.requires_point_addresses

@@ -32,6 +32,7 @@ from starterbus.core.entry_points import PluginEntry, Registry
 from starterbus.core.errors import PluginError, ProfileError, StarterbusError
 from starterbus.core.plugin import TransportPlugin
 from starterbus.core.profile import Profile, build_profile, load_profile_file
+from starterbus.core.profile_overlay import apply_overlay
 from starterbus.core.textinput import decode_text, read_text_file
 
 PROFILE_GROUP = "starterbus.profiles"
@@ -94,8 +95,6 @@ overlay_errors: dict[str, str] = {}
 def _with_overlays(profile: Profile) -> Profile:
     """The model with every overlay registered for it (``MODEL.NAME``); a broken overlay is left out, logged and
     kept in :data:`overlay_errors`: one plugin's mistake does not take the model from everyone."""
-    from starterbus.core.profile_overlay import apply_overlay
-
     for entry_name in overlays.names():
         if entry_name.partition(".")[0] != profile.name:
             continue
