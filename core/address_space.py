@@ -9,6 +9,10 @@ parses its table and its addresses, as before address spaces existed).
 
 A table or a point field may name the space, or a transport that speaks it (``modbus-rtu`` stands for the
 ``modbus`` space its plugin declares): profiles written before address spaces load unchanged.
+
+The registries of the installed spaces and transport plugins live here, below the model and the profile loader
+that resolve names and parse addresses with them (docs/architecture.md, "Inside core"); a plugin is seen here
+only as what it offers the spaces (:class:`SpaceSpeaker`).
 """
 
 from __future__ import annotations
