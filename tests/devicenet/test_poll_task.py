@@ -1,6 +1,7 @@
 """A fleet's DeviceNet poll as a PollTask (no thread per bus): monitoring reads the input assembly over explicit
 messaging with no output data; a master that polls answers from a fresh sample and selects status parameters in
-turn; taking control again (control=open after a loss) polls by blocking."""
+turn; taking control again (control=open after a loss) is a task too, refused while a motor runs from
+elsewhere."""
 
 from __future__ import annotations
 
@@ -10,10 +11,10 @@ from collections.abc import Iterator
 
 import pytest
 
-from starterbus.core import Device, ManualClock, MotorState, Profile, SimulatedStarter, open_device, run_task
+from starterbus.core import Device, ManualClock, MotorState, Phase, Profile, SimulatedStarter, open_device, run_task
 from starterbus.transports.devicenet.codec.ids import poll_command_id
 from starterbus.transports.devicenet.simulator import DeviceNetSlaveSimulator
-from starterbus.transports.devicenet.transport import DeviceNetTransport
+from starterbus.transports.devicenet.transport import ControlConflictError, DeviceNetTransport
 
 FAST = "dup_mac_wait=0.05&timeout=0.5&epr=50&poll=10"
 
@@ -73,10 +74,40 @@ def test_status_parameters_are_selected_by_the_task(
         assert by_key["status_word"] == simulated.read(jjr8000.point("status_word"))
 
 
-def test_taking_control_again_polls_by_blocking(channel: str, simulated: SimulatedStarter) -> None:
+def test_taking_control_again_is_a_poll_task(channel: str, simulated: SimulatedStarter) -> None:
     with open_device(f"devicenet://virtual/{channel}?mac=5&{FAST}&control=open", "jjr8000") as device:
         link = transport(device).link
         assert link is not None
         transport(device).scanner.release_control(link)  # type: ignore[union-attr]  # as a loss would leave it
-        assert not link.polling and transport(device).start_poll([], True) is None
-        assert device.status().state is MotorState.STOPPED and link.polling  # the blocking path took it again
+        mark = simulated.control_writes_total
+        before = {t.name for t in threading.enumerate()}
+        task = transport(device).start_poll([], True)
+        assert task is not None and not link.polling  # nothing sent before the task's first advance
+        result = run_task(task, time.monotonic)
+        assert result.status is not None and result.status.state is MotorState.STOPPED
+        assert link.polling  # the task took control again
+        assert {t.name for t in threading.enumerate()} <= before  # the task started no thread
+        assert all(not w.word & 0x0001 for w in simulated.control_writes_since(mark))  # never a run bit
+
+
+def test_taking_control_again_in_a_task_never_stops_a_motor_run_from_elsewhere(
+    channel: str, simulated: SimulatedStarter, jjr8000: Profile, sniffer: object
+) -> None:
+    with open_device(f"devicenet://virtual/{channel}?mac=5&{FAST}&control=open", jjr8000) as device:
+        link = transport(device).link
+        assert link is not None
+        transport(device).scanner.release_control(link)  # type: ignore[union-attr]  # as a loss would leave it
+        assert simulated.start("keypad")
+        mark, sent = simulated.control_writes_total, len(sniffer.texts())  # type: ignore[attr-defined]
+        task = transport(device).start_poll([], True)
+        assert task is not None
+        result = run_task(task, time.monotonic)  # the status monitors: control is not taken
+        assert result.status is not None and result.status.state in (MotorState.STARTING, MotorState.RUNNING)
+        points = transport(device).start_poll([jjr8000.point("status_word")], True)
+        assert points is not None
+        with pytest.raises(ControlConflictError, match=r"under another control .*; taking control again \(control=open\)"):
+            run_task(points, time.monotonic)  # a status parameter needs the polled connection: refused
+        assert not link.polling and simulated.control_writes_since(mark) == []
+        commands = [t for t in sniffer.texts()[sent:] if t.startswith(f"{poll_command_id(5):03X}#")]  # type: ignore[attr-defined]
+        assert commands == []  # no poll (whose output would carry run = 0) went out
+        assert simulated.phase is not Phase.STOPPED

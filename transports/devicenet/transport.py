@@ -57,6 +57,7 @@ from starterbus.core import (
     Status,
     TimeoutError,
     Transport,
+    UnsupportedOperationError,
 )
 from starterbus.transports.devicenet.codec.assemblies import (
     CURRENT_RESOLUTION_A,
@@ -75,7 +76,14 @@ from starterbus.transports.devicenet.driver.poll import DeviceNetPoll, Steps
 from starterbus.transports.devicenet.driver.scanner import Scanner, SlaveLink
 from starterbus.transports.devicenet.master.link import InputSample, LinkState
 from starterbus.transports.devicenet.master.polling import POLL_RESPONSE_TIMEOUT
-from starterbus.transports.devicenet.master.requests import Explicit, FreshInput, MasterRequest, Outputs, Until
+from starterbus.transports.devicenet.master.requests import (
+    Explicit,
+    FreshInput,
+    MasterRequest,
+    Outputs,
+    TakeControl,
+    Until,
+)
 from starterbus.transports.devicenet.master.sequence import input_request
 from starterbus.transports.devicenet.settings import devicenet_settings
 from starterbus.transports.devicenet.url import NAME, parse_url
@@ -228,11 +236,33 @@ class DeviceNetTransport(Transport):
         motor runs on a command this master no longer holds, a status read monitors (``strict`` False) and a
         status parameter read raises the :class:`ControlConflictError`."""
         if self.control == "open" and not link.polling:
-            try:
-                self._take_control(scanner, link, "taking control again (control=open)")
-            except ControlConflictError:
-                if strict:
-                    raise
+            scanner.drive(self._retake_steps(scanner, link, strict=strict))
+
+    def _retake_steps(self, scanner: Scanner, link: SlaveLink, *, strict: bool) -> Generator[MasterRequest, Any, None]:
+        """:meth:`_retake` as tickets (the fleet's poll task runs them too): the input assembly read over explicit
+        messaging, then the polled I/O connection taken only if no motor runs under another control."""
+        if self.control != "open" or link.polling:
+            return
+        inputs = yield from self._explicit_steps(scanner, link)
+        conflict = self._conflict(inputs, link, "taking control again (control=open)")
+        if conflict is not None:
+            if strict:
+                raise conflict
+            return
+        scanner.keep()  # from now on the master polls unattended (the slave's watchdog)
+        yield TakeControl(link, 4 * self.timeout)
+
+    def _conflict(self, inputs: InputAssembly, link: SlaveLink, why: str) -> ControlConflictError | None:
+        """Why taking control now would stop a motor run under another control (its first poll carries run = 0),
+        or None."""
+        bits = inputs.bits & (InputBit.RUNNING | InputBit.STARTING)  # a soft stop under way agrees with run = 0
+        if not bits or link.run:
+            return None
+        state = " and ".join(str(b.name).lower() for b in InputBit if b & bits)
+        return ControlConflictError(
+            f"{self.describe()}: the motor is {state} under another control (keypad, terminals or another "
+            f"master); {why} would take control with run = 0 and stop it: nothing sent"
+        )
 
     def _read_status(self) -> Status:
         scanner, link = self._require()
@@ -261,14 +291,9 @@ class DeviceNetTransport(Transport):
         """Allocate the polled I/O connection. With ``refuse_running``, refused while the motor runs on a command
         this master did not give (the first poll would carry run = 0: a stop nobody asked for)."""
         if refuse_running:
-            inputs = self._explicit_inputs(scanner, link)
-            bits = inputs.bits & (InputBit.RUNNING | InputBit.STARTING)  # a soft stop under way agrees with run = 0
-            if bits and not link.run:
-                state = " and ".join(str(b.name).lower() for b in InputBit if b & bits)
-                raise ControlConflictError(
-                    f"{self.describe()}: the motor is {state} under another control (keypad, terminals or another "
-                    f"master); {why} would take control with run = 0 and stop it: nothing sent"
-                )
+            conflict = self._conflict(self._explicit_inputs(scanner, link), link, why)
+            if conflict is not None:
+                raise conflict
         scanner.take_control(link, 4 * self.timeout)
 
     def _send_command(self, command: Command) -> None:
@@ -351,16 +376,19 @@ class DeviceNetTransport(Transport):
             if phases and point.key == phases[0].key:
                 sample = self._fresh_sample(link, scanner)
                 return Reading(point, decode_input(sample.data, 1).current_a, CURRENT_RESOLUTION_A)
-            raise self.unsupported(
-                f"read {point.key}",
-                "basic assemblies (PRO type P1/M1) carry only the status bits and the L1 current; "
-                "use assemblies=extended (P3/M2) for the status parameters",
-            )
+            raise self._basic_refusal(point)
         address = point.address_for(NAME)
         if address is None or not 0 <= address <= 0xFF:
             raise self.unsupported(f"read {point.key}", "it has no DeviceNet status parameter address")
         with self._select_lock:
             return scanner.drive(self._status_parameter_steps(scanner, link, point, address))
+
+    def _basic_refusal(self, point: PointDef) -> UnsupportedOperationError:
+        return self.unsupported(
+            f"read {point.key}",
+            "basic assemblies (PRO type P1/M1) carry only the status bits and the L1 current; "
+            "use assemblies=extended (P3/M2) for the status parameters",
+        )
 
     def _status_parameter_steps(
         self, scanner: Scanner, link: SlaveLink, point: PointDef, address: int
@@ -401,24 +429,40 @@ class DeviceNetTransport(Transport):
     def _start_poll(self, points: Sequence[PointDef], status: bool) -> PollTask | None:
         """The poll as tickets: monitoring, the status and the L1 current from one explicit read of the input
         assembly; while this master polls, the latest fresh sample and each status parameter selected in turn.
-        What the blocking path refuses or must decide by blocking (taking control again with ``control=open``)
-        polls by blocking (None)."""
+        With ``control=open`` and the polled connection lost, the poll first takes control again as the blocking
+        path does (refused while a motor runs under another control: then the status is monitored and points
+        fail). What the blocking path refuses polls by blocking (None), which raises its message."""
         scanner, link = self._require()
         phases = self.profile.phase_currents()
         l1 = phases[0].key if phases else None
         if self.control == "open" and not link.polling:
-            return None
+            if any(point.key != l1 and not _has_address(point) for point in points):
+                return None  # refused by the blocking path, with its message
+            return DeviceNetPoll(scanner, self._retake_poll_steps(scanner, link, points, status, l1))
         if not link.polling or link.assemblies is AssemblySet.BASIC:
             if any(point.key != l1 for point in points):
                 return None  # refused by the blocking path, with its message
             return DeviceNetPoll(scanner, self._poll_steps(scanner, link, points, status, {}))
-        addresses: dict[str, int] = {}
-        for point in points:
-            address = point.address_for(NAME)
-            if address is None or not 0 <= address <= 0xFF:
-                return None  # refused by the blocking path, with its message
-            addresses[point.key] = address
+        if not all(_has_address(point) for point in points):
+            return None  # refused by the blocking path, with its message
+        addresses = {point.key: _address(point) for point in points}
         return DeviceNetPoll(scanner, self._poll_steps(scanner, link, points, status, addresses))
+
+    def _retake_poll_steps(
+        self, scanner: Scanner, link: SlaveLink, points: Sequence[PointDef], status: bool, l1: str | None
+    ) -> Steps:
+        """``control=open`` after a loss: take control again (points refused while a motor runs under another
+        control, as ``_read_points`` does), then the poll of the state that left."""
+        yield from self._retake_steps(scanner, link, strict=bool(points))
+        addresses: dict[str, int] = {}
+        if link.polling and link.assemblies is not AssemblySet.BASIC:
+            addresses = {point.key: _address(point) for point in points}
+        elif link.polling:
+            for point in points:
+                if point.key != l1:
+                    raise self._basic_refusal(point)
+        result: PollResult = yield from self._poll_steps(scanner, link, points, status, addresses)
+        return result
 
     def _poll_steps(
         self,
@@ -483,3 +527,15 @@ class DeviceNetTransport(Transport):
             "duplicate_answers": link.duplicates,
             "last_error": str(link.last_error) if link.last_error else None,
         }
+
+
+def _address(point: PointDef) -> int:
+    address = point.address_for(NAME)
+    assert isinstance(address, int)
+    return address
+
+
+def _has_address(point: PointDef) -> bool:
+    """Whether ``point`` has a DeviceNet status parameter address (what the polled connection can select)."""
+    address = point.address_for(NAME)
+    return address is not None and 0 <= address <= 0xFF

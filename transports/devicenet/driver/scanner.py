@@ -194,7 +194,7 @@ class Scanner:
     def _what(self, request: MasterRequest) -> str:
         return f"DeviceNet master on {self.where}: {type(request).__name__}"
 
-    def _keep(self) -> None:
+    def keep(self) -> None:
         """From now on the master polls unattended (a polled I/O connection): the loop's own thread runs."""
         if not self._kept:
             self._kept = True
@@ -204,7 +204,7 @@ class Scanner:
 
     def attach(self, config: LinkConfig) -> MasterLink:
         if config.io:
-            self._keep()
+            self.keep()
         link: MasterLink = self._outcome(Attach(config))
         return link
 
@@ -225,7 +225,7 @@ class Scanner:
     def take_control(self, link: MasterLink, timeout: float) -> None:
         """Establish the polled I/O connection of a monitored slave (the outputs set before go out with its
         first poll); raises why it could not."""
-        self._keep()
+        self.keep()
         self._outcome(TakeControl(link, timeout))
 
     def release_control(self, link: MasterLink) -> None:
