@@ -4,7 +4,9 @@
 :class:`~starterbus.core.scheduler.Scheduler` built on it adds the jobs with futures (``call``, ``submit``,
 ``run``, ``wait``) and the loop's own thread with its holders. Only the leader ever calls a driver or an engine.
 A driver whose step raises fails its own tickets (a :class:`TransportError` for anything not a
-:class:`StarterbusError`); the other drivers go on.
+:class:`StarterbusError`); the other drivers go on. The loop waits on every driver's descriptor with one
+``select``, or, when one driver can wait by itself (:class:`Blocking`) and no other has a descriptor, in that
+driver's own wait (a wake-up then interrupts it).
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 from starterbus.core.engine import Ticket
 from starterbus.core.errors import StarterbusError, TransportError
@@ -67,6 +69,38 @@ class Served(Protocol):
         ...
 
 
+class Blocking(Served, Protocol):
+    """A driver that can wait for its own input (``can_block``: a medium without a descriptor whose library
+    offers a blocking wait, python-can's virtual bus). The loop waits in its :meth:`block` instead of a
+    ``select`` when no other driver has a descriptor: no reader thread, no pipe, one thread hand-off less."""
+
+    @property
+    def can_block(self) -> bool:
+        """Whether :meth:`block` may be used now."""
+        ...
+
+    def block(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` s for input or an :meth:`interrupt`; True: input is ready (step with ``ready``)."""
+        ...
+
+    def interrupt(self) -> None:
+        """End the :meth:`block` under way, or the next one (any thread)."""
+        ...
+
+
+def _blocker(drivers: Sequence[Served]) -> Blocking | None:
+    """The one driver that can wait by itself when no other has a descriptor to watch (else None: ``select``)."""
+    blocker: Blocking | None = None
+    for driver in drivers:
+        if getattr(driver, "can_block", False):
+            if blocker is not None:
+                return None
+            blocker = cast(Blocking, driver)
+        elif driver.fd >= 0:
+            return None
+    return blocker
+
+
 class SchedulerLoop:
     """The state of a scheduler's loop and its body (the base of :class:`~starterbus.core.scheduler.Scheduler`)."""
 
@@ -80,6 +114,8 @@ class SchedulerLoop:
         self.drivers: list[Served] = []
         self._due: list[Served] = []  # to step at the next turn (a submission)
         self._watched: dict[Served, tuple[int, bool]] = {}
+        #: the driver whose own wait the loop uses now (:class:`Blocking`; None: the waiter's select)
+        self._blocker: Blocking | None = None
         self._waiter: Waiter[Served | None] = Waiter()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
@@ -97,6 +133,10 @@ class SchedulerLoop:
 
     def wake(self) -> None:
         """Interrupt the loop's wait (something was queued for it)."""
+        blocker = self._blocker
+        if blocker is not None:  # the loop waits (or is about to) in that driver's own wait
+            blocker.interrupt()
+            return
         try:
             os.write(self._wake_w, b"!")
         except (BlockingIOError, OSError):  # already woken (the pipe is full), or closed at exit
@@ -185,21 +225,29 @@ class SchedulerLoop:
             due, self._due = self._due, []
             for driver in due:
                 self._step(driver, now, False)
+        drivers = self.drivers
+        blocker = _blocker(drivers)
+        self._blocker = blocker  # before the inbox is looked at below: a post from now on interrupts the blocker
         wait_until = until
-        for driver in self.drivers:
-            fd, writing = driver.fd, driver.writing
-            if self._watched.get(driver, (-1, False)) != (fd, writing):
-                self._watch(driver, fd, writing)
+        for driver in drivers:
+            if driver is not blocker:
+                fd, writing = driver.fd, driver.writing
+                if self._watched.get(driver, (-1, False)) != (fd, writing):
+                    self._watch(driver, fd, writing)
             wait_until = min(wait_until, driver.deadline)
         if done is not None and done():
             return
         if self._inbox or self._due:
             wait_until = now
-        try:
-            ready = self._waiter.wait(max(0.0, wait_until - self.clock()))
-        except OSError:  # a descriptor closed under the wait: its driver is crashed, the others go on
-            ready = []
-            self._drop_closed()
+        timeout = max(0.0, wait_until - self.clock())
+        if blocker is not None:
+            ready: list[Served | None] = [blocker] if blocker.block(timeout) else []
+        else:
+            try:
+                ready = self._waiter.wait(timeout)
+            except OSError:  # a descriptor closed under the wait: its driver is crashed, the others go on
+                ready = []
+                self._drop_closed()
         now = self.clock()
         stepped: list[Served] = []
         for which in ready:

@@ -41,8 +41,8 @@ import can
 from starterbus.core.canbus import open_bus, shutdown
 from starterbus.core.canframe import CanFrame
 from starterbus.core.engine import Engine, Ticket, TicketState
-from starterbus.core.errors import StarterbusError, TransportError
-from starterbus.core.media.can_reader import CanReader
+from starterbus.core.errors import ConfigurationError, StarterbusError, TransportError
+from starterbus.core.media.can_reader import CanReader, QueueWait
 from starterbus.core.sharing import SharedPool
 
 __all__ = [
@@ -154,12 +154,16 @@ class CanDriver:
         self.crashes = 0
         self.closed = False
         self.key: tuple[str, str] = ("", "")
+        #: the bit rate asked when the bus was opened (None: none named, the interface's own)
+        self.bitrate: int | None = None
         self._step_cpu = 0.0
         try:
             self._fd = bus.fileno()
         except (NotImplementedError, AttributeError, OSError, can.CanError):
             self._fd = -1
-        self._reader = CanReader(bus, name, self.errors) if self._fd < 0 else None
+        #: a virtual bus: the loop may wait on its queue (no reader thread until a descriptor is needed)
+        self._queue = QueueWait.of(bus) if self._fd < 0 else None
+        self._reader = CanReader(bus, name, self.errors) if self._fd < 0 and self._queue is None else None
 
     # -- sharing one bus per (interface, channel) in a process --------------------------------------------------
 
@@ -181,14 +185,24 @@ class CanDriver:
             bus = open_bus(interface, channel, bitrate, needs_peer=needs_peer)
             try:
                 driver = cls(bus, f"{interface}/{channel}", loop)
-                driver.key = key
+                driver.key, driver.bitrate = key, bitrate
                 driver.call(lambda now: driver.loop.add(driver), "add the bus")
             except BaseException:
                 shutdown(bus)
                 raise
             return driver
 
-        return CAN_BUSES.acquire(key, make)
+        driver = CAN_BUSES.acquire(key, make)
+        if bitrate is not None and driver.bitrate is None:
+            driver.bitrate = bitrate  # (opened without one: the first to name a rate sets what the others must ask)
+        elif bitrate is not None and driver.bitrate != bitrate:
+            opened = driver.bitrate
+            driver.release()
+            raise ConfigurationError(
+                f"CAN bus {interface}/{channel} is already open in this process at {opened} bit/s; opening it at "
+                f"{bitrate} bit/s refused: one bus has one bit rate (give every protocol on it the same bitrate=)"
+            )
+        return driver
 
     def release(self) -> None:
         """One user fewer; the last one closes the driver (its reader, and the bus it opened)."""
@@ -270,7 +284,32 @@ class CanDriver:
 
     @property
     def fd(self) -> int:
-        return self._fd if self._reader is None else self._reader.fd
+        """The bus's descriptor, else its reader's pipe (a virtual bus's reader started at the first need: the loop
+        waits on other descriptors too, or a poller outside the loop waits)."""
+        if self._fd >= 0:
+            return self._fd
+        reader = self._reader
+        if reader is None:
+            reader = self._reader = CanReader(self.bus, self.name, self.errors)
+            reader.wanted = frozenset(self._routes)
+        return reader.fd
+
+    @property
+    def can_block(self) -> bool:
+        """The loop may wait in :meth:`block` (a virtual bus read by no thread) when no other driver has a
+        descriptor."""
+        return self._reader is None and self._queue is not None
+
+    def block(self, timeout: float) -> bool:
+        """The loop's wait when it has no descriptor to watch but this bus's: up to ``timeout`` s for frames or an
+        :meth:`interrupt`; True: frames were read (step with ``ready``)."""
+        assert self._queue is not None
+        return self._queue.block(timeout)
+
+    def interrupt(self) -> None:
+        """End the loop's :meth:`block` now, or the next one (any thread)."""
+        if self._queue is not None:
+            self._queue.interrupt()
 
     @property
     def writing(self) -> bool:
@@ -320,8 +359,9 @@ class CanDriver:
     def step(self, now: float, ready: bool) -> None:
         cpu = time.thread_time()
         try:
-            if ready:
-                self._take_input(now)
+            reader, direct = self._reader, self._queue
+            if ready or (direct is not None and direct.pending) or (reader is not None and reader.queued):
+                self._take_input(now)  # frames read before any timer runs
             held = self._held
             for engine in self.engines:
                 if now >= engine.deadline and not (held and now < held.get(engine, 0.0)):
@@ -337,8 +377,14 @@ class CanDriver:
             self._step_cpu += time.thread_time() - cpu
 
     def _take_input(self, now: float) -> None:
-        if self._reader is None:
-            messages: list[can.Message] = []
+        reader, direct = self._reader, self._queue
+        if direct is not None:
+            messages = direct.take()
+            self._received += len(messages)
+            if reader is not None:
+                messages += reader.take()
+        elif reader is None:
+            messages = []
             while True:
                 try:
                     message = self.bus.recv(0.0)
@@ -348,12 +394,11 @@ class CanDriver:
                 if message is None:
                     break
                 messages.append(message)
+            self._received += len(messages)
         else:
-            messages = self._reader.take()
+            messages = reader.take()
         if not messages:
             return
-        if self._reader is None:
-            self._received += len(messages)
         self._sync_routes()
         routes = self._routes
         touched: set[CanEngine] = set()
@@ -411,7 +456,7 @@ class CanDriver:
                 self._loop_back(engine, out, now)
         self._complete(engine, now)
 
-    def _loop_back(self, sender: CanEngine, frames: Sequence[CanFrame], now: float) -> None:
+    def _loop_back(self, sender: CanEngine | None, frames: Sequence[CanFrame], now: float) -> None:
         """What one engine wrote reaches the others on the bus that want it, as it reaches separate sockets on
         one interface (python-can delivers no frame back to the bus that sent it)."""
         touched: list[CanEngine] = []
@@ -428,20 +473,46 @@ class CanDriver:
             self._flush(engine, now)
 
     def write(self, frames: Sequence[CanFrame]) -> None:
-        messages = self._messages
+        """Write what the engines give (in the loop): a failed send is logged and counted in :attr:`errors`, the
+        engine's own timeout then tells its caller (:meth:`send` raises instead)."""
         for frame in frames:
-            message = messages.get(frame)
-            if message is None:
-                message = _message(frame)
-                if len(messages) >= MESSAGE_CACHE:
-                    messages.clear()
-                messages[frame] = message
             try:
-                self.bus.send(message)
+                self.bus.send(self._message(frame))
                 self.sent += 1
             except can.CanError as exc:
                 log.warning("CAN send %s on %s failed: %s", frame.text(), self.name, exc)
                 self.errors.append(f"send {frame.text()} failed: {exc}")
+
+    def send(self, frames: Sequence[CanFrame], what: str) -> None:
+        """Write ``frames`` now, in this order, from outside the loop (a one-off frame that must not fail quietly:
+        NMT start, a command's output words): a frame the bus refuses is a :class:`TransportError` naming it and
+        ``what``, and the frames after it are not sent. The other engines on the bus that want them see them."""
+
+        def send(now: float) -> None:
+            for index, frame in enumerate(frames):
+                try:
+                    self.bus.send(self._message(frame))
+                except can.CanError as exc:
+                    self.errors.append(f"send {frame.text()} failed: {exc}")
+                    unsent = f" ({len(frames) - index - 1} more not sent)" if index + 1 < len(frames) else ""
+                    raise TransportError(
+                        f"{what}: CAN frame {frame.text()} not sent on {self.name}: {exc}{unsent}"
+                    ) from None
+                self.sent += 1
+                if self.engines:
+                    self._loop_back(None, (frame,), now)
+
+        self.call(send, what)
+
+    def _message(self, frame: CanFrame) -> can.Message:
+        messages = self._messages
+        message = messages.get(frame)
+        if message is None:
+            message = _message(frame)
+            if len(messages) >= MESSAGE_CACHE:
+                messages.clear()
+            messages[frame] = message
+        return message
 
     def _send_periodics(self, now: float) -> None:
         for periodic in self._periodics:

@@ -1,19 +1,79 @@
-"""The reader thread of a CAN bus without a descriptor (python-can's ``virtual``, ``remote``, some vendor
-interfaces): it blocks in ``recv``, queues the frames and writes one wake byte to a pipe when the queue was
-empty, so a burst of frames costs the loop one wake-up. The loop waits on :attr:`CanReader.fd`."""
+"""Reading a CAN bus without a descriptor (python-can's ``virtual``, ``remote``, some vendor interfaces).
+
+:class:`CanReader`: a thread blocks in ``recv``, queues the frames and writes one wake byte to a pipe when the
+queue was empty, so a burst of frames costs the loop one wake-up. The loop waits on :attr:`CanReader.fd` with
+every other descriptor.
+
+:class:`QueueWait`: python-can's ``virtual`` bus delivers into a ``queue.Queue`` of the bus; while the CAN driver
+is the only driver of the loop with something to wait on, the loop waits on that queue itself (no thread, no pipe,
+no ``select``: one thread hand-off less per frame), and a wake-up of the loop puts :data:`WAKE` in it.
+"""
 
 from __future__ import annotations
 
 import collections
 import os
+import queue
 import threading
 import time
+from typing import Any
 
 import can
 
-__all__ = ["READER_WAIT", "CanReader"]
+__all__ = ["READER_WAIT", "WAKE", "CanReader", "QueueWait"]
 
 READER_WAIT = 0.1  # s the thread blocks in recv before it looks whether it should stop
+#: what wakes a loop waiting on a virtual bus's queue: an extended error frame, which no filter of ours passes and
+#: the driver drops; told apart from a frame by identity
+WAKE = can.Message(arbitration_id=0x1FFFFFFF, is_extended_id=True, is_error_frame=True)
+
+
+class QueueWait:
+    """The loop's own wait on a virtual bus's receive queue (:meth:`block`), ended early by :meth:`interrupt`
+    from any thread; the frames taken (:meth:`take`) are those the bus's ``recv`` would give, before its software
+    filters (the driver's routing drops what no engine wants)."""
+
+    def __init__(self, rx: queue.Queue[Any]) -> None:
+        self._rx = rx
+        self.pending: list[can.Message] = []
+
+    @classmethod
+    def of(cls, bus: can.BusABC) -> QueueWait | None:
+        """The wait for ``bus`` if it is python-can's virtual bus (its queue where this python-can keeps it)."""
+        try:
+            from can.interfaces.virtual import VirtualBus
+        except ImportError:  # pragma: no cover - python-can without the virtual interface
+            return None
+        rx = getattr(bus, "queue", None)
+        if type(bus) is not VirtualBus or not isinstance(rx, queue.Queue):
+            return None
+        return cls(rx)
+
+    def block(self, timeout: float) -> bool:
+        """Wait up to ``timeout`` s for frames (or a :meth:`interrupt`); True: frames are pending."""
+        rx, pending = self._rx, self.pending
+        try:
+            item = rx.get(timeout=timeout) if timeout > 0 else rx.get_nowait()
+        except queue.Empty:
+            return bool(pending)
+        if item is not WAKE:
+            pending.append(item)
+        while rx.qsize():  # the loop is the queue's only reader: what qsize counts is there
+            item = rx.get_nowait()
+            if item is not WAKE:
+                pending.append(item)
+        return bool(pending)
+
+    def interrupt(self) -> None:
+        try:
+            self._rx.put_nowait(WAKE)
+        except queue.Full:  # a bounded queue that is full: the wait ends anyway
+            pass
+
+    def take(self) -> list[can.Message]:
+        """The frames :meth:`block` took (those queued since wait for the next one)."""
+        messages, self.pending = self.pending, []
+        return messages
 
 
 class CanReader:
@@ -87,7 +147,7 @@ class CanReader:
                 self.errors.append(f"receive failed: {type(exc).__name__}: {exc}")
                 stop.wait(READER_WAIT)
                 continue
-            if message is None:
+            if message is None or message is WAKE:  # WAKE: left by a loop that waited on the queue before
                 self._cpu = time.thread_time()
                 continue
             self.received += 1

@@ -13,6 +13,7 @@ import pytest
 
 from starterbus.core import Device, ManualClock, MotorState, Phase, Profile, SimulatedStarter, open_device, run_task
 from starterbus.transports.devicenet.codec.ids import poll_command_id
+from starterbus.transports.devicenet.driver.scanner import SlaveLink
 from starterbus.transports.devicenet.simulator import DeviceNetSlaveSimulator
 from starterbus.transports.devicenet.transport import ControlConflictError, DeviceNetTransport
 
@@ -24,6 +25,10 @@ def simulated(channel: str, jjr8000: Profile) -> Iterator[SimulatedStarter]:
     starter = SimulatedStarter(jjr8000, ManualClock(0.0))
     with DeviceNetSlaveSimulator(starter, ("virtual", channel), 5, dup_mac_wait=0.05):
         yield starter
+
+
+def polls(link: SlaveLink) -> bool:
+    return link.polling
 
 
 def transport(device: Device) -> DeviceNetTransport:
@@ -42,7 +47,9 @@ def test_a_monitoring_poll_is_a_task_that_sends_no_output_data(
         result = run_task(task, time.monotonic)
         assert result.status is not None and result.status.state is MotorState.STOPPED
         assert [r.point.key for r in result.readings] == [phase_a.key] and result.readings[0].scale == 1.0
-        assert {t.name for t in threading.enumerate()} <= before  # the task started no thread
+        started = {t.name for t in threading.enumerate()} - before
+        # the task started no thread; a poller outside the loop waits on the bus's descriptor: the reader's pipe
+        assert started <= {f"can-reader virtual/{channel}"}
     commands = [t for t in sniffer.texts() if t.startswith(f"{poll_command_id(5):03X}#")]  # type: ignore[attr-defined]
     assert commands == []
 
@@ -85,7 +92,7 @@ def test_taking_control_again_is_a_poll_task(channel: str, simulated: SimulatedS
         assert task is not None and not link.polling  # nothing sent before the task's first advance
         result = run_task(task, time.monotonic)
         assert result.status is not None and result.status.state is MotorState.STOPPED
-        assert link.polling  # the task took control again
+        assert transport(device).link is link and polls(link)  # the task took control again
         assert {t.name for t in threading.enumerate()} <= before  # the task started no thread
         assert all(not w.word & 0x0001 for w in simulated.control_writes_since(mark))  # never a run bit
 
@@ -105,7 +112,8 @@ def test_taking_control_again_in_a_task_never_stops_a_motor_run_from_elsewhere(
         assert result.status is not None and result.status.state in (MotorState.STARTING, MotorState.RUNNING)
         points = transport(device).start_poll([jjr8000.point("status_word")], True)
         assert points is not None
-        with pytest.raises(ControlConflictError, match=r"under another control .*; taking control again \(control=open\)"):
+        refused = r"under another control .*; taking control again \(control=open\)"
+        with pytest.raises(ControlConflictError, match=refused):
             run_task(points, time.monotonic)  # a status parameter needs the polled connection: refused
         assert not link.polling and simulated.control_writes_since(mark) == []
         commands = [t for t in sniffer.texts()[sent:] if t.startswith(f"{poll_command_id(5):03X}#")]  # type: ignore[attr-defined]

@@ -1,6 +1,7 @@
-"""The CAN driver over python-can's virtual bus (no descriptor: one reader thread and a wake pipe): requests led
-by the caller, frames routed by identifier to the engines that want them, one wake-up per burst, an engine that
-raises contained, periodic outputs at the driver's deadlines, one driver per (interface, channel)."""
+"""The CAN driver over python-can's virtual bus (no descriptor: the loop waits on the bus's own queue, or, when it
+waits on other descriptors too, one reader thread and a wake pipe): requests led by the caller, frames routed by
+identifier to the engines that want them, one wake-up per burst of the reader, an engine that raises contained,
+periodic outputs at the driver's deadlines, one driver per (interface, channel)."""
 
 from __future__ import annotations
 
@@ -151,14 +152,14 @@ def closed(driver: CanDriver) -> bool:
     return driver.closed
 
 
-def test_the_caller_leads_and_starts_no_thread_but_the_reader(loop: Scheduler, driver: CanDriver) -> None:
+def test_the_caller_leads_and_starts_no_thread(loop: Scheduler, driver: CanDriver) -> None:
     engine = AskEngine(0x601, 0x581)
     add(driver, engine)
     tickets = run(loop, driver, engine, b"\x01", b"\x10")
     assert [t.result for t in tickets] == [b"\x02", b"\x11"]
     assert not loop.running
     names = [t.name for t in threading.enumerate()]
-    assert f"can-reader virtual/{driver.key[1]}" in names and "starterbus-io" not in names
+    assert f"can-reader virtual/{driver.key[1]}" not in names and "starterbus-io" not in names  # the bus's queue
     assert driver.sent == 2 and driver.received >= 2
 
 
@@ -181,6 +182,7 @@ def test_frames_go_to_the_engines_that_want_them(loop: Scheduler, driver: CanDri
 def test_a_burst_costs_one_wake_up(driver: CanDriver) -> None:
     engine = AskEngine(0x601, 0x581)
     add(driver, engine)
+    fd = driver.fd  # a descriptor asked for (a poller outside the loop, other drivers): the reader thread starts
     sender = can.Bus(interface="virtual", channel=driver.key[1])
     try:
         for n in range(100):
@@ -188,7 +190,7 @@ def test_a_burst_costs_one_wake_up(driver: CanDriver) -> None:
         assert wait_until(lambda: driver._reader is not None and driver._reader.queued == 100, 5.0)
     finally:
         sender.shutdown()
-    assert os.read(driver.fd, 512) == b"!"  # nobody led meanwhile: one byte for the hundred frames
+    assert os.read(fd, 512) == b"!"  # nobody led meanwhile: one byte for the hundred frames
 
 
 def test_the_engine_keeps_its_timeouts(loop: Scheduler, driver: CanDriver) -> None:
