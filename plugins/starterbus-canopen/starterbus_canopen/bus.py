@@ -20,7 +20,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import TypeVar
 
 import can
 
@@ -28,8 +28,8 @@ from starterbus.core import (
     CanDriver,
     CanFrame,
     ConfigurationError,
+    Periodic,
     SharedPool,
-    TransportError,
     process_scheduler,
 )
 from starterbus_canopen.sdo import SdoEngine
@@ -64,7 +64,7 @@ class CanBus:
         self.driver = CanDriver.acquire(interface, channel, self.loop, bitrate)
         self._lock = threading.Lock()
         self._nodes: dict[int, tuple[SdoEngine, int]] = {}  # node id -> (engine, devices using it)
-        self._heartbeats: dict[int, tuple[float, Any, int]] = {}  # master id -> (period, periodic, devices)
+        self._heartbeats: dict[int, tuple[float, Periodic, int]] = {}  # master id -> (period, task, devices)
         self.closed = False
 
     @property
@@ -155,19 +155,11 @@ class CanBus:
                 self.call(lambda now: driver.remove(engine, now), "remove an SDO client")
 
     def send(self, frames: Sequence[CanFrame], what: str) -> None:
-        """Write ``frames`` now, in this order (NMT, RPDO): a failure is a TransportError saying ``what``."""
-        bus = self.driver.bus
+        """Write ``frames`` now, in this order (NMT, RPDO): a frame refused is a TransportError saying ``what``
+        and naming the frame (``CanDriver.send``); those after it are not sent."""
+        self.driver.send(frames, what)
 
-        def send(now: float) -> None:
-            for frame in frames:
-                bus.send(can.Message(arbitration_id=frame.can_id, data=frame.data, is_extended_id=False))
-
-        try:
-            self.call(send, what)
-        except can.CanError as exc:
-            raise TransportError(f"{what}: {exc}") from None
-
-    def periodic(self, frame: CanFrame, period: float, what: str) -> Any:
+    def periodic(self, frame: CanFrame, period: float, what: str) -> Periodic:
         """Send ``frame`` every ``period`` s from now on (the driver's periodic output: ``modify``, ``stop``)."""
         driver = self.driver
         return self.call(lambda now: driver.periodic(frame, period, now), what)
@@ -177,9 +169,14 @@ class CanBus:
             tasks = [task for _, task, _ in self._heartbeats.values()]
             self._heartbeats.clear()
             self._nodes.clear()
+
+        def stop(now: float) -> None:
+            for task in tasks:
+                task.stop()
+
         try:
             if tasks and not self.driver.closed:
-                self.call(lambda now: [task.stop() for task in tasks], "stop the heartbeats")
+                self.call(stop, "stop the heartbeats")
         finally:
             self.closed = True
             self.driver.release()

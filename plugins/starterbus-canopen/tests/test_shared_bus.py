@@ -137,6 +137,9 @@ def test_a_failing_nmt_start_is_a_transport_error_and_leaves_nothing(
         send(bus, message, timeout)
 
     monkeypatch.setattr(can.interfaces.virtual.VirtualBus, "send", bus_off_for_nmt)
-    with pytest.raises(TransportError, match=r"heartbeat=50 \(node 5\): NMT start: scripted: bus off"):
+    with pytest.raises(
+        TransportError,
+        match=r"heartbeat=50 \(node 5\): NMT start: CAN frame 000#0105 not sent on virtual/.*: scripted: bus off",
+    ):
         open_device(f"canopen://virtual/{channel}?node=5&heartbeat=50").open()
     assert ("virtual", channel) not in BUSES.leases()
