@@ -270,12 +270,15 @@ class AsyncFleet:
     """A running :class:`~starterbus.fleet.poller.FleetPoller` seen from asyncio.
 
     ``samples()`` streams every poll; ``remote_write`` / ``remote_command`` check the fleet file's ``remote``
-    table, then run the guarded path in the device's bus worker (between polls), audited with ``actor``.
+    table, then run the guarded path on the device's bus between its polls, audited with ``actor``; the job's
+    future is awaited through :func:`asyncio.wrap_future`.
 
     ``supervisor`` (:mod:`starterbus.core.supervision`) watches the poller's threads and whatever tasks the
     application runs beside it (``serve``'s edge node, the OPC UA server); if the poller fails, ``samples()``
-    raises :class:`~starterbus.core.supervision.ServiceFailed`. ``sink`` is called in the bus thread with every
-    sample before asyncio sees it, as ``poll``'s sinks are (``serve --record`` hands its history recorder).
+    raises :class:`~starterbus.core.supervision.ServiceFailed`. ``sink`` is called with every sample in the thread
+    that polled it (the scheduler's ``starterbus-io``, or the thread of a bus that polls by blocking) before
+    asyncio sees it, as ``poll``'s sinks are (``serve --record`` hands its history recorder); each sample then
+    reaches the event loop by one ``call_soon_threadsafe`` (docs/engine.md, "Choice", measures that hand-off).
     """
 
     def __init__(
@@ -319,7 +322,7 @@ class AsyncFleet:
             await asyncio.wrap_future(edge_pool().submit(self.poller.stop))
         await asyncio.sleep(0)  # the hand-overs the buses made before they ended come first
 
-    def _on_sample(self, sample: Sample) -> None:  # a bus thread
+    def _on_sample(self, sample: Sample) -> None:  # the thread that polled it
         try:
             if self.sink is not None:
                 self.sink(sample)  # a sink that raises is the bus's failure; the sample still reaches asyncio
@@ -367,7 +370,7 @@ class AsyncFleet:
             raise RemoteNotAllowed(f"no device named {name!r} in {self.config.source}") from None
 
     async def run(self, name: str, fn: Callable[[Device], T]) -> T:
-        """Run ``fn(device)`` in the device's bus worker and await its result."""
+        """Run ``fn(device)`` on the device's bus between its polls and await its result."""
         if self.poller is None:
             raise StarterbusError("the fleet is not running (use `async with AsyncFleet(...)`)")
         return await asyncio.wrap_future(self.poller.submit(name, fn))
