@@ -371,9 +371,12 @@ class AsyncFleet:
 
     async def run(self, name: str, fn: Callable[[Device], T]) -> T:
         """Run ``fn(device)`` on the device's bus between its polls and await its result."""
-        if self.poller is None:
+        poller = self.poller
+        if poller is None:
             raise StarterbusError("the fleet is not running (use `async with AsyncFleet(...)`)")
-        return await asyncio.wrap_future(self.poller.submit(name, fn))
+        if poller.stopping.is_set():  # a job after the end runs in the submitting thread: not the event loop's
+            return await asyncio.wrap_future(edge_pool().submit(lambda: poller.submit(name, fn).result()))
+        return await asyncio.wrap_future(poller.submit(name, fn))
 
     async def remote_command(self, name: str, command: Command, *, actor: str) -> Outcome:
         if not self.device_config(name).remote.allows_command(command):

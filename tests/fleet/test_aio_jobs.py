@@ -10,12 +10,13 @@ from typing import Any
 
 import pytest
 
-from starterbus.aio import POOL_SIZE, POOL_THREAD, AsyncDevice, EdgePool, SerialJobs, edge_pool
-from starterbus.core.device import open_device
+from starterbus.aio import POOL_SIZE, POOL_THREAD, AsyncDevice, AsyncFleet, EdgePool, SerialJobs, edge_pool
+from starterbus.core.device import Device, open_device
 from starterbus.core.errors import UnknownPointError
 from starterbus.core.guarded import Proposal
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
+from starterbus.fleet.config import parse_fleet
 from starterbus.testing import wait_until
 from starterbus.testing.waits import wait_until_async
 from starterbus.transports.modbus.simulator import ModbusRtuSimulator
@@ -187,3 +188,39 @@ def test_the_pool_runs_at_most_its_size_at_once_and_its_idle_threads_end() -> No
     release.set()
     assert [f.result(10) for f in futures] == [0, 1, 2, 3] and pool.started == 2
     assert wait_until(lambda: pool._alive == 0)  # lingered, then ended
+
+
+def test_a_fleet_job_after_the_polls_ended_runs_in_the_pool_not_on_the_event_loop(
+    sim: tuple[ModbusRtuSimulator, dict[int, SimulatedStarter]],
+) -> None:
+    """After the end a fleet runs a job at once in the submitting thread, on its device opened for it: from
+    AsyncFleet that must not be the event loop's thread (it would block every other task meanwhile)."""
+    simulator, _ = sim
+    port = simulator.client_urls()[4].split("://", 1)[1].split("?", 1)[0]
+    fleet_file = f"""
+[poll]
+period = 0.05
+
+[[bus]]
+name = "l1"
+url = "modbus-rtu://{port}?timeout=0.3"
+
+  [[bus.device]]
+  name = "d4"
+  model = "ssd1"
+  address = 4
+"""
+
+    def ramp_time(device: Device) -> tuple[str, object]:
+        return threading.current_thread().name, device.read("ramp_time")["ramp_time"].raw
+
+    async def scenario() -> tuple[tuple[str, object], tuple[str, object]]:
+        async with AsyncFleet(parse_fleet(fleet_file, "f.toml")) as fleet:
+            during = await fleet.run("d4", ramp_time)
+            await fleet.stop_polling()
+            after = await fleet.run("d4", ramp_time)
+        return during, after
+
+    during, after = asyncio.run(scenario())
+    assert during[1] == after[1] == 10
+    assert during[0] != threading.main_thread().name and after[0] == POOL_THREAD
