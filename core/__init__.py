@@ -88,7 +88,7 @@ if TYPE_CHECKING:
     )
     from starterbus.core.textinput import check_loopback, parse_hex, parse_host_port
     from starterbus.core.ticket_poll import TicketPoll, run_steps, wait_ticket
-    from starterbus.core.transport import ALL_CAPABILITIES, Capability, Transport
+    from starterbus.core.transport_template import ALL_CAPABILITIES, Capability, Transport
     from starterbus.core.url import DeviceUrl
 
     load_profile = get_profile
@@ -154,9 +154,9 @@ _LAZY = {
     "MotorState": "starterbus.core.status",
     "Status": "starterbus.core.status",
     "Annotation": "starterbus.core.plugin",
-    "Capability": "starterbus.core.transport",
+    "Capability": "starterbus.core.transport_template",
     "RunningSimulator": "starterbus.core.plugin",
-    "Transport": "starterbus.core.transport",
+    "Transport": "starterbus.core.transport_template",
     "TransportPlugin": "starterbus.core.plugin",
     "DeviceUrl": "starterbus.core.url",
     "load_profile": "starterbus.core.registry:get_profile",
@@ -184,7 +184,7 @@ _LAZY = {
     "Refusal": "starterbus.core.errors",
     "SimulatorRefusal": "starterbus.core.errors",
     "SharedPool": "starterbus.core.sharing",
-    "ALL_CAPABILITIES": "starterbus.core.transport",
+    "ALL_CAPABILITIES": "starterbus.core.transport_template",
     "PollResult": "starterbus.core.polling",
     "PollTask": "starterbus.core.polling",
     "run_task": "starterbus.core.polling",

@@ -17,8 +17,8 @@ import threading
 from typing import Any
 
 from starterbus.core.errors import TransportError
+from starterbus.core.plugin import RunningSimulator
 from starterbus.core.textinput import check_loopback, parse_host_port
-from starterbus.core.transport import RunningSimulator
 
 DEFAULT_PORT = 54701  # python-can-remote's default
 

@@ -33,7 +33,7 @@ from starterbus.core.errors import (
     UnsupportedOperationError,
 )
 from starterbus.core.status import Command, MotorState, Status
-from starterbus.core.transport import Capability
+from starterbus.core.transport_template import Capability
 
 #: the states in which a motor is being driven by whoever holds its control
 _MOVING = frozenset({MotorState.STARTING, MotorState.RUNNING, MotorState.STOPPING})

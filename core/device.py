@@ -21,7 +21,7 @@ from starterbus.core.model import Kind, PointDef, Reading, Value
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile, get_transport
 from starterbus.core.status import Command, Status
-from starterbus.core.transport import Capability, Transport
+from starterbus.core.transport_template import Capability, Transport
 from starterbus.core.url import DeviceUrl
 
 #: key lists a Device keeps resolved and checked (a poller repeats a handful of them)

@@ -10,7 +10,7 @@ from typing import Protocol
 from starterbus.core.model import PointDef, Value
 from starterbus.core.profile import Profile
 from starterbus.core.status import Command, Status
-from starterbus.core.transport import Capability, Transport
+from starterbus.core.transport_template import Capability, Transport
 
 
 class DeviceAccess(Protocol):

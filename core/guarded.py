@@ -20,7 +20,7 @@ from starterbus.core.device_access import DeviceAccess
 from starterbus.core.errors import StarterbusError, StateRuleError, ValidationError
 from starterbus.core.model import PointDef, Value
 from starterbus.core.status import Command, MotorState, Status
-from starterbus.core.transport import Capability
+from starterbus.core.transport_template import Capability
 
 
 class ConfirmationRefused(StarterbusError):
