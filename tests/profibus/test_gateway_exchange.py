@@ -244,3 +244,20 @@ def test_nobody_listening_fails_the_exchange_at_once(loop: Scheduler) -> None:
     error = future.result().error
     assert isinstance(error, TransportError) and f"cannot connect to gateway 127.0.0.1:{port}" in str(error)
     connection.close()
+
+
+def test_a_write_not_answered_fails_the_exchange_and_its_read_never_goes(
+    gateway: ScriptedGateway, loop: Scheduler
+) -> None:
+    connection = GatewayConnection("127.0.0.1", gateway.port, TIMEOUT, loop)
+    driver = station(loop, connection, control=0)
+    future = submit(loop, driver, FreshInputs(2.0))
+    write = gateway.request(loop)
+    settle(loop, future.done)
+    error = future.result().error
+    assert isinstance(error, TimeoutError), error
+    text = str(error)
+    assert f"gateway 127.0.0.1:{gateway.port}: no answer from unit 1" in text and f"(transaction {write[0]})" in text
+    assert "retry_writes" not in text  # a modbus-tcp URL parameter: nothing a PKW URL has
+    assert gateway.nothing_more(loop)
+    connection.close()

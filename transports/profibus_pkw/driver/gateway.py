@@ -193,7 +193,9 @@ class GatewayStation:
     ) -> None:
         self.connection, self.words = connection, words
         self.out, self.inp, self.unit = out, inp, unit
-        self.policy = TransactionPolicy(timeout=connection.timeout, retries=0)
+        # one attempt each (the PKW engine repeats its task; a status read takes the next exchange); retry_writes
+        # only keeps the Modbus engine's messages from pointing a failed write at a URL parameter PKW has not
+        self.policy = TransactionPolicy(timeout=connection.timeout, retries=0, retry_writes=True)
         read = ReadInputRequest if input_function == 4 else ReadRequest
         self.read = Exchange(read(unit, inp, words), self.policy, 0.0)
         self._writes: dict[tuple[int, tuple[int, ...]], Exchange] = {}  # the last few FC16s, made once each
