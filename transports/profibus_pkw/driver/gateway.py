@@ -104,6 +104,7 @@ class GatewayDriver(TcpDriver[MbapEngine]):
         refused. Then each exchange that ended goes back to its station."""
         engine = self.engine
         done = engine.take_completed()
+        ended = bool(done)
         while done:
             withdrawn = False
             for ticket in done:
@@ -118,7 +119,7 @@ class GatewayDriver(TcpDriver[MbapEngine]):
                 if future is not None:
                     future.set_result(ticket)
             done = engine.take_completed() if withdrawn else []
-        if self._pending:
+        if ended and self._pending:
             self._tell(now)
 
     def crash(self, error: StarterbusError, now: float) -> None:
@@ -130,14 +131,16 @@ class GatewayDriver(TcpDriver[MbapEngine]):
         left: list[_Pending] = []
         for pending in self._pending:
             tickets = pending.tickets
-            if not all(ticket.ended for ticket in tickets):
-                left.append(pending)
-                continue
-            try:
-                words: tuple[int, ...] | StarterbusError = pending.station.gateway.inputs(tickets)
-            except StarterbusError as exc:
-                words = exc
-            pending.station.answer(pending.unit, words)
+            for ticket in tickets:
+                if not ticket.ended:
+                    left.append(pending)
+                    break
+            else:
+                try:
+                    words: tuple[int, ...] | StarterbusError = pending.station.gateway.inputs(tickets)
+                except StarterbusError as exc:
+                    words = exc
+                pending.station.answer(pending.unit, words)
         self._pending = left
 
 
@@ -277,7 +280,7 @@ class StationDriver(Driver[StationEngine]):
 
     @property
     def deadline(self) -> float:
-        return -math.inf if self._answers else float(self.engine.deadline)
+        return -math.inf if self._answers else self.engine.deadline
 
     def answer(self, unit: DpOut, words: tuple[int, ...] | StarterbusError) -> None:
         """How the exchange ``unit`` ended (from the connection's step): taken at this driver's next step."""
