@@ -2,9 +2,10 @@
 
 Blocking I/O never runs on the event loop. A device's operations are jobs with futures (awaited through
 :func:`asyncio.wrap_future`): one at a time per device, in the order called, run by the process's small edge pool
-(:func:`edge_pool`: at most :data:`POOL_SIZE` threads for every :class:`AsyncDevice`, none per call), where each
-leads or follows the I/O scheduler as the sync API does. A fleet's polls run on the scheduler and its commands in
-the fleet's job pool; both come back through futures and a queue (``call_soon_threadsafe``).
+(:func:`edge_pool`: at most :data:`POOL_SIZE` threads for every :class:`AsyncDevice`, none per call, ending when
+idle: a :class:`~starterbus.core.worker_pool.WorkerPool`, as the fleet's job pool is), where each leads or follows
+the I/O scheduler as the sync API does. A fleet's polls run on the scheduler and its commands in the fleet's job
+pool; both come back through futures and a queue (``call_soon_threadsafe``).
 
 Cancelling the task that awaits an operation withdraws it if it has not started (nothing was sent); one that
 has started (a write may be on the wire) runs to its end, its outcome not awaited by anyone (a failure is logged),
@@ -31,7 +32,6 @@ import functools
 import logging
 import os
 import threading
-import time
 from collections import deque
 from collections.abc import AsyncIterator, Callable, Mapping
 from concurrent.futures import Future
@@ -44,6 +44,7 @@ from starterbus.core.guarded import Outcome
 from starterbus.core.model import Value
 from starterbus.core.status import Command, Status
 from starterbus.core.supervision import ServiceFailed, Supervisor, describe
+from starterbus.core.worker_pool import WorkerPool, settle
 from starterbus.fleet.config import DeviceConfig, FleetConfig
 from starterbus.fleet.poller import FleetPoller, Sample
 
@@ -59,76 +60,17 @@ POOL_THREAD = "aio-jobs"
 LINGER = 10.0
 
 
-class EdgePool:
-    """A few threads for the blocking work of the asyncio edge: a thread starts when work comes and none is idle
-    (at most ``size``), and ends after ``linger`` seconds without work. Work runs in the order given."""
-
-    def __init__(self, size: int = POOL_SIZE, linger: float = LINGER) -> None:
-        self.size = max(1, size)
-        self.linger = linger
-        self._work: deque[Callable[[], None]] = deque()
-        self._cond = threading.Condition()
-        self._alive = 0  # threads started that have not decided to end
-        self._idle = 0  # of them, waiting for work
-        self.started = 0  # threads started since the pool was made
-
-    def run(self, work: Callable[[], None]) -> None:
-        """Run ``work()`` in a pool thread (any thread); it must not raise (an exception is logged)."""
-        with self._cond:
-            self._work.append(work)
-            start = self._idle < len(self._work) and self._alive < self.size
-            if start:
-                self._alive += 1
-                self.started += 1
-            else:
-                self._cond.notify()
-        if start:
-            threading.Thread(target=self._serve, name=POOL_THREAD, daemon=True).start()
-
-    def submit(self, fn: Callable[[], T]) -> Future[T]:
-        """``fn()`` in a pool thread; its result (or exception) in the future (withdrawn if cancelled before)."""
-        future: Future[T] = Future()
-        self.run(functools.partial(_settle, future, fn))
-        return future
-
-    def _serve(self) -> None:
-        while True:
-            with self._cond:
-                give_up = time.monotonic() + self.linger
-                while not self._work:
-                    remaining = give_up - time.monotonic()
-                    if remaining <= 0:
-                        self._alive -= 1
-                        return
-                    self._idle += 1
-                    self._cond.wait(remaining)
-                    self._idle -= 1
-                work = self._work.popleft()
-            try:
-                work()
-            except Exception:  # the machinery around a job (a job's own error is its future's)
-                log.exception("%s: work failed", POOL_THREAD)
-
-
-def _settle(future: Future[T], fn: Callable[[], T]) -> None:
-    """Run ``fn`` for ``future`` unless it was cancelled before it started (then nothing runs)."""
-    if future.set_running_or_notify_cancel():
-        try:
-            future.set_result(fn())
-        except BaseException as exc:  # the awaiting task's to see, typed as raised
-            future.set_exception(exc)
-
-
-_pool: list[EdgePool] = []
+_pool: list[WorkerPool] = []
 _pool_lock = threading.Lock()
 
 
-def edge_pool() -> EdgePool:
-    """The process's edge pool (made at first use)."""
+def edge_pool() -> WorkerPool:
+    """The process's edge pool (made at first use): :data:`POOL_SIZE` threads at most, each ending after
+    :data:`LINGER` seconds without work."""
     if not _pool:
         with _pool_lock:
             if not _pool:
-                _pool.append(EdgePool())
+                _pool.append(WorkerPool(POOL_THREAD, POOL_SIZE, linger=LINGER))
     return _pool[0]
 
 
@@ -139,7 +81,7 @@ class SerialJobs:
     """The jobs of one device: one at a time, in the order submitted, in the edge pool. A device with work
     waiting goes back to the end of the pool's queue after each job, so a busy device does not starve others."""
 
-    def __init__(self, pool: Callable[[], EdgePool] = edge_pool) -> None:
+    def __init__(self, pool: Callable[[], WorkerPool] = edge_pool) -> None:
         self._pool = pool
         self._lock = threading.Lock()
         self._queue: deque[tuple[Future[Any], Callable[[], Any]]] = deque()
@@ -165,7 +107,7 @@ class SerialJobs:
         with self._lock:
             future, fn = self._queue.popleft()
         try:
-            _settle(future, fn)
+            settle(future, fn)
         finally:
             with self._lock:
                 more = bool(self._queue)

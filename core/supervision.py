@@ -46,7 +46,7 @@ class ServiceFailed(StarterbusError):
 
 
 def describe(exc: BaseException) -> str:
-    """``ValueError: boom (at fleet/bus_worker.py:412 in end)``: the exception and the innermost frame of its
+    """``ValueError: boom (at fleet/device_poll.py:211 in end)``: the exception and the innermost frame of its
     traceback (a path inside the package is shown relative to it); an error starterbus raises on purpose is its
     own one-line message."""
     if isinstance(exc, StarterbusError):

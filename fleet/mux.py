@@ -9,7 +9,7 @@ the rules are those of :class:`~starterbus.fleet.bus_worker.BusWorker`, which ke
 bookkeeping: one poll at a time, devices on their grids, probes within the line's budget, ``delay`` between
 polls; :meth:`BusWorker.end <starterbus.fleet.bus_worker.BusWorker.end>` is a poll's completion callback.
 
-What may block runs in the fleet's small job pool (:class:`~starterbus.fleet.jobs.JobPool`), never in the loop:
+What may block runs in the fleet's small job pool (:func:`~starterbus.fleet.jobs.job_pool`), never in the loop:
 jobs (commands, writes), and opening and closing devices (a transport's ``open`` may wait on the loop itself).
 The bus is lent meanwhile (``BusWorker.lent``): its polls wait, the other buses go on. A bus whose transport
 polls only by blocking (``start_poll`` gives None: a pyserial port without a file descriptor) is handed to a
@@ -34,7 +34,7 @@ from starterbus.core.scheduler import FD_SETSIZE, THREAD_NAME, Holder, Scheduler
 from starterbus.fleet.bus_driver import Bus
 from starterbus.fleet.bus_worker import BusWorker
 from starterbus.fleet.device_poll import Attempt, DeviceRuntime
-from starterbus.fleet.jobs import POOL_SIZE, JobPool
+from starterbus.fleet.jobs import POOL_SIZE, job_pool
 from starterbus.fleet.poll_context import PollContext
 
 __all__ = ["FD_SETSIZE", "Multiplexer", "Waiter"]  # Waiter: core.scheduler's, the fleet's before
@@ -52,7 +52,7 @@ class Multiplexer:
         #: the loop's thread the fleet runs on (held from its start to its end; before, a thread never started)
         self.thread = threading.Thread(name=THREAD_NAME, daemon=True)
         self._holder = Holder(f"fleet ({len(self.buses)} buses)", self._loop_failed)
-        self.pool = JobPool(poller.supervisor, min(POOL_SIZE, len(workers)))
+        self.pool = job_pool(poller.supervisor, min(POOL_SIZE, len(workers)))
         self._started = False
         self._finishing = False  # the end is decided: the buses are no longer stepped
         self._ended = threading.Event()  # every bus given back and shut down
@@ -295,7 +295,7 @@ class Multiplexer:
                 worker.lent = False
                 self._poke(bus)
 
-        self.pool.run(f"jobs-{worker.bus.name}", run)
+        self.pool.run(run, f"jobs-{worker.bus.name}")
 
     def _jobs(self, bus: Bus) -> None:
         bus.worker.close_dropped()
@@ -341,7 +341,7 @@ class Multiplexer:
         self._finishing = True
         for bus in self.buses:
             self.loop.remove(bus)
-        self.pool.run("fleet-end", self._shut_down)
+        self.pool.run(self._shut_down, "fleet-end")
 
     def _shut_down(self) -> None:
         """The jobs queued until now run, the devices are closed; then the fleet lets go of the loop's thread

@@ -10,12 +10,13 @@ from typing import Any
 
 import pytest
 
-from starterbus.aio import POOL_SIZE, POOL_THREAD, AsyncDevice, AsyncFleet, EdgePool, SerialJobs, edge_pool
+from starterbus.aio import POOL_SIZE, POOL_THREAD, AsyncDevice, AsyncFleet, SerialJobs, edge_pool
 from starterbus.core.device import Device, open_device
 from starterbus.core.errors import UnknownPointError
 from starterbus.core.guarded import Proposal
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
+from starterbus.core.worker_pool import WorkerPool
 from starterbus.fleet.config import parse_fleet
 from starterbus.testing import wait_until
 from starterbus.testing.waits import wait_until_async
@@ -170,7 +171,7 @@ def test_errors_come_through_typed_as_raised(sim: tuple[ModbusRtuSimulator, dict
 
 
 def test_the_pool_runs_at_most_its_size_at_once_and_its_idle_threads_end() -> None:
-    pool = EdgePool(size=2, linger=0.05)
+    pool = WorkerPool(POOL_THREAD, 2, linger=0.05)
     jobs = [SerialJobs(lambda: pool) for _ in range(4)]
     release = threading.Event()
     running: list[int] = []
@@ -187,7 +188,7 @@ def test_the_pool_runs_at_most_its_size_at_once_and_its_idle_threads_end() -> No
     assert pool.started == 2 and len(running) == 2  # two devices wait for a thread, none started for them
     release.set()
     assert [f.result(10) for f in futures] == [0, 1, 2, 3] and pool.started == 2
-    assert wait_until(lambda: pool._alive == 0)  # lingered, then ended
+    assert wait_until(lambda: not pool.alive)  # lingered, then ended
 
 
 def test_a_fleet_job_after_the_polls_ended_runs_in_the_pool_not_on_the_event_loop(
