@@ -126,7 +126,7 @@ def cmd_scan(args: argparse.Namespace) -> int:
     if args.baudrates:
         speeds = _ints(args.baudrates, "--baudrates")
     else:
-        from starterbus.transports.modbus.slave import modbus_settings
+        from starterbus.transports.modbus.settings import modbus_settings
 
         offered = {rate for p in models for rate in modbus_settings(p).baudrates}
         speeds = [rate for rate in DEFAULT_SPEEDS if rate in offered] or [9600]

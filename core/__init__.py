@@ -19,7 +19,7 @@ if TYPE_CHECKING:
     from starterbus.core.canframe import CanFrame, annotate_candump, parse_candump
     from starterbus.core.control_log import ControlWrite
     from starterbus.core.device import Device, open_device
-    from starterbus.core.engine import Engine, StreamEngine, Ticket, TicketState, TicketStateError
+    from starterbus.core.engine import FOREVER, Engine, StreamEngine, Ticket, TicketState, TicketStateError
     from starterbus.core.errors import (
         ChecksumError,
         CodecError,
@@ -54,6 +54,7 @@ if TYPE_CHECKING:
     from starterbus.core.media.can import CanDriver, CanEngine, Periodic, ToEngine
     from starterbus.core.media.keeper import keep_running, let_go
     from starterbus.core.media.local import LocalDriver, LocalEngine
+    from starterbus.core.media.waiter import precise_timers
     from starterbus.core.model import Access, EnumTable, Kind, Label, PointDef, Reading, Value
     from starterbus.core.plugin import Annotation, RunningSimulator, TransportPlugin
     from starterbus.core.plugin_options import OptionValues, PluginOption, SimOption, resolve_options
@@ -191,6 +192,7 @@ _LAZY = {
     "PlannedRequest": "starterbus.core.polling",
     "TransportCounters": "starterbus.core.polling",
     "Engine": "starterbus.core.engine",
+    "FOREVER": "starterbus.core.engine",
     "StreamEngine": "starterbus.core.engine",
     "Ticket": "starterbus.core.engine",
     "TicketState": "starterbus.core.engine",
@@ -206,6 +208,7 @@ _LAZY = {
     "let_go": "starterbus.core.media.keeper",
     "LocalDriver": "starterbus.core.media.local",
     "LocalEngine": "starterbus.core.media.local",
+    "precise_timers": "starterbus.core.media.waiter",
     "Scheduler": "starterbus.core.scheduler",
     "SchedulerReentryError": "starterbus.core.scheduler",
     "process_scheduler": "starterbus.core.scheduler:scheduler",
@@ -230,6 +233,7 @@ __all__ = [
     "CW_BUS_CONTROL",
     "CW_RESET",
     "CW_START",
+    "FOREVER",
     "PHASE_NAMES",
     "SW_BUS_CONTROL",
     "SW_FAULT",
@@ -336,6 +340,7 @@ __all__ = [
     "parse_candump",
     "parse_hex",
     "parse_host_port",
+    "precise_timers",
     "process_scheduler",
     "resolve_options",
     "run_steps",

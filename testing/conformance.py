@@ -275,7 +275,7 @@ class TransportConformance(RunningChecks, FaultChecks):
         if self.transport == REFERENCE or not profile.supports(REFERENCE):
             pytest.skip("this is the reference transport, or the model has no reference interface")
         from starterbus.fleet.crosscheck import crosscheck
-        from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+        from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
         run_motor(starter)  # currents are not zero
         with ModbusRtuSimulator({1: starter}, pty=True) as reference:

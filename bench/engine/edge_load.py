@@ -61,9 +61,9 @@ from starterbus.core.scheduler import Scheduler
 from starterbus.serve.metrics import MetricDef
 from starterbus.serve.payloads import encode
 from starterbus.serve.schema import DataType
-from starterbus.transports.modbus.exchange import Exchange, TransactionPolicy
-from starterbus.transports.modbus.frames import ReadRequest, ReadResponse
-from starterbus.transports.modbus.mbap import MbapEngine
+from starterbus.transports.modbus.codec.frames import ReadRequest, ReadResponse
+from starterbus.transports.modbus.master.exchange import Exchange, TransactionPolicy
+from starterbus.transports.modbus.master.mbap import MbapEngine
 
 MODES = ("selectors", "asyncio", "inline")
 REGISTERS = 4

@@ -32,7 +32,7 @@ from starterbus.core.simulator import SimulatedStarter
 from starterbus.fleet.config import parse_fleet
 from starterbus.fleet.poller import FleetPoller, Sample
 from starterbus.fleet.probing import ProbeSettings
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 HERE = Path(__file__).resolve().parent
 EMULATOR = HERE.parent / "modbus" / "line_emulator.py"

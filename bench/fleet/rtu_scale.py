@@ -65,7 +65,7 @@ def layout(n: int, lines: int) -> list[int]:
 def serve(paths: list[str], counts: list[int]) -> None:
     from starterbus.core.registry import get_profile
     from starterbus.core.simulator import SimulatedStarter
-    from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+    from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
     sims = []
     for path, count in zip(paths, counts, strict=True):
@@ -110,9 +110,9 @@ def direct_loop(emulators: list[Emulator], counts: list[int], seconds: float) ->
     from starterbus.core.device import Device, open_device
     from starterbus.core.errors import StarterbusError
     from starterbus.core.polling import PollResult
-    from starterbus.transports.modbus.client import ModbusRtuTransport
-    from starterbus.transports.modbus.frames import ReadRequest, Response
-    from starterbus.transports.modbus.line_task import LineTask
+    from starterbus.transports.modbus.codec.frames import ReadRequest, Response
+    from starterbus.transports.modbus.driver.line_task import LineTask
+    from starterbus.transports.modbus.transport.rtu import ModbusRtuTransport
 
     lines: list[list[Device]] = []
     for index, count in enumerate(counts):

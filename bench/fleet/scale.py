@@ -65,11 +65,11 @@ from starterbus.core import get_profile
 from starterbus.fleet.poller import FleetPoller, Sample
 from starterbus.transports.devicenet.driver.scanner import Scanner
 from starterbus.transports.devicenet.transport import DeviceNetTransport
-from starterbus.transports.modbus.client import ModbusRtuTransport
-from starterbus.transports.modbus.line import RtuLine
-from starterbus.transports.modbus.poll_plan import PollPlans
-from starterbus.transports.modbus.slave import max_read_registers
-from starterbus.transports.modbus.timing import char_time, silent_interval
+from starterbus.transports.modbus.codec.timing import char_time, silent_interval
+from starterbus.transports.modbus.driver.line import RtuLine
+from starterbus.transports.modbus.master.poll_plan import PollPlans
+from starterbus.transports.modbus.settings import max_read_registers
+from starterbus.transports.modbus.transport.rtu import ModbusRtuTransport
 
 CAN_POLL_BYTES = (2, 6)  # extended assemblies: output 102 (2 bytes), input 101 (6 bytes)
 

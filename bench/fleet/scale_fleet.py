@@ -13,7 +13,7 @@ from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.transport import RunningSimulator
 from starterbus.fleet.config import FleetConfig, parse_fleet
 from starterbus.transports.devicenet.simulator import DeviceNetSimulator
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 MODBUS_MODELS = ("jjr5000", "ssd1")
 DEVICENET_MODEL = "jjr8000"

@@ -7,7 +7,7 @@ import argparse
 import os
 import sys
 
-from starterbus.transports.modbus.timing import silent_interval
+from starterbus.transports.modbus.codec.timing import silent_interval
 
 DEVICENET_BITRATE = 500000
 

@@ -133,7 +133,7 @@ def exact_ops(port: str, baud: int, fc: str, silence: bool, watch: bool = False)
     """
     import serial
 
-    from starterbus.transports.modbus.frames import ReadRequest, WriteRequest, expected_response_length
+    from starterbus.transports.modbus.codec.frames import ReadRequest, WriteRequest, expected_response_length
 
     ser = serial.Serial(port, baudrate=baud, timeout=0)
     fd = ser.fileno()

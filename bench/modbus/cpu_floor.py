@@ -12,7 +12,7 @@ clients of one round ran under the same load). A few transactions before each tu
 request after another client's must find the line silent). ``--watch-floor`` adds a fourth client, the same
 loop watching the line during the silence after each answer (as starterbus does for the trailing-bytes rule)
 instead of sleeping before the request, and the ratios to it. ``--before DIR`` (A/B in one process) adds
-``before``: ``read_registers`` through the ``RtuLine`` of ``DIR/starterbus/transports/modbus/line.py`` (an
+``before``: ``read_registers`` through the ``RtuLine`` of ``DIR/starterbus/transports/modbus/driver/line.py`` (an
 untouched copy of an older tree; its imports are this tree's modules), on the same link, its turns interleaved
 with the others', and prints the ratio of this tree's ``read_registers`` to it. Not run by the tests.
 """

@@ -36,7 +36,7 @@ SILENT, LATE = 0.10, 0.10
 
 def slave(path: str, baud: int, timeout: float, seed: int, repeat_share: float) -> None:
     """Serve FC03 on ``path`` until stdin closes; print what was done with each request as one JSON line."""
-    from starterbus.transports.modbus.frames import ReadResponse
+    from starterbus.transports.modbus.codec.frames import ReadResponse
 
     fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
     tty.setraw(fd)
@@ -89,7 +89,7 @@ def slave(path: str, baud: int, timeout: float, seed: int, repeat_share: float) 
 def measure(baud: int, reads: int, timeout: float, seed: int, repeat_share: float, rules: bool) -> dict[str, object]:
     from starterbus.core.device import open_device
     from starterbus.core.errors import StarterbusError
-    from starterbus.transports.modbus import guard
+    from starterbus.transports.modbus.master import guard
 
     if not rules:  # rule 5 off: a repeat seen changes nothing
         guard.LineGuard.repeat_seen = lambda self, quarantine: None  # type: ignore[method-assign]

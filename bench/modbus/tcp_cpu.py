@@ -24,7 +24,7 @@ GATEWAY = """
 import sys
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
-from starterbus.transports.modbus.tcp_server import ModbusTcpSimulator
+from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
 sim = ModbusTcpSimulator({2: SimulatedStarter(get_profile("jjr5000"))}).start()
 print(sim.address[1], flush=True)
 sys.stdin.read()

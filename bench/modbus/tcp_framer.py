@@ -15,9 +15,9 @@ from pymodbus.pdu import DecodePDU
 from starterbus.core.device import open_device
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
-from starterbus.transports.modbus.frames import ReadRequest, ReadResponse, decode_response
-from starterbus.transports.modbus.mbap import MbapEngine, encode_adu
-from starterbus.transports.modbus.tcp_server import ModbusTcpSimulator
+from starterbus.transports.modbus.codec.frames import ReadRequest, ReadResponse, decode_response
+from starterbus.transports.modbus.master.mbap import MbapEngine, encode_adu
+from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
 
 N = 20000
 

@@ -21,8 +21,8 @@ from starterbus.cli.main import main
 from starterbus.cli.output import cells, table
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
-from starterbus.transports.modbus.crc import append_crc
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.codec.crc import append_crc
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 EXE = shutil.which("starterbus") or str(Path(sys.executable).with_name("starterbus"))
 

@@ -12,9 +12,10 @@ from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.testing import TransportConformance
 from starterbus.testing.faults import DeviceTap, Fault
-from starterbus.transports.modbus.frames import AnyRequest
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator, SlaveFault
-from starterbus.transports.modbus.slave import modbus_settings, refusal_code
+from starterbus.transports.modbus.codec.frames import AnyRequest
+from starterbus.transports.modbus.settings import modbus_settings
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator, SlaveFault
+from starterbus.transports.modbus.slave import refusal_code
 
 BUSY = 0x06  # Modbus exception "server device busy"
 TARGET_FAILED = 0x0B  # a gateway's "target device failed to respond"

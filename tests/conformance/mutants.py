@@ -22,15 +22,15 @@ from starterbus.core.status import CW_BUS_CONTROL, Command, Status, status_with_
 from starterbus.core.transport import Transport, TransportCounters
 from starterbus.core.url import DeviceUrl
 from starterbus.testing.faults import query_keys, with_query
-from starterbus.transports.modbus.annotate import exception_meaning
-from starterbus.transports.modbus.client import ModbusRtuTransport
-from starterbus.transports.modbus.config import DEFAULT_RETRIES, DEFAULT_TIMEOUT, URL_PARAMETERS, ModbusRtuConfig
-from starterbus.transports.modbus.exchange import Exchange
-from starterbus.transports.modbus.frames import ExceptionResponse, ReadRequest, Request, WriteRequest
-from starterbus.transports.modbus.line import RtuLine
-from starterbus.transports.modbus.link import Link
-from starterbus.transports.modbus.plugin import ModbusRtuPlugin
-from starterbus.transports.modbus.poll_plan import PollPlans
+from starterbus.transports.modbus.codec.frames import ExceptionResponse, ReadRequest, Request, WriteRequest
+from starterbus.transports.modbus.decoder import exception_meaning
+from starterbus.transports.modbus.driver.line import RtuLine
+from starterbus.transports.modbus.driver.link import Link
+from starterbus.transports.modbus.master.exchange import Exchange
+from starterbus.transports.modbus.master.poll_plan import PollPlans
+from starterbus.transports.modbus.plugin.rtu import ModbusRtuPlugin
+from starterbus.transports.modbus.transport.rtu import ModbusRtuTransport
+from starterbus.transports.modbus.url import DEFAULT_RETRIES, DEFAULT_TIMEOUT, URL_PARAMETERS, ModbusRtuConfig
 
 Opener = Callable[[DeviceUrl, Profile], Transport]
 

@@ -66,7 +66,7 @@ class TestModbusTcp(TransportConformance):
 
     @contextlib.contextmanager
     def serve(self, starter: SimulatedStarter) -> Iterator[str]:
-        from starterbus.transports.modbus.tcp_server import ModbusTcpSimulator
+        from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
 
         with ModbusTcpSimulator({2: starter}) as sim:
             yield sim.url(2, timeout=0.5)

@@ -16,9 +16,9 @@ from starterbus.core.status import CW_BUS_CONTROL, Command, Status
 from starterbus.core.transport import Transport
 from starterbus.core.url import DeviceUrl
 from starterbus.testing import TransportConformance
-from starterbus.transports.modbus.client import ModbusRtuTransport
-from starterbus.transports.modbus.plugin import ModbusRtuPlugin
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.plugin.rtu import ModbusRtuPlugin
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
+from starterbus.transports.modbus.transport.rtu import ModbusRtuTransport
 
 
 class Kit(TransportConformance):

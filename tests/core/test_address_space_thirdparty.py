@@ -13,7 +13,7 @@ import pytest
 
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import ManualClock, SimulatedStarter
-from starterbus.transports.modbus.tcp_server import ModbusTcpSimulator
+from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
 
 #: a Modbus TCP transport written against the public API only (pymodbus moves the registers)
 PLUGIN_SOURCE = """

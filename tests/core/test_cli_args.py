@@ -14,7 +14,7 @@ from starterbus.core.simulator import SimulatedStarter
 
 @pytest.fixture(scope="module")
 def url() -> Iterator[str]:
-    from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+    from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
     sim = ModbusRtuSimulator({2: SimulatedStarter(get_profile("jjr5000"))}, pty=True).start()
     try:

@@ -26,7 +26,7 @@ from starterbus.core.status import CW_START, Command, ControlWordState, Status, 
 from starterbus.core.transport import Capability
 from starterbus.core.url import DeviceUrl
 from starterbus.tests.stub_transport import StubTransport
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 WRITE = 6  # Modbus FC06: every command and parameter write of this line
 

@@ -25,7 +25,7 @@ from starterbus.core.model import PointDef
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.core.status import Command
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 
 class Line:

@@ -16,9 +16,9 @@ from starterbus.core.profile import Profile, load_profile_text
 from starterbus.core.registry import get_profile, get_transport
 from starterbus.core.transport import Transport
 from starterbus.core.url import DeviceUrl
+from starterbus.spaces.modbus import ModbusSettings
 from starterbus.transports.devicenet.settings import DeviceNetSettings
-from starterbus.transports.modbus.config import ModbusRtuConfig
-from starterbus.transports.modbus.slave import ModbusSettings
+from starterbus.transports.modbus.url import ModbusRtuConfig
 from starterbus.transports.profibus_pkw.settings import ProfibusSettings
 
 PROFILES = Path(__file__).parents[2] / "core" / "profiles"

@@ -22,7 +22,7 @@ from starterbus.ops.backup import take_backup
 from starterbus.transports.devicenet.codec.ids import poll_command_id
 from starterbus.transports.devicenet.simulator import DeviceNetSlaveSimulator
 from starterbus.transports.devicenet.transport import ControlConflictError
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 
 FAST = "dup_mac_wait=0.05&timeout=0.5"

@@ -9,9 +9,9 @@ from hypothesis import given, settings
 from starterbus.core.engine import TicketState
 from starterbus.core.errors import TimeoutError, TransportError
 from starterbus.testing.engines import EngineKit, Step, schedules
-from starterbus.transports.modbus.exchange import Exchange, TransactionPolicy
-from starterbus.transports.modbus.frames import ReadRequest, ReadResponse, Response
-from starterbus.transports.modbus.mbap import HEADER, HEADER_LENGTH, MbapEngine, encode_adu
+from starterbus.transports.modbus.codec.frames import ReadRequest, ReadResponse, Response
+from starterbus.transports.modbus.master.exchange import Exchange, TransactionPolicy
+from starterbus.transports.modbus.master.mbap import HEADER, HEADER_LENGTH, MbapEngine, encode_adu
 
 POLICY = TransactionPolicy(timeout=0.1, retries=1, turnaround=0.0, quarantine=0.1)
 

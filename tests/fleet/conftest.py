@@ -14,7 +14,7 @@ from starterbus.fleet.config import FleetConfig, parse_fleet
 from starterbus.fleet.demo import DemoFleet, start_demo_fleet
 from starterbus.fleet.sample import Sample
 from starterbus.testing import wait_until
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 
 @pytest.fixture(scope="module")

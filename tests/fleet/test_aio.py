@@ -13,7 +13,7 @@ from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.status import Command
 from starterbus.fleet.config import parse_fleet
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 
 def fleet_text(port: str) -> str:

@@ -20,7 +20,7 @@ from starterbus.core.worker_pool import WorkerPool
 from starterbus.fleet.config import parse_fleet
 from starterbus.testing import wait_until
 from starterbus.testing.waits import wait_until_async
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 UNITS = (4, 5, 6)
 

@@ -19,7 +19,7 @@ CHANNEL = f"crosscheck-{os.getpid()}"
 @pytest.fixture(scope="module")
 def three_paths() -> Iterator[tuple[list[str], SimulatedStarter, SimulatedStarter]]:
     from starterbus.transports.devicenet.simulator import DeviceNetSimulator
-    from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+    from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
     from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 
     profile = get_profile("jjr8000")

@@ -14,7 +14,7 @@ from starterbus.core.simulator import SimulatedStarter
 from starterbus.fleet.config import parse_fleet
 from starterbus.fleet.poller import FleetPoller
 from starterbus.tests.fleet.conftest import Samples
-from starterbus.transports.modbus.tcp_server import ModbusTcpSimulator
+from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
 
 
 @pytest.fixture

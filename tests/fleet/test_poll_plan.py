@@ -14,8 +14,8 @@ from starterbus.cli.main import main
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
-from starterbus.transports.modbus.poll_plan import PollPlans, cover, fc03_wire_time
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.master.poll_plan import PollPlans, cover, fc03_wire_time
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 CHAR = 11 / 19200
 SILENCE = 3.5 * CHAR

@@ -14,7 +14,7 @@ from starterbus.core.simulator import SimulatedStarter
 from starterbus.fleet.config import parse_fleet
 from starterbus.fleet.poller import FleetPoller, Sample
 from starterbus.fleet.probing import JITTER, ProbeBudget, ProbeSettings, backoff
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 if TYPE_CHECKING:
     from starterbus.tests.fleet.conftest import Samples

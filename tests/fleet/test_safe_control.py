@@ -27,7 +27,7 @@ class StickyStarter(SimulatedStarter):
 
 @pytest.fixture
 def line() -> Iterator[tuple[dict[int, str], dict[int, SimulatedStarter]]]:
-    from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+    from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
     profile = get_profile("jjr5000")
     starters: dict[int, SimulatedStarter] = {2: SimulatedStarter(profile), 3: StickyStarter(profile)}

@@ -16,8 +16,8 @@ from starterbus.fleet.config import parse_fleet
 from starterbus.fleet.poller import FleetPoller
 from starterbus.tests.fleet.conftest import Samples
 from starterbus.transports.devicenet.simulator import DeviceNetSimulator
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
-from starterbus.transports.modbus.tcp_server import ModbusTcpSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
 from starterbus.transports.profibus_pkw.driver.channels import attach_slave, detach_slave
 from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 

@@ -21,8 +21,7 @@ import pytest
 from starterbus.core.profile import Profile
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
-from starterbus.transports.modbus.client import LINES
-from starterbus.transports.modbus.frames import (
+from starterbus.transports.modbus.codec.frames import (
     ReadRequest,
     ReadResponse,
     Request,
@@ -30,7 +29,8 @@ from starterbus.transports.modbus.frames import (
     WriteRequest,
     WriteResponse,
 )
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
+from starterbus.transports.modbus.transport.rtu import LINES
 
 
 def h(text: str) -> bytes:

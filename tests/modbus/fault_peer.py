@@ -33,8 +33,8 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from starterbus.transports.modbus.frames import ExceptionResponse, ReadResponse
-from starterbus.transports.modbus.timing import char_time
+from starterbus.transports.modbus.codec.frames import ExceptionResponse, ReadResponse
+from starterbus.transports.modbus.codec.timing import char_time
 
 FAULTS = (
     "slow", "split", "late", "late_split", "twice", "trailing", "garbage", "crc", "wrong_unit", "exception", "silent",

@@ -5,10 +5,10 @@ from __future__ import annotations
 from starterbus.core.errors import RemoteDeviceError, StarterbusError
 from starterbus.core.polling import PollResult
 from starterbus.core.transport import TransportCounters
-from starterbus.transports.modbus.exchange import Exchange, TransactionPolicy
-from starterbus.transports.modbus.frames import ExceptionResponse, ReadRequest, ReadResponse, Response
-from starterbus.transports.modbus.line import RtuLine
-from starterbus.transports.modbus.line_task import LineTask
+from starterbus.transports.modbus.codec.frames import ExceptionResponse, ReadRequest, ReadResponse, Response
+from starterbus.transports.modbus.driver.line import RtuLine
+from starterbus.transports.modbus.driver.line_task import LineTask
+from starterbus.transports.modbus.master.exchange import Exchange, TransactionPolicy
 
 POLICY = TransactionPolicy(timeout=0.1, retries=1, quarantine=0.3)
 READ = ReadRequest(2, 0x0100, 2)

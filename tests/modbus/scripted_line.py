@@ -9,10 +9,10 @@ from collections.abc import Callable
 
 from starterbus.core.errors import StarterbusError
 from starterbus.core.polling import PollResult
-from starterbus.transports.modbus.frames import ExceptionResponse, ReadResponse
-from starterbus.transports.modbus.line import RtuLine
-from starterbus.transports.modbus.line_task import LineTask
-from starterbus.transports.modbus.link import Link, SerialSettings
+from starterbus.transports.modbus.codec.frames import ExceptionResponse, ReadResponse
+from starterbus.transports.modbus.driver.line import RtuLine
+from starterbus.transports.modbus.driver.line_task import LineTask
+from starterbus.transports.modbus.driver.link import Link, SerialSettings
 
 SILENCE = 0.002
 BAUD = 19200

@@ -27,7 +27,7 @@ from hypothesis import strategies as st
 from starterbus.core.device import open_device
 from starterbus.core.errors import DecodeError, RemoteDeviceError, TimeoutError
 from starterbus.tests.modbus.fault_peer import CHOICES, FAULTS, SequencePeer, Step, Written, answer_for
-from starterbus.transports.modbus.client import ModbusRtuTransport
+from starterbus.transports.modbus.transport.rtu import ModbusRtuTransport
 
 TIMEOUT = 0.005
 QUARANTINE = 0.01

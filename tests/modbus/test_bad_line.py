@@ -27,8 +27,8 @@ from starterbus.core.errors import (
 )
 from starterbus.core.status import Command
 from starterbus.testing import wait_until
-from starterbus.transports.modbus.crc import append_crc
-from starterbus.transports.modbus.frames import (
+from starterbus.transports.modbus.codec.crc import append_crc
+from starterbus.transports.modbus.codec.frames import (
     ExceptionResponse,
     ReadRequest,
     ReadResponse,

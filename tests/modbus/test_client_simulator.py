@@ -17,10 +17,10 @@ from starterbus.core.model import Kind
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import Phase, SimulatedStarter
 from starterbus.core.status import MotorState
-from starterbus.transports.modbus.client import LINES, ModbusRtuTransport
-from starterbus.transports.modbus.crc import append_crc
-from starterbus.transports.modbus.frames import ReadRequest, ReadResponse, WriteRequest
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.codec.crc import append_crc
+from starterbus.transports.modbus.codec.frames import ReadRequest, ReadResponse, WriteRequest
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
+from starterbus.transports.modbus.transport.rtu import LINES, ModbusRtuTransport
 
 if TYPE_CHECKING:
     from starterbus.tests.modbus.conftest import PtyPeer, SimFactory

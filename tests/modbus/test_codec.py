@@ -14,8 +14,8 @@ from pymodbus.pdu.register_message import (
 )
 
 from starterbus.core.errors import ChecksumError, CodecError, DecodeError, EncodeError
-from starterbus.transports.modbus.crc import TABLE, append_crc, crc16, strip_crc
-from starterbus.transports.modbus.frames import (
+from starterbus.transports.modbus.codec.crc import TABLE, append_crc, crc16, strip_crc
+from starterbus.transports.modbus.codec.frames import (
     ExceptionResponse,
     OtherRequest,
     ReadRequest,
@@ -27,7 +27,7 @@ from starterbus.transports.modbus.frames import (
     expected_response_length,
     request_length,
 )
-from starterbus.transports.modbus.receiver import NEED_DATA, RequestReceiver, ResponseReceiver
+from starterbus.transports.modbus.codec.receiver import NEED_DATA, RequestReceiver, ResponseReceiver
 
 units = st.integers(0, 255)
 words = st.integers(0, 0xFFFF)

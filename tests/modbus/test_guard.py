@@ -9,10 +9,10 @@ from hypothesis import strategies as st
 
 from starterbus.core.errors import DecodeError, TimeoutError
 from starterbus.tests.modbus.scripted_line import SILENCE, fault_responder, make_line, numbered
-from starterbus.transports.modbus.exchange import TransactionPolicy
-from starterbus.transports.modbus.frames import ReadRequest, ReadResponse
-from starterbus.transports.modbus.guard import LineGuard
-from starterbus.transports.modbus.link import SerialSettings
+from starterbus.transports.modbus.codec.frames import ReadRequest, ReadResponse
+from starterbus.transports.modbus.driver.link import SerialSettings
+from starterbus.transports.modbus.master.exchange import TransactionPolicy
+from starterbus.transports.modbus.master.guard import LineGuard
 
 # -- the guard alone ---------------------------------------------------------------------------------------------
 

@@ -13,9 +13,8 @@ import pytest
 
 from starterbus.core.device import open_device
 from starterbus.core.errors import ChecksumError, ConfigurationError, DecodeError, RemoteDeviceError, TimeoutError
-from starterbus.transports.modbus.client import ModbusRtuTransport, plan_reads, value_positions
-from starterbus.transports.modbus.crc import append_crc
-from starterbus.transports.modbus.frames import (
+from starterbus.transports.modbus.codec.crc import append_crc
+from starterbus.transports.modbus.codec.frames import (
     ExceptionResponse,
     ReadRequest,
     ReadResponse,
@@ -24,7 +23,8 @@ from starterbus.transports.modbus.frames import (
     WriteResponse,
     decode_response,
 )
-from starterbus.transports.modbus.line import Exchange, TransactionPolicy
+from starterbus.transports.modbus.driver.line import Exchange, TransactionPolicy
+from starterbus.transports.modbus.transport.rtu import ModbusRtuTransport, plan_reads, value_positions
 
 if TYPE_CHECKING:
     from starterbus.tests.modbus.conftest import PtyPeer, SimFactory
@@ -36,6 +36,7 @@ FAST = "timeout=0.15&retries=0"
 def _good_answer(request: Request, rng: random.Random) -> bytes:
     if isinstance(request, ReadRequest):
         return ReadResponse(request.unit, tuple(rng.randrange(0x10000) for _ in range(request.count))).encode()
+    assert isinstance(request, WriteRequest), request  # the test sends FC03 and FC06 only
     return WriteResponse(request.unit, request.address, request.value).encode()
 
 

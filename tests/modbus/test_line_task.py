@@ -10,8 +10,8 @@ from hypothesis import strategies as st
 from starterbus.core.errors import DecodeError, RemoteDeviceError, TimeoutError
 from starterbus.tests.modbus.line_task_kit import POLICY, READ, Poll, values
 from starterbus.tests.modbus.scripted_line import SILENCE, drive, fault_responder, make_line, numbered
-from starterbus.transports.modbus.exchange import TransactionPolicy
-from starterbus.transports.modbus.frames import ExceptionResponse, ReadRequest
+from starterbus.transports.modbus.codec.frames import ExceptionResponse, ReadRequest
+from starterbus.transports.modbus.master.exchange import TransactionPolicy
 
 ONCE = TransactionPolicy(timeout=0.1, retries=0, quarantine=0.3)
 

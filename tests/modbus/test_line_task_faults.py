@@ -23,10 +23,10 @@ from starterbus.tests.modbus.scripted_line import (
     make_line,
     numbered,
 )
-from starterbus.transports.modbus.frames import ExceptionResponse, ReadResponse
-from starterbus.transports.modbus.line import RtuLine
-from starterbus.transports.modbus.line_task import LOCK_RETRY
-from starterbus.transports.modbus.link import SerialSettings
+from starterbus.transports.modbus.codec.frames import ExceptionResponse, ReadResponse
+from starterbus.transports.modbus.driver.line import RtuLine
+from starterbus.transports.modbus.driver.line_task import LOCK_RETRY
+from starterbus.transports.modbus.driver.link import SerialSettings
 
 
 def on_time(n: int, frame: bytes, at: float) -> list[tuple[float, bytes]]:

@@ -31,10 +31,10 @@ from starterbus.tests.modbus.test_answer_belongs import (
     schedules,
     tcp_peer,
 )
-from starterbus.transports.modbus.client import ModbusRtuTransport
-from starterbus.transports.modbus.exchange import Exchange
-from starterbus.transports.modbus.frames import ReadRequest, ReadResponse, Response
-from starterbus.transports.modbus.line_task import LineTask
+from starterbus.transports.modbus.codec.frames import ReadRequest, ReadResponse, Response
+from starterbus.transports.modbus.driver.line_task import LineTask
+from starterbus.transports.modbus.master.exchange import Exchange
+from starterbus.transports.modbus.transport.rtu import ModbusRtuTransport
 
 if TYPE_CHECKING:
     from starterbus.tests.modbus.conftest import SimFactory

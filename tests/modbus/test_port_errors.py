@@ -10,7 +10,7 @@ from collections.abc import Iterator
 import pytest
 
 from starterbus.core.errors import TransportError
-from starterbus.transports.modbus.link import SerialSettings, open_pyserial
+from starterbus.transports.modbus.driver.link import SerialSettings, open_pyserial
 
 
 @pytest.fixture

@@ -14,16 +14,16 @@ from starterbus.core.errors import ConfigurationError, DecodeError, TransportErr
 from starterbus.core.registry import get_profile
 from starterbus.core.url import DeviceUrl
 from starterbus.testing import wait_until
-from starterbus.transports.modbus.client import ModbusRtuTransport
-from starterbus.transports.modbus.config import ModbusRtuConfig
-from starterbus.transports.modbus.frames import ReadRequest, ReadResponse
-from starterbus.transports.modbus.link import (
+from starterbus.transports.modbus.codec.frames import ReadRequest, ReadResponse
+from starterbus.transports.modbus.driver.link import (
     Link,
     PySerialLink,
     com_port,
     device_name,
     is_pseudo_terminal,
 )
+from starterbus.transports.modbus.transport.rtu import ModbusRtuTransport
+from starterbus.transports.modbus.url import ModbusRtuConfig
 
 if TYPE_CHECKING:
     from starterbus.tests.modbus.conftest import PtyPeer
@@ -237,7 +237,8 @@ def test_pyserial_rfc2217_url_against_a_local_port_server(peer: PtyPeer) -> None
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
     try:
-        url = f"modbus-rtu+rfc2217://127.0.0.1:{server.getsockname()[1]}?unit=2&timeout=0.3&retries=0"
+        # 1 s: the answer passes two relaying threads (the port server's, pyserial's), held up on a loaded machine
+        url = f"modbus-rtu+rfc2217://127.0.0.1:{server.getsockname()[1]}?unit=2&timeout=1.0&retries=0"
         with open_device(url, "jjr5000") as device:
             assert isinstance(_link(device), PySerialLink)
             assert device.read_value("motor_rated_current").value == 390

@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 import pytest
 
 from starterbus.cli.main import main
-from starterbus.transports.modbus.frames import AnyRequest, WriteRequest
+from starterbus.transports.modbus.codec.frames import AnyRequest, WriteRequest
 
 if TYPE_CHECKING:
     from starterbus.tests.modbus.conftest import SimFactory

@@ -11,9 +11,9 @@ import pytest
 from starterbus.core.errors import DecodeError, TimeoutError
 from starterbus.tests.modbus.line_task_kit import Poll, values
 from starterbus.tests.modbus.scripted_line import SILENCE, Responder, drive, make_line, numbered
-from starterbus.transports.modbus.exchange import TransactionPolicy
-from starterbus.transports.modbus.frames import ReadRequest
-from starterbus.transports.modbus.guard import CLEAN_ANSWERS, REPEAT_HOLD, LineGuard
+from starterbus.transports.modbus.codec.frames import ReadRequest
+from starterbus.transports.modbus.master.exchange import TransactionPolicy
+from starterbus.transports.modbus.master.guard import CLEAN_ANSWERS, REPEAT_HOLD, LineGuard
 
 POLICY = TransactionPolicy(timeout=0.1, retries=0, quarantine=0.3)
 READ = ReadRequest(2, 0x0100, 2)

@@ -8,11 +8,11 @@ from hypothesis import given, settings
 from starterbus.core.engine import TicketState
 from starterbus.core.errors import TimeoutError
 from starterbus.testing.engines import EngineKit, Step, schedules
-from starterbus.transports.modbus.crc import append_crc
-from starterbus.transports.modbus.exchange import Exchange, TransactionPolicy
-from starterbus.transports.modbus.frames import ReadRequest, ReadResponse, Response
-from starterbus.transports.modbus.guard import LineGuard
-from starterbus.transports.modbus.rtu_engine import RtuEngine
+from starterbus.transports.modbus.codec.crc import append_crc
+from starterbus.transports.modbus.codec.frames import ReadRequest, ReadResponse, Response
+from starterbus.transports.modbus.master.exchange import Exchange, TransactionPolicy
+from starterbus.transports.modbus.master.guard import LineGuard
+from starterbus.transports.modbus.master.rtu_engine import RtuEngine
 
 CHAR = 0.001
 POLICY = TransactionPolicy(timeout=0.1, retries=1, turnaround=0.0, quarantine=0.1)

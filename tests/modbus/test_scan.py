@@ -16,10 +16,10 @@ import pytest
 from starterbus.cli.main import main
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
-from starterbus.transports.modbus import link
-from starterbus.transports.modbus.frames import ExceptionResponse, ReadRequest, ReadResponse
+from starterbus.transports.modbus.codec.frames import ExceptionResponse, ReadRequest, ReadResponse
+from starterbus.transports.modbus.driver import link
 from starterbus.transports.modbus.scan import identify
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 from starterbus.transports.modbus.slave import SlaveLogic
 
 MODELS = ("jjr5000", "ssd1", "jjr8000")

@@ -12,8 +12,8 @@ import pytest
 from starterbus.cli.main import main
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
-from starterbus.transports.modbus.mbap import encode_adu
-from starterbus.transports.modbus.tcp_server import ModbusTcpSimulator
+from starterbus.transports.modbus.master.mbap import encode_adu
+from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
 
 
 def run(capsys: pytest.CaptureFixture[str], *args: str) -> tuple[int, str, str]:

@@ -21,10 +21,10 @@ from starterbus.core.registry import get_profile
 from starterbus.core.simulator import ManualClock, SimulatedStarter
 from starterbus.fleet.crosscheck import crosscheck
 from starterbus.testing import wait_until
-from starterbus.transports.modbus.mbap import HEADER, HEADER_LENGTH, MbapEngine, encode_adu
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
-from starterbus.transports.modbus.tcp_client import GATEWAYS
-from starterbus.transports.modbus.tcp_server import ModbusTcpSimulator
+from starterbus.transports.modbus.master.mbap import HEADER, HEADER_LENGTH, MbapEngine, encode_adu
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
+from starterbus.transports.modbus.transport.tcp import GATEWAYS
 
 
 @pytest.fixture

@@ -16,14 +16,14 @@ from starterbus.core.model import Kind
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.status import decode_status_word
-from starterbus.transports.modbus.frames import (
+from starterbus.transports.modbus.codec.frames import (
     ReadResponse,
     WriteRequest,
     WriteResponse,
     decode_request,
     decode_response,
 )
-from starterbus.transports.modbus.receiver import NEED_DATA, RequestReceiver, ResponseReceiver
+from starterbus.transports.modbus.codec.receiver import NEED_DATA, RequestReceiver, ResponseReceiver
 from starterbus.transports.modbus.slave import SlaveLogic
 
 if TYPE_CHECKING:

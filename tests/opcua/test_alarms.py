@@ -18,7 +18,7 @@ from starterbus.fleet.config import parse_fleet
 from starterbus.opcua.certs import ensure_certificate
 from starterbus.opcua.server import OpcUaServer, OpcUaSettings
 from starterbus.opcua.users import Role, UserEntry, hash_password
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 CLIENT_URI = "urn:starterbus:test-client"
 USERS = {

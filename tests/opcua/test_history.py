@@ -30,7 +30,7 @@ from starterbus.opcua.server import OpcUaServer, OpcUaSettings
 from starterbus.ops.history import HistoryStore
 from starterbus.ops.recorder import HistoryRecorder
 from starterbus.testing import wait_until, wait_until_async
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 NS = "urn:starterbus:fleet"
 WAIT = 15.0

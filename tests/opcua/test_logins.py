@@ -23,7 +23,7 @@ from starterbus.opcua.users import Role, UserEntry, hash_password
 from starterbus.ops import users as users_module
 from starterbus.ops.throttle import Throttle, ThrottlePolicy
 from starterbus.ops.users import verify_password
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 CLIENT_URI = "urn:starterbus:test-client"
 

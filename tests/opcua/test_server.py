@@ -30,7 +30,7 @@ from starterbus.opcua.server import OpcUaServer, OpcUaSettings
 from starterbus.opcua.users import Role, UserEntry, hash_password
 from starterbus.ops.throttle import ThrottlePolicy
 from starterbus.testing import wait_until_async
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 T = TypeVar("T")
 NS = "urn:starterbus:fleet"

@@ -28,7 +28,7 @@ from starterbus.opcua.certs import ensure_certificate
 from starterbus.opcua.server import OpcUaServer, OpcUaSettings
 from starterbus.opcua.trust import thumbprint
 from starterbus.opcua.users import Role, UserEntry, hash_password
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 CLIENT_URI = "urn:starterbus:test-client"
 USERS = {"op": UserEntry("op", Role.OPERATOR, hash_password("op-secret", iterations=1000))}

@@ -15,7 +15,7 @@ import pytest
 
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 B_VALUES = {"current_limit": 400, "ramp_time": 20, "start_mode": 1, "parameter_modify": 0}
 

@@ -16,7 +16,7 @@ from starterbus.core.engine import TicketState
 from starterbus.core.errors import RemoteDeviceError, TimeoutError, TransportError
 from starterbus.core.scheduler import Scheduler
 from starterbus.testing import wait_until
-from starterbus.transports.modbus.mbap import HEADER, HEADER_LENGTH, encode_adu
+from starterbus.transports.modbus.master.mbap import HEADER, HEADER_LENGTH, encode_adu
 from starterbus.transports.profibus_pkw.codec.codes import Ppo, TaskCode
 from starterbus.transports.profibus_pkw.codec.telegram import pkw_request
 from starterbus.transports.profibus_pkw.driver.gateway import GatewayConnection, GatewayStation, StationDriver

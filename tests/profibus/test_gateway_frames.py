@@ -8,8 +8,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from starterbus.core.errors import DecodeError, EncodeError
-from starterbus.transports.modbus.exchange import Exchange, TransactionPolicy
-from starterbus.transports.modbus.frames import (
+from starterbus.transports.modbus.codec.frames import (
     ExceptionResponse,
     OtherRequest,
     ReadInputRequest,
@@ -24,7 +23,8 @@ from starterbus.transports.modbus.frames import (
     expected_response_length,
     request_length,
 )
-from starterbus.transports.modbus.mbap import MbapEngine, encode_adu
+from starterbus.transports.modbus.master.exchange import Exchange, TransactionPolicy
+from starterbus.transports.modbus.master.mbap import MbapEngine, encode_adu
 
 units = st.integers(0, 255)
 words = st.integers(0, 0xFFFF)

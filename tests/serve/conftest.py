@@ -27,7 +27,7 @@ from tahutils.tahu import sparkplug_b_pb2 as tahu  # the official schema, not st
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.serve.embedded import Mosquitto, free_port, mosquitto_binary, start_mosquitto
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 TahuPayload = Any
 WAIT = 15.0

@@ -26,18 +26,15 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 from itertools import combinations
 
-from starterbus.core.errors import DecodeError, RemoteDeviceError, TimeoutError
-from starterbus.core.model import PointDef
-from starterbus.core.profile import Profile
-from starterbus.core.url import DeviceUrl
-from starterbus.transports.modbus.client import ModbusRtuTransport
-from starterbus.transports.modbus.config import ModbusRtuConfig
-from starterbus.transports.modbus.exchange import Exchange, TransactionPolicy
-from starterbus.transports.modbus.frames import ExceptionResponse, ReadRequest, ReadResponse
-from starterbus.transports.modbus.line import RtuLine
-from starterbus.transports.modbus.link import SerialSettings
-from starterbus.transports.modbus.slave import PROTOCOL
-from starterbus.transports.modbus.timing import char_time, silent_interval
+from starterbus.core import DecodeError, DeviceUrl, PointDef, Profile, RemoteDeviceError, TimeoutError
+from starterbus.transports.modbus.codec.frames import ExceptionResponse, ReadRequest, ReadResponse
+from starterbus.transports.modbus.codec.timing import char_time, silent_interval
+from starterbus.transports.modbus.driver.line import RtuLine
+from starterbus.transports.modbus.driver.link import SerialSettings
+from starterbus.transports.modbus.master.exchange import Exchange, TransactionPolicy
+from starterbus.transports.modbus.settings import PROTOCOL
+from starterbus.transports.modbus.transport.rtu import ModbusRtuTransport
+from starterbus.transports.modbus.url import ModbusRtuConfig
 
 ILLEGAL_ADDRESS = 0x02
 SLAVE_ADDRESS = "slave_address"
@@ -212,7 +209,7 @@ def scan_gateway(
 ) -> list[Found]:
     """Every unit of ``units`` that answers behind the Modbus TCP gateway of ``url`` (``modbus-tcp://HOST:PORT``,
     its query ignored), one connection for the whole scan, each unit's model told from its registers."""
-    from starterbus.transports.modbus.tcp_client import ModbusTcpConfig, ModbusTcpTransport
+    from starterbus.transports.modbus.transport.tcp import ModbusTcpConfig, ModbusTcpTransport
 
     base = url.text.partition("?")[0]
     first = DeviceUrl.parse(f"{base}?unit=1&retries=0&timeout={timeout:g}")

@@ -18,12 +18,8 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from starterbus.core.errors import Refusal, SimulatorRefusal
-from starterbus.core.model import Kind, PointDef
-from starterbus.core.profile import Profile
-from starterbus.core.simulator import SimulatedStarter
-from starterbus.spaces.modbus import SPACE_NAME, ModbusSettings
-from starterbus.transports.modbus.frames import (
+from starterbus.core import Kind, PointDef, Profile, Refusal, SimulatedStarter, SimulatorRefusal
+from starterbus.transports.modbus.codec.frames import (
     BROADCAST,
     AnyRequest,
     ExceptionCode,
@@ -35,20 +31,9 @@ from starterbus.transports.modbus.frames import (
     WriteRequest,
     WriteResponse,
 )
+from starterbus.transports.modbus.settings import PROTOCOL, max_read_registers, modbus_settings
 
-__all__ = ["PROTOCOL", "TRANSPORT", "ModbusSettings", "SlaveLogic", "max_read_registers", "modbus_settings"]
-
-TRANSPORT = "modbus-rtu"
-PROTOCOL = SPACE_NAME  # the address space of a point's register: ``modbus = 0x0103`` (``modbus-rtu = `` too)
-
-
-def modbus_settings(profile: Profile | None) -> ModbusSettings:
-    """The model's settings (no model: the defaults)."""
-    return ModbusSettings.of(profile)
-
-
-def max_read_registers(profile: Profile) -> int:
-    return modbus_settings(profile).max_read_registers
+__all__ = ["SlaveLogic", "point_at", "refusal_code"]
 
 
 def refusal_code(profile: Profile, reason: Refusal) -> int:

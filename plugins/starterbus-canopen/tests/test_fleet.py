@@ -7,7 +7,7 @@ from starterbus_canopen.simulator import CanopenSimulator
 from starterbus.core import ManualClock, SimulatedStarter, get_profile
 from starterbus.fleet.config import parse_fleet
 from starterbus.fleet.poller import FleetPoller, Sample
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 
 def test_a_fleet_polls_canopen_next_to_modbus_rtu(channel: str) -> None:

@@ -37,8 +37,7 @@ from starterbus.core import (
     process_scheduler,
 )
 from starterbus.spaces.modbus import STANDARD_EXCEPTION_TEXTS
-from starterbus.transports.modbus.exchange import Exchange, TransactionPolicy
-from starterbus.transports.modbus.frames import (
+from starterbus.transports.modbus.codec.frames import (
     ExceptionResponse,
     ReadInputRequest,
     ReadRequest,
@@ -47,7 +46,8 @@ from starterbus.transports.modbus.frames import (
     Response,
     WriteRegistersRequest,
 )
-from starterbus.transports.modbus.mbap import MbapEngine
+from starterbus.transports.modbus.master.exchange import Exchange, TransactionPolicy
+from starterbus.transports.modbus.master.mbap import MbapEngine
 from starterbus.transports.profibus_pkw.master.station import DpOut, StationEngine
 
 __all__ = ["STALL", "GatewayConnection", "GatewayDriver", "GatewayStation", "StationDriver"]

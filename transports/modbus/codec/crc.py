@@ -5,7 +5,7 @@ Table-driven: one table lookup per byte. ``crc16(b"\\x02\\x03\\x01\\x00\\x00\\x0
 
 from __future__ import annotations
 
-from starterbus.core.errors import ChecksumError, DecodeError
+from starterbus.core import ChecksumError, DecodeError
 
 POLYNOMIAL = 0xA001
 INITIAL = 0xFFFF

@@ -1,10 +1,10 @@
 """One RTU line's transactions as a sans-IO :class:`~starterbus.core.engine.Engine` (docs/engine.md, step 3).
 
-What :class:`~starterbus.transports.modbus.line_task.LineTask` did, without its I/O, its clock and its lock: a
-request is a prepared :class:`~starterbus.transports.modbus.exchange.Exchange`, its ticket ends with the
+What :class:`~starterbus.transports.modbus.driver.line_task.LineTask` did, without its I/O, its clock and its lock: a
+request is a prepared :class:`~starterbus.transports.modbus.master.exchange.Exchange`, its ticket ends with the
 checked answer (an exception answer is an answer) or the error after the attempts the policy allows. The rules
-are the :class:`~starterbus.transports.modbus.guard.LineGuard`'s, shared with the blocking
-:meth:`RtuLine.run <starterbus.transports.modbus.line.RtuLine.run>`: silence (or the quarantine) before a
+are the :class:`~starterbus.transports.modbus.master.guard.LineGuard`'s, shared with the blocking
+:meth:`RtuLine.run <starterbus.transports.modbus.driver.line.RtuLine.run>`: silence (or the quarantine) before a
 request, input looked at just before it, not faster than the wire, the trailing silence, the quarantine after a
 failed attempt. The steps: START (the next request may go out at ``take_output``), QUIET (waiting for the
 silence; bytes meanwhile are stray), ANSWER (reading), TRAIL (the silence after the answer).
@@ -20,12 +20,11 @@ import enum
 from collections import deque
 from collections.abc import Callable, Sequence
 
-from starterbus.core.engine import FOREVER, Ticket
-from starterbus.core.errors import DecodeError, StarterbusError, TimeoutError, TransportError
-from starterbus.transports.modbus.exchange import Exchange
-from starterbus.transports.modbus.frames import Response
-from starterbus.transports.modbus.guard import LineGuard, hex_bytes
-from starterbus.transports.modbus.receiver import NEED_DATA, ResponseReceiver
+from starterbus.core import FOREVER, DecodeError, StarterbusError, Ticket, TimeoutError, TransportError
+from starterbus.transports.modbus.codec.frames import Response
+from starterbus.transports.modbus.codec.receiver import NEED_DATA, ResponseReceiver
+from starterbus.transports.modbus.master.exchange import Exchange
+from starterbus.transports.modbus.master.guard import LineGuard, hex_bytes
 
 __all__ = ["RtuEngine", "RtuTicket"]
 

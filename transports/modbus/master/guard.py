@@ -38,7 +38,7 @@ from __future__ import annotations
 
 from collections import deque
 
-from starterbus.core.errors import DecodeError
+from starterbus.core import DecodeError
 
 #: a slave's UART clock may run a few per cent fast: answers up to 5 % quicker than nominal are accepted
 WIRE_TOLERANCE = 0.95

@@ -13,9 +13,9 @@ import enum
 from dataclasses import dataclass
 from typing import ClassVar
 
-from starterbus.core.errors import DecodeError, EncodeError
+from starterbus.core import DecodeError, EncodeError
 from starterbus.spaces.modbus import STANDARD_EXCEPTION_TEXTS as _STANDARD_TEXTS
-from starterbus.transports.modbus.crc import CRC_LENGTH, append_crc, strip_crc
+from starterbus.transports.modbus.codec.crc import CRC_LENGTH, append_crc, strip_crc
 
 
 class FunctionCode(enum.IntEnum):

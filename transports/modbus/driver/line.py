@@ -2,9 +2,9 @@
 
 A :class:`RtuLine` is shared by every device on it in one process (through a :class:`SharedPool`); its lock
 makes one request + answer at a time, whatever thread asks. It is the thin driver around two sans-IO parts:
-the :class:`~starterbus.transports.modbus.guard.LineGuard`, which says when a request may start and whether an
+the :class:`~starterbus.transports.modbus.master.guard.LineGuard`, which says when a request may start and whether an
 answer may be delivered (silence, quarantine, trailing bytes, wire time), and the prepared
-:class:`~starterbus.transports.modbus.exchange.Exchange`, which knows the exact length of the answer and
+:class:`~starterbus.transports.modbus.master.exchange.Exchange`, which knows the exact length of the answer and
 decodes it. It reads exactly the predicted length (the 5-byte header first, which is a whole frame for an
 exception) and retries within the policy it is given.
 """
@@ -15,14 +15,20 @@ import threading
 import time
 from collections.abc import Callable
 
-from starterbus.core.errors import ConfigurationError, DecodeError, StarterbusError, TimeoutError, TransportError
-from starterbus.core.transport import TransportCounters
-from starterbus.transports.modbus.exchange import Exchange, TransactionPolicy
-from starterbus.transports.modbus.frames import Request, Response
-from starterbus.transports.modbus.guard import LineGuard, hex_bytes
-from starterbus.transports.modbus.link import Link, SerialSettings
-from starterbus.transports.modbus.receiver import NEED_DATA, ResponseReceiver
-from starterbus.transports.modbus.timing import char_time
+from starterbus.core import (
+    ConfigurationError,
+    DecodeError,
+    StarterbusError,
+    TimeoutError,
+    TransportCounters,
+    TransportError,
+)
+from starterbus.transports.modbus.codec.frames import Request, Response
+from starterbus.transports.modbus.codec.receiver import NEED_DATA, ResponseReceiver
+from starterbus.transports.modbus.codec.timing import char_time
+from starterbus.transports.modbus.driver.link import Link, SerialSettings
+from starterbus.transports.modbus.master.exchange import Exchange, TransactionPolicy
+from starterbus.transports.modbus.master.guard import LineGuard, hex_bytes
 
 __all__ = ["Exchange", "Link", "RtuLine", "SerialSettings", "TransactionPolicy"]
 

@@ -9,8 +9,8 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
-from starterbus.transports.modbus.crc import crc16
-from starterbus.transports.modbus.frames import (
+from starterbus.transports.modbus.codec.crc import crc16
+from starterbus.transports.modbus.codec.frames import (
     BROADCAST,
     EXCEPTION_FRAME_LENGTH,
     ReadRequest,

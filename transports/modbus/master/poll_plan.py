@@ -18,13 +18,18 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence, Set
 from dataclasses import dataclass
 
-from starterbus.core.errors import UnsupportedOperationError
-from starterbus.core.model import PointDef, Reading
-from starterbus.core.profile import Profile
-from starterbus.core.status import Status, status_with_currents
-from starterbus.core.transport import PlannedRequest, PollResult
-from starterbus.transports.modbus.slave import PROTOCOL, TRANSPORT
-from starterbus.transports.modbus.timing import char_time
+from starterbus.core import (
+    PlannedRequest,
+    PointDef,
+    PollResult,
+    Profile,
+    Reading,
+    Status,
+    UnsupportedOperationError,
+    status_with_currents,
+)
+from starterbus.transports.modbus.codec.timing import char_time
+from starterbus.transports.modbus.settings import PROTOCOL, TRANSPORT
 
 REQUEST_BYTES = 8  # unit, function, address (2), count (2), CRC (2)
 ANSWER_OVERHEAD = 5  # unit, function, byte count, CRC (2)

@@ -12,30 +12,30 @@ import contextlib
 import dataclasses
 from collections.abc import Iterator, Sequence
 
-from starterbus.core.errors import (
-    ConfigurationError,
-    RemoteDeviceError,
-    StarterbusError,
-    TimeoutError,
-    UnsupportedOperationError,
-)
-from starterbus.core.model import PointDef, Reading
-from starterbus.core.profile import Profile
-from starterbus.core.sharing import SharedPool
-from starterbus.core.status import Command, ControlWordState, Status, status_with_currents
-from starterbus.core.transport import (
+from starterbus.core import (
     ALL_CAPABILITIES,
     Capability,
+    Command,
+    ConfigurationError,
+    ControlWordState,
+    DeviceUrl,
     PlannedRequest,
+    PointDef,
     PollResult,
     PollTask,
+    Profile,
+    Reading,
+    RemoteDeviceError,
+    SharedPool,
+    StarterbusError,
+    Status,
+    TimeoutError,
     Transport,
     TransportCounters,
+    UnsupportedOperationError,
+    status_with_currents,
 )
-from starterbus.core.url import DeviceUrl
-from starterbus.transports.modbus.annotate import exception_meaning
-from starterbus.transports.modbus.config import ModbusRtuConfig
-from starterbus.transports.modbus.frames import (
+from starterbus.transports.modbus.codec.frames import (
     BROADCAST,
     ExceptionResponse,
     ReadRequest,
@@ -45,12 +45,14 @@ from starterbus.transports.modbus.frames import (
     WriteRegistersRequest,
     WriteRequest,
 )
-from starterbus.transports.modbus.line import Exchange, Link, RtuLine
-from starterbus.transports.modbus.line_task import LineTask
-from starterbus.transports.modbus.poll_plan import PollPlans, sort_out
-from starterbus.transports.modbus.poll_plan import run as run_poll_plan
-from starterbus.transports.modbus.slave import PROTOCOL, TRANSPORT, max_read_registers
-from starterbus.transports.modbus.timing import char_time
+from starterbus.transports.modbus.codec.timing import char_time
+from starterbus.transports.modbus.decoder import exception_meaning
+from starterbus.transports.modbus.driver.line import Exchange, Link, RtuLine
+from starterbus.transports.modbus.driver.line_task import LineTask
+from starterbus.transports.modbus.master.poll_plan import PollPlans, sort_out
+from starterbus.transports.modbus.master.poll_plan import run as run_poll_plan
+from starterbus.transports.modbus.settings import PROTOCOL, TRANSPORT, max_read_registers
+from starterbus.transports.modbus.url import ModbusRtuConfig
 
 #: one line object per serial port / TCP endpoint in this process
 LINES: SharedPool[RtuLine] = SharedPool("modbus-rtu lines")

@@ -16,8 +16,8 @@ from __future__ import annotations
 
 import enum
 
-from starterbus.core.errors import DecodeError
-from starterbus.transports.modbus.frames import (
+from starterbus.core import DecodeError
+from starterbus.transports.modbus.codec.frames import (
     EXCEPTION_BIT,
     EXCEPTION_FRAME_LENGTH,
     AnyRequest,

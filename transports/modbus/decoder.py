@@ -8,13 +8,18 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from starterbus.core.errors import CodecError, DecodeError
-from starterbus.core.model import Kind, PointDef
-from starterbus.core.profile import Profile
-from starterbus.core.status import decode_status_word, describe_control_word
-from starterbus.core.transport import Annotation
-from starterbus.transports.modbus.crc import CRC_LENGTH, crc_bytes
-from starterbus.transports.modbus.frames import (
+from starterbus.core import (
+    Annotation,
+    CodecError,
+    DecodeError,
+    Kind,
+    PointDef,
+    Profile,
+    decode_status_word,
+    describe_control_word,
+)
+from starterbus.transports.modbus.codec.crc import CRC_LENGTH, crc_bytes
+from starterbus.transports.modbus.codec.frames import (
     BROADCAST,
     EXCEPTION_BIT,
     STANDARD_EXCEPTION_TEXTS,
@@ -28,7 +33,7 @@ from starterbus.transports.modbus.frames import (
     decode_response,
     request_length,
 )
-from starterbus.transports.modbus.slave import TRANSPORT, max_read_registers, modbus_settings
+from starterbus.transports.modbus.settings import TRANSPORT, max_read_registers, modbus_settings
 
 Field = tuple[str, str, str]
 

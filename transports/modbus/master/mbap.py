@@ -8,7 +8,7 @@ timed out, a duplicate, another client's) is dropped and counted, never delivere
 a clock or does I/O.
 
 It is also the connection's :class:`~starterbus.core.engine.Engine` (docs/engine.md): a prepared
-:class:`~starterbus.transports.modbus.exchange.Exchange` submitted is a :class:`MbapTicket`, sent when one of
+:class:`~starterbus.transports.modbus.master.exchange.Exchange` submitted is a :class:`MbapTicket`, sent when one of
 ``outstanding`` slots is free, numbered at the send. An answer with its id is checked against the request (unit,
 then the RTU codec's checks); the gateway's 0x0A / 0x0B say the device behind it is unreachable. A timeout, a
 wrong answer or 0x0A / 0x0B is a failed attempt, sent again (a new id) within the exchange's attempts; a
@@ -22,11 +22,10 @@ import struct
 from collections import deque
 from dataclasses import dataclass
 
-from starterbus.core.engine import FOREVER, Ticket
-from starterbus.core.errors import DecodeError, StarterbusError, TimeoutError
+from starterbus.core import FOREVER, DecodeError, StarterbusError, Ticket, TimeoutError
 from starterbus.spaces.modbus import GATEWAY_EXCEPTIONS, STANDARD_EXCEPTION_TEXTS
-from starterbus.transports.modbus.exchange import Exchange
-from starterbus.transports.modbus.frames import ExceptionResponse, Response, decode_response
+from starterbus.transports.modbus.codec.frames import ExceptionResponse, Response, decode_response
+from starterbus.transports.modbus.master.exchange import Exchange
 
 HEADER = struct.Struct(">HHHB")  # transaction id, protocol id, length, unit
 HEADER_LENGTH = HEADER.size  # 7

@@ -12,14 +12,12 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-from starterbus.core.errors import ConfigurationError
-from starterbus.core.profile import Profile
-from starterbus.core.url import DeviceUrl
-from starterbus.transports.modbus.exchange import TransactionPolicy
-from starterbus.transports.modbus.frames import BROADCAST, MAX_UNIT
-from starterbus.transports.modbus.link import Link, PySerialLink, SerialSettings, com_port
-from starterbus.transports.modbus.slave import modbus_settings
-from starterbus.transports.modbus.timing import silent_interval
+from starterbus.core import ConfigurationError, DeviceUrl, Profile
+from starterbus.transports.modbus.codec.frames import BROADCAST, MAX_UNIT
+from starterbus.transports.modbus.codec.timing import silent_interval
+from starterbus.transports.modbus.driver.link import Link, PySerialLink, SerialSettings, com_port
+from starterbus.transports.modbus.master.exchange import TransactionPolicy
+from starterbus.transports.modbus.settings import modbus_settings
 
 URL_PARAMETERS = (
     "unit", "baudrate", "parity", "stopbits", "bytesize", "timeout", "retries", "retry_writes", "silence",

@@ -1,10 +1,10 @@
 """A poll's transactions on one RTU line as a :class:`~starterbus.core.polling.PollTask`: the
-:class:`~starterbus.transports.modbus.rtu_engine.RtuEngine` on the line's descriptor (:class:`RtuDriver`, a
+:class:`~starterbus.transports.modbus.master.rtu_engine.RtuEngine` on the line's descriptor (:class:`RtuDriver`, a
 :class:`~starterbus.core.media.StreamDriver`), for the fleet's multiplexer (``fleet/mux.py``) until the fleet
 runs on the scheduler (docs/engine.md, step 4).
 
-The rules are the engine's, that is the :class:`~starterbus.transports.modbus.guard.LineGuard`'s, which the
-blocking :meth:`RtuLine.run <starterbus.transports.modbus.line.RtuLine.run>` shares: one guard per line. The
+The rules are the engine's, that is the :class:`~starterbus.transports.modbus.master.guard.LineGuard`'s, which the
+blocking :meth:`RtuLine.run <starterbus.transports.modbus.driver.line.RtuLine.run>` shares: one guard per line. The
 line's lock is held from a request's start to its answer's delivery, so blocking users of the same line in this
 process wait their turn (and the task looks again after :data:`LOCK_RETRY` while one holds it).
 
@@ -20,15 +20,19 @@ import weakref
 from collections.abc import Callable, Sequence
 from typing import Any, cast
 
-from starterbus.core.engine import TicketState
-from starterbus.core.errors import StarterbusError, TransportError
-from starterbus.core.media import StreamDriver
-from starterbus.core.polling import PollResult, PollTask
-from starterbus.core.transport import TransportCounters
-from starterbus.transports.modbus.exchange import Exchange
-from starterbus.transports.modbus.frames import Response
-from starterbus.transports.modbus.line import RtuLine
-from starterbus.transports.modbus.rtu_engine import RtuEngine, RtuTicket
+from starterbus.core import (
+    PollResult,
+    PollTask,
+    StarterbusError,
+    StreamDriver,
+    TicketState,
+    TransportCounters,
+    TransportError,
+)
+from starterbus.transports.modbus.codec.frames import Response
+from starterbus.transports.modbus.driver.line import RtuLine
+from starterbus.transports.modbus.master.exchange import Exchange
+from starterbus.transports.modbus.master.rtu_engine import RtuEngine, RtuTicket
 
 #: how soon a task looks again at a line that another thread holds
 LOCK_RETRY = 0.001

@@ -12,11 +12,9 @@ import socket
 import threading
 from collections.abc import Callable, Mapping
 
-from starterbus.core.errors import ConfigurationError, DecodeError
-from starterbus.core.simulator import SimulatedStarter
-from starterbus.core.transport import RunningSimulator
-from starterbus.transports.modbus.frames import ExceptionResponse, Response, decode_request
-from starterbus.transports.modbus.mbap import HEADER, HEADER_LENGTH, MAX_PDU, PROTOCOL_ID, encode_adu
+from starterbus.core import ConfigurationError, DecodeError, RunningSimulator, SimulatedStarter
+from starterbus.transports.modbus.codec.frames import ExceptionResponse, Response, decode_request
+from starterbus.transports.modbus.master.mbap import HEADER, HEADER_LENGTH, MAX_PDU, PROTOCOL_ID, encode_adu
 from starterbus.transports.modbus.slave import SlaveLogic
 
 GATEWAY_TARGET_FAILED = 0x0B

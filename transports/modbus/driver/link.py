@@ -21,7 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from starterbus.core.errors import TransportError
+from starterbus.core import TransportError
 
 if TYPE_CHECKING:
     import serial

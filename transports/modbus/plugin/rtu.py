@@ -5,19 +5,27 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from starterbus.core.errors import ConfigurationError
-from starterbus.core.plugin_options import PluginOption, resolve_options
-from starterbus.core.profile import Profile
-from starterbus.core.simulator import SimulatedStarter
-from starterbus.core.textinput import parse_hex, parse_host_port
-from starterbus.core.transport import ALL_CAPABILITIES, Annotation, RunningSimulator, Transport, TransportPlugin
-from starterbus.core.url import DeviceUrl
-from starterbus.spaces.modbus import SPACE_NAME
-from starterbus.transports.modbus.annotate import annotate
-from starterbus.transports.modbus.client import ModbusRtuTransport
-from starterbus.transports.modbus.config import ModbusRtuConfig
-from starterbus.transports.modbus.simulator import ModbusRtuSimulator
-from starterbus.transports.modbus.slave import TRANSPORT, ModbusSettings, modbus_settings
+from starterbus.core import (
+    ALL_CAPABILITIES,
+    Annotation,
+    ConfigurationError,
+    DeviceUrl,
+    PluginOption,
+    Profile,
+    RunningSimulator,
+    SimulatedStarter,
+    Transport,
+    TransportPlugin,
+    parse_hex,
+    parse_host_port,
+    resolve_options,
+)
+from starterbus.spaces.modbus import SPACE_NAME, ModbusSettings
+from starterbus.transports.modbus.decoder import annotate
+from starterbus.transports.modbus.settings import TRANSPORT, modbus_settings
+from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
+from starterbus.transports.modbus.transport.rtu import ModbusRtuTransport
+from starterbus.transports.modbus.url import ModbusRtuConfig
 
 
 class ModbusRtuPlugin(TransportPlugin):

@@ -26,15 +26,13 @@ import tty
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
-from starterbus.core.errors import ConfigurationError, DecodeError
-from starterbus.core.media.waiter import precise_timers
-from starterbus.core.simulator import SimulatedStarter
-from starterbus.core.transport import RunningSimulator
-from starterbus.transports.modbus.frames import AnyRequest, ExceptionResponse, Response
-from starterbus.transports.modbus.link import Link, SerialSettings
-from starterbus.transports.modbus.receiver import NEED_DATA, RequestReceiver
-from starterbus.transports.modbus.slave import TRANSPORT, SlaveLogic
-from starterbus.transports.modbus.timing import silent_interval
+from starterbus.core import ConfigurationError, DecodeError, RunningSimulator, SimulatedStarter, precise_timers
+from starterbus.transports.modbus.codec.frames import AnyRequest, ExceptionResponse, Response
+from starterbus.transports.modbus.codec.receiver import NEED_DATA, RequestReceiver
+from starterbus.transports.modbus.codec.timing import silent_interval
+from starterbus.transports.modbus.driver.link import Link, SerialSettings
+from starterbus.transports.modbus.settings import TRANSPORT
+from starterbus.transports.modbus.slave import SlaveLogic
 
 Trace = Callable[[str, bytes], None]  # ("rx" | "tx" | "drop", bytes)
 

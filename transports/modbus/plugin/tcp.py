@@ -4,15 +4,21 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from starterbus.core.errors import ConfigurationError
-from starterbus.core.plugin_options import PluginOption, resolve_options
-from starterbus.core.profile import Profile
-from starterbus.core.simulator import SimulatedStarter
-from starterbus.core.textinput import parse_host_port
-from starterbus.core.transport import ALL_CAPABILITIES, RunningSimulator, Transport, TransportPlugin
-from starterbus.core.url import DeviceUrl
+from starterbus.core import (
+    ALL_CAPABILITIES,
+    ConfigurationError,
+    DeviceUrl,
+    PluginOption,
+    Profile,
+    RunningSimulator,
+    SimulatedStarter,
+    Transport,
+    TransportPlugin,
+    parse_host_port,
+    resolve_options,
+)
 from starterbus.spaces.modbus import SPACE_NAME, ModbusSettings
-from starterbus.transports.modbus.tcp_client import NAME, ModbusTcpConfig, ModbusTcpTransport
+from starterbus.transports.modbus.transport.tcp import NAME, ModbusTcpConfig, ModbusTcpTransport
 
 
 class ModbusTcpPlugin(TransportPlugin):
@@ -36,7 +42,7 @@ class ModbusTcpPlugin(TransportPlugin):
     def start_simulator(
         self, options: Mapping[str, object], starters: Mapping[int, SimulatedStarter]
     ) -> list[RunningSimulator]:
-        from starterbus.transports.modbus.tcp_server import ModbusTcpSimulator
+        from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
 
         values = resolve_options(self.simulator_options, options, f"{NAME} simulator")
         address = values.text("address")

@@ -1,6 +1,6 @@
 """One Modbus TCP connection to a gateway (or a TCP device), shared by every unit behind it in this process.
 
-The connection is :class:`~starterbus.transports.modbus.mbap.MbapEngine` on a
+The connection is :class:`~starterbus.transports.modbus.master.mbap.MbapEngine` on a
 :class:`~starterbus.core.media.TcpDriver`, run by the process's scheduler (docs/engine.md): no thread of its
 own. A caller submits its transactions and waits for their tickets; while no other thread runs the loop, the
 caller runs it (one ``select`` for the answer, in its own thread). At most ``outstanding`` transactions are on the
@@ -16,15 +16,21 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from typing import Any
 
-from starterbus.core.engine import TicketState
-from starterbus.core.errors import StarterbusError, TimeoutError, TransportError
-from starterbus.core.media import TcpDriver
-from starterbus.core.polling import PollResult, PollTask
-from starterbus.core.scheduler import Scheduler, scheduler
-from starterbus.core.transport import TransportCounters
-from starterbus.transports.modbus.exchange import Exchange
-from starterbus.transports.modbus.frames import Response
-from starterbus.transports.modbus.mbap import HEADER_LENGTH, MbapEngine, MbapTicket
+from starterbus.core import (
+    PollResult,
+    PollTask,
+    Scheduler,
+    StarterbusError,
+    TcpDriver,
+    TicketState,
+    TimeoutError,
+    TransportCounters,
+    TransportError,
+    process_scheduler,
+)
+from starterbus.transports.modbus.codec.frames import Response
+from starterbus.transports.modbus.master.exchange import Exchange
+from starterbus.transports.modbus.master.mbap import HEADER_LENGTH, MbapEngine, MbapTicket
 
 #: the outer bound of a wait beyond the transactions' own timeouts: only a stalled loop gets there
 STALL = 30.0
@@ -50,7 +56,7 @@ class MbapConnection:
         self.name = f"{host}:{port}"
         self.outstanding = outstanding
         self._connect_timeout = connect_timeout
-        self._loop = loop or scheduler()
+        self._loop = loop or process_scheduler()
         name = self.name
         self._driver: TcpDriver[MbapEngine] = TcpDriver(
             host, port, lambda: MbapEngine(outstanding=outstanding, name=name), connect_timeout

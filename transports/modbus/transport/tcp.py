@@ -3,7 +3,7 @@ counters, over MBAP to a Modbus TCP gateway (or device) instead of a serial line
 
 ``modbus-tcp://HOST:PORT?unit=N&timeout=1&retries=2&outstanding=1``. Every device of the process that names one
 HOST:PORT shares one connection (:data:`GATEWAYS`); what differs from RTU is only how a request travels
-(:class:`~starterbus.transports.modbus.tcp_line.MbapConnection`). Every parameter is in ``docs/modbus.md``.
+(:class:`~starterbus.transports.modbus.driver.tcp_line.MbapConnection`). Every parameter is in ``docs/modbus.md``.
 """
 
 from __future__ import annotations
@@ -11,19 +11,21 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from starterbus.core.errors import ConfigurationError, RemoteDeviceError, StarterbusError
-from starterbus.core.model import PointDef
-from starterbus.core.profile import Profile
-from starterbus.core.sharing import SharedPool
-from starterbus.core.status import Status, status_with_currents
-from starterbus.core.transport import PollResult, PollTask
-from starterbus.core.url import DeviceUrl
+from starterbus.core import (
+    ConfigurationError,
+    DeviceUrl,
+    PointDef,
+    PollResult,
+    PollTask,
+    Profile,
+    RemoteDeviceError,
+    SharedPool,
+    StarterbusError,
+    Status,
+    status_with_currents,
+)
 from starterbus.spaces.modbus import MAX_UNIT, ModbusSettings
-from starterbus.transports.modbus.annotate import exception_meaning
-from starterbus.transports.modbus.client import ModbusRtuTransport
-from starterbus.transports.modbus.config import DEFAULT_RETRIES, ModbusRtuConfig
-from starterbus.transports.modbus.exchange import TransactionPolicy
-from starterbus.transports.modbus.frames import (
+from starterbus.transports.modbus.codec.frames import (
     ExceptionResponse,
     ReadRequest,
     ReadResponse,
@@ -31,11 +33,15 @@ from starterbus.transports.modbus.frames import (
     Response,
     WriteRegistersRequest,
 )
-from starterbus.transports.modbus.link import SerialSettings
-from starterbus.transports.modbus.mbap import encode_adu
-from starterbus.transports.modbus.poll_plan import sort_out
-from starterbus.transports.modbus.tcp_line import MbapConnection, MbapPoll
-from starterbus.transports.modbus.timing import silent_interval
+from starterbus.transports.modbus.codec.timing import silent_interval
+from starterbus.transports.modbus.decoder import exception_meaning
+from starterbus.transports.modbus.driver.link import SerialSettings
+from starterbus.transports.modbus.driver.tcp_line import MbapConnection, MbapPoll
+from starterbus.transports.modbus.master.exchange import TransactionPolicy
+from starterbus.transports.modbus.master.mbap import encode_adu
+from starterbus.transports.modbus.master.poll_plan import sort_out
+from starterbus.transports.modbus.transport.rtu import ModbusRtuTransport
+from starterbus.transports.modbus.url import DEFAULT_RETRIES, ModbusRtuConfig
 
 NAME = "modbus-tcp"
 DEFAULT_PORT = 502

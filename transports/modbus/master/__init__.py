@@ -1,0 +1,1 @@
+"""The Modbus master engines (sans-IO): the exchange, the line guard, the poll plan, MBAP and RTU."""

@@ -1,0 +1,1 @@
+"""The modbus-rtu and modbus-tcp transport plugins."""

@@ -1,0 +1,1 @@
+"""The Modbus simulators: RTU on a serial line or pty, TCP on a socket."""

@@ -1,0 +1,1 @@
+"""The Modbus transports (the core's contract): RTU and TCP."""
