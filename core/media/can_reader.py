@@ -58,10 +58,17 @@ class QueueWait:
             return bool(pending)
         if item is not WAKE:
             pending.append(item)
-        while rx.qsize():  # the loop is the queue's only reader: what qsize counts is there
-            item = rx.get_nowait()
-            if item is not WAKE:
-                pending.append(item)
+        if rx.queue:  # the rest of the burst at once, under the queue's own lock (the loop is its only reader)
+            if rx.maxsize > 0:  # bounded: a writer may wait for room, get() tells it
+                while rx.qsize():
+                    item = rx.get_nowait()
+                    if item is not WAKE:
+                        pending.append(item)
+            else:
+                with rx.mutex:
+                    rest = list(rx.queue)
+                    rx.queue.clear()
+                pending.extend(message for message in rest if message is not WAKE)
         return bool(pending)
 
     def interrupt(self) -> None:

@@ -17,6 +17,7 @@ import pytest
 from starterbus.core import CanFrame, ConfigurationError, TransportError
 from starterbus.core.engine import FOREVER, Ticket, TicketState
 from starterbus.core.media.can import CAN_BUSES, CanDriver, ToEngine
+from starterbus.core.media.can_reader import QueueWait
 from starterbus.core.media.keeper import keep_running, let_go
 from starterbus.core.scheduler import Scheduler
 
@@ -286,3 +287,23 @@ def test_the_first_rate_named_is_the_buses(loop: Scheduler, channel: str) -> Non
         second.release()
     finally:
         first.release()
+
+
+def test_one_wait_takes_a_whole_burst_and_skips_the_wake_ups(channel: str) -> None:
+    bus = can.Bus(interface="virtual", channel=channel)
+    sender = can.Bus(interface="virtual", channel=channel)
+    try:
+        wait = QueueWait.of(bus)
+        assert wait is not None and QueueWait.of(sender) is not None
+        for n in range(100):
+            sender.send(can.Message(arbitration_id=0x581, data=bytes((n,)), is_extended_id=False))
+            if n == 50:
+                wait.interrupt()
+        assert wait.block(5.0)
+        assert [m.data[0] for m in wait.take()] == list(range(100))  # all of it in the first wait
+        assert not wait.block(0.0) and wait.take() == []
+        wait.interrupt()
+        assert not wait.block(5.0)  # a wake-up alone ends the wait with nothing read
+    finally:
+        sender.shutdown()
+        bus.shutdown()
