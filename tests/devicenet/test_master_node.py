@@ -410,3 +410,23 @@ def test_scan_interval_follows_the_period_and_reads_expedite(jjr8000: Profile) -
     wire.run(wire.now + 0.01)
     assert link.sample is not None and sample is not None and link.sample.at > sample.at
     assert scanner.polls_sent - before >= 11
+
+
+@pytest.mark.parametrize("io", [False, True], ids=["monitoring", "polling"])
+def test_keep_alives_due_close_together_go_in_one_pass(jjr8000: Profile, io: bool) -> None:
+    wire = Wire()
+    for mac in (5, 6):
+        node, _ = slave(jjr8000, mac)
+        wire.add(f"slave{mac}", node, node.start(0.0))
+    scanner = master(dup_mac_wait=0.1)
+    wire.add("master", scanner, scanner.start(0.0))
+    first = scanner.attach(LinkConfig(5, io=io), 0.0)
+    wire.run(0.3)
+    second = scanner.attach(LinkConfig(6, io=io), wire.now)  # 0.3 s later: its keep-alives would trail by 0.3 s
+    wire.run(0.8)
+    assert first.established and second.established and first.last_explicit_at != second.last_explicit_at
+    for _ in range(100):  # 10 s: four keep-alive periods; neither link ever waits longer than its period
+        wire.run(wire.now + 0.1)
+        assert wire.now - first.last_explicit_at <= first.keepalive + 0.01
+        assert wire.now - second.last_explicit_at <= second.keepalive + 0.01
+    assert first.last_explicit_at == second.last_explicit_at  # in step: one pass over the links serves both

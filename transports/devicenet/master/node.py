@@ -22,6 +22,7 @@ Rules (documented in ``docs/devicenet.md``):
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 from starterbus.core import CanFrame, ConfigurationError, TimeoutError, TransportError
@@ -47,6 +48,10 @@ STABLE_ONLINE = 600.0  # seconds on line after which the backoff starts over
 CONFIRM_SLACK = 0.0005  # answers confirmed together when their guards end within this (fewer wake-ups)
 IDLE_TICK = 1.0  # longest time between two passes over the links (every timer is also woken exactly)
 MONITOR_LOST_AFTER = 10.0  # s without explicit answer after which a monitored slave (explicit EPR 0) is lost
+#: keep-alive reads fall due on a grid of this share of their period (from 4/5 of the period after the last
+#: explicit message, never later than the period), so that slaves whose keep-alives fall due close together
+#: (attached one after the other) share one pass over the links instead of each costing a pass over every link
+KEEPALIVE_GRID = 0.2
 MASTER_VENDOR_ID = 0  # the scanner is no registered product; vendor 0 in its duplicate MAC ID messages
 
 
@@ -361,20 +366,22 @@ class MasterNode(PollScheduler):
             if now - link.last_explicit_answer_at > lost_after:
                 self._lose(link, now, f"no explicit response for {now - link.last_explicit_answer_at:.3f} s")
                 return
-            if head is None and now - link.last_explicit_at >= link.keepalive:
+            due = _keepalive_due(link)
+            if head is None and now >= due:
                 keepalive = self._request(Service.GET_ATTRIBUTE_SINGLE, ObjectClass.IDENTITY, 1, 5)
                 self.enqueue(link, Transaction(keepalive, False), now)
-            self._wake(link.last_explicit_at + link.keepalive)
+            self._wake(due)
             self._wake(link.last_explicit_answer_at + lost_after)
         elif link.state is LinkState.ESTABLISHED:
             lost_after = inactivity_timeout(link.epr_ms) or max(1.0, 10 * link.interval)
             if now - link.last_response_at > lost_after:
                 self._lose(link, now, f"no poll response for {now - link.last_response_at:.3f} s")
                 return
-            if head is None and now - link.last_explicit_at >= link.keepalive:
+            due = _keepalive_due(link)
+            if head is None and now >= due:
                 keepalive = self._request(Service.GET_ATTRIBUTE_SINGLE, ObjectClass.IDENTITY, 1, 5)
                 self.enqueue(link, Transaction(keepalive, False), now)
-            self._wake(link.last_explicit_at + link.keepalive)
+            self._wake(due)
             self._wake(link.last_response_at + lost_after)
             if self._idle(link) and now - link.next_poll_at > 1.0:  # safety net: never forget a link
                 self._make_ready(link)
@@ -397,3 +404,12 @@ class MasterNode(PollScheduler):
         link.failures += 1
         self._wake(now)
         link.note(now, f"lost: {why}")
+
+
+def _keepalive_due(link: MasterLink) -> float:
+    """When the link's next keep-alive read is due: the first point of the grid (:data:`KEEPALIVE_GRID` of its
+    period) at least 4/5 of the period after the last explicit message: within the period, in step with the
+    other links whose keep-alives fall due in the same step of the grid."""
+    period = link.keepalive
+    step = period * KEEPALIVE_GRID
+    return math.ceil((link.last_explicit_at + period - step) / step - 1e-9) * step
