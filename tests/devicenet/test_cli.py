@@ -21,6 +21,8 @@ from starterbus.core import Phase, Profile, SimulatedStarter, open_device
 from starterbus.transports.devicenet.simulator import DeviceNetSlaveSimulator
 
 FAST = "dup_mac_wait=0.05&epr=50&poll=10"
+# timeout=2 in the URLs below (was 0.5): on a loaded machine a read with control=open right after another command
+# once waited longer than 0.5 s for a status parameter ("connection releasing an old allocation")
 
 
 @pytest.fixture
@@ -31,7 +33,7 @@ def simulated(channel: str, jjr8000: Profile) -> Iterator[SimulatedStarter]:
 
 
 def test_status_read_identify(channel: str, simulated: SimulatedStarter, capsys: pytest.CaptureFixture[str]) -> None:
-    url = f"devicenet://virtual/{channel}?mac=5&{FAST}&timeout=0.5"
+    url = f"devicenet://virtual/{channel}?mac=5&{FAST}&timeout=2"
     assert main(["status", url, "--model", "jjr8000", "--json"]) == 0
     status = json.loads(capsys.readouterr().out)["status"]
     # a read monitors over explicit messaging: nobody controls the starter over the network
@@ -66,7 +68,7 @@ def test_identify_by_device_name(
 def test_commands(
     channel: str, simulated: SimulatedStarter, capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    url = f"devicenet://virtual/{channel}?mac=5&{FAST}&timeout=0.5"
+    url = f"devicenet://virtual/{channel}?mac=5&{FAST}&timeout=2"
     log = str(tmp_path / "audit.jsonl")
     assert main(["start", url, "--model", "jjr8000", "--dry-run"]) == 0
     assert "42D#0101" in capsys.readouterr().out
@@ -183,7 +185,7 @@ def test_identify_right_after_other_commands(
 ) -> None:
     """Each command opens, monitors and releases its own connection set: the next one (here identify) finds
     the slave free at once, never "no explicit connection" (seen once when reads allocated the I/O too)."""
-    url = f"devicenet://virtual/{channel}?mac=5&{FAST}&timeout=0.5"
+    url = f"devicenet://virtual/{channel}?mac=5&{FAST}&timeout=2"
     for _ in range(5):
         assert main(["status", url, "--model", "jjr8000", "--json"]) == 0
         capsys.readouterr()
