@@ -42,6 +42,7 @@ class StationPoll(PollTask):
         self._tickets: list[StationTicket] = []
         self._result: PollResult | None = None
         self._error: StarterbusError | None = None
+        self._until = 0.0  # the outer bound, set when the requests are submitted
 
     def advance(self, now: float) -> None:
         if self.done:
@@ -49,14 +50,16 @@ class StationPoll(PollTask):
         loop, driver = self.link.loop, self.link.driver
         if self._futures is None:
             self._futures = loop.submit_all(driver, self.requests)
+            self._until = now + self.bound
             progress = self.on_progress
             if progress is not None:
                 for future in self._futures:
                     future.add_done_callback(lambda _: progress())
         if self.on_progress is not None:
-            self.fd, self.wake_at = -1, now + self.bound
+            self.fd, self.wake_at = -1, self._until
         elif loop.try_turn():
-            self.fd, self.wake_at = self.link.waits_on()
+            self.fd, wake_at = self.link.waits_on()
+            self.wake_at = min(wake_at, self._until)
         else:
             self.fd, self.wake_at = -1, now + LOOK_AGAIN
         futures = self._futures
@@ -74,6 +77,9 @@ class StationPoll(PollTask):
             except StarterbusError as exc:
                 self._error = exc
             self.done = True
+        elif now >= self._until:  # every request has a time limit of its own: only a stalled loop gets here
+            stalled = f"{driver.name}: the poll's exchanges did not end within {self.bound:g} s: the loop stalled"
+            self._end(TransportError(stalled), futures[len(tickets) :])
 
     def _end(self, error: StarterbusError, rest: Sequence[Future[Any]]) -> None:
         self._error = error
