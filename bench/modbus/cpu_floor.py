@@ -23,6 +23,7 @@ import argparse
 import copy
 import importlib.util
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from functools import partial
@@ -45,12 +46,23 @@ def cpu_per_tx(op: Callable[[], object], count: int, warm: int = 50) -> float:
     return (time.process_time() - start) / count * 1e6
 
 
+#: where the modules an older ``line.py`` imports live since the package took the protocol layout (issue 29)
+MOVED = {"crc": "codec.crc", "frames": "codec.frames", "timing": "codec.timing", "receiver": "codec.receiver",
+         "exchange": "master.exchange", "guard": "master.guard", "link": "driver.link"}  # fmt: skip
+
+
 def before_line_class(tree: str) -> type[Any]:
-    """The ``RtuLine`` class of an older tree's ``line.py``, loaded beside this tree's (its imports are ours)."""
-    path = Path(tree) / "starterbus" / "transports" / "modbus" / "line.py"
+    """The ``RtuLine`` class of an older tree's ``line.py``, loaded beside this tree's (its imports are ours: a
+    tree from before the protocol layout imports the modules under their old names, aliased here)."""
+    modbus = Path(tree) / "starterbus" / "transports" / "modbus"
+    path = next((p for p in (modbus / "driver" / "line.py", modbus / "line.py") if p.exists()), modbus / "line.py")
     spec = importlib.util.spec_from_file_location("cpu_floor_before_line", path)
     if spec is None or spec.loader is None:
         raise SystemExit(f"--before: no line.py at {path}")
+    for old, new in MOVED.items():
+        sys.modules.setdefault(
+            f"starterbus.transports.modbus.{old}", importlib.import_module(f"starterbus.transports.modbus.{new}")
+        )
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     line_class: type[Any] = module.RtuLine
