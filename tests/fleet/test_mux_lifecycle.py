@@ -37,7 +37,9 @@ def test_stop_with_polls_in_flight_cancels_them_and_gives_the_line_back(lines: L
         assert release.wait(10.0)
         return device.read_value("current_limit").raw
 
-    kept = open_device(sim.url(1, timeout=0.5), "jjr5000").open()  # shares line0 with the poller
+    # shares line0 with the poller; 2 s: a simulator held up on a loaded machine answered after 0.5 s, and the late
+    # answers kept the line from falling silent for the retry ("the line did not fall silent within 2 s")
+    kept = open_device(sim.url(1, timeout=2), "jjr5000").open()
     try:
         poller.start()
         try:
