@@ -6,12 +6,9 @@ request (register names for the values). A lone FC03 response is named with ``ad
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-
 from starterbus.core import (
     Annotation,
     CodecError,
-    DecodeError,
     Kind,
     PointDef,
     Profile,
@@ -40,18 +37,6 @@ Field = tuple[str, str, str]
 
 def _hex(data: bytes) -> str:
     return data.hex(" ").upper()
-
-
-def parse_hex(tokens: Sequence[str]) -> bytes:
-    """``["02", "03 01", "0x00"]`` -> bytes; spaces, commas, colons and 0x prefixes are allowed."""
-    text = " ".join(tokens).replace(",", " ").replace(":", " ")
-    digits = "".join(t[2:] if t.lower().startswith("0x") else t for t in text.split())
-    if len(digits) % 2:
-        raise DecodeError(f"{len(digits)} hex digits is not a whole number of bytes: {' '.join(tokens)!r}")
-    try:
-        return bytes.fromhex(digits)
-    except ValueError:
-        raise DecodeError(f"not hex bytes: {' '.join(tokens)!r}") from None
 
 
 def exception_meaning(profile: Profile | None, code: int) -> str:

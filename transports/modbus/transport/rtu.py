@@ -100,6 +100,15 @@ class _KnownPoints:
         self.last: tuple[tuple[int, ...], tuple[Reading, ...]] = ((), ())
 
 
+def request_text(request: Request) -> str:
+    """What ``request`` asks, as a refusal names it."""
+    if isinstance(request, ReadRequest):
+        return f"FC03 read {request.count} register(s) from 0x{request.address:04X}"
+    if isinstance(request, WriteRegistersRequest):
+        return f"FC16 write {len(request.values)} register(s) from 0x{request.address:04X}"
+    return f"FC06 write 0x{request.value:04X} to 0x{request.address:04X}"
+
+
 class ModbusRtuTransport(Transport):
     name = TRANSPORT
 
@@ -163,12 +172,7 @@ class ModbusRtuTransport(Transport):
 
     def _remote_error(self, request: Request, response: ExceptionResponse) -> StarterbusError:
         """The device's refusal; a gateway's 0x0A / 0x0B: no answer from the device behind it (TimeoutError)."""
-        if isinstance(request, ReadRequest):
-            what = f"FC03 read {request.count} register(s) from 0x{request.address:04X}"
-        elif isinstance(request, WriteRegistersRequest):
-            what = f"FC16 write {len(request.values)} register(s) from 0x{request.address:04X}"
-        else:
-            what = f"FC06 write 0x{request.value:04X} to 0x{request.address:04X}"
+        what = request_text(request)
         if response.code in GATEWAY_CODES:
             return TimeoutError(
                 f"{self.describe()}: no answer from the device behind the gateway: exception 0x{response.code:02X} "

@@ -27,11 +27,9 @@ from starterbus.core import (
 from starterbus.spaces.modbus import MAX_UNIT, ModbusSettings
 from starterbus.transports.modbus.codec.frames import (
     ExceptionResponse,
-    ReadRequest,
     ReadResponse,
     Request,
     Response,
-    WriteRegistersRequest,
 )
 from starterbus.transports.modbus.codec.timing import silent_interval
 from starterbus.transports.modbus.decoder import exception_meaning
@@ -40,7 +38,7 @@ from starterbus.transports.modbus.driver.tcp_line import MbapConnection, MbapPol
 from starterbus.transports.modbus.master.exchange import TransactionPolicy
 from starterbus.transports.modbus.master.mbap import encode_adu
 from starterbus.transports.modbus.master.poll_plan import sort_out
-from starterbus.transports.modbus.transport.rtu import ModbusRtuTransport
+from starterbus.transports.modbus.transport.rtu import ModbusRtuTransport, request_text
 from starterbus.transports.modbus.url import DEFAULT_RETRIES, ModbusRtuConfig
 
 NAME = "modbus-tcp"
@@ -145,12 +143,7 @@ class ModbusTcpTransport(ModbusRtuTransport):
 
     def _remote_error(self, request: Request, response: ExceptionResponse) -> StarterbusError:
         """The device's own refusal, in the words of its manual (the gateway's 0x0A / 0x0B never get here)."""
-        if isinstance(request, ReadRequest):
-            what = f"FC03 read {request.count} register(s) from 0x{request.address:04X}"
-        elif isinstance(request, WriteRegistersRequest):
-            what = f"FC16 write {len(request.values)} register(s) from 0x{request.address:04X}"
-        else:
-            what = f"FC06 write 0x{request.value:04X} to 0x{request.address:04X}"
+        what = request_text(request)
         return RemoteDeviceError(
             NAME,
             response.code,
