@@ -16,7 +16,8 @@ from starterbus.core import (
     describe_control_word,
 )
 from starterbus.transports.modbus.codec.crc import CRC_LENGTH, crc_bytes
-from starterbus.transports.modbus.codec.frames import (
+from starterbus.transports.modbus.codec.decoding import decode_request, decode_response, request_length
+from starterbus.transports.modbus.codec.messages import (
     BROADCAST,
     EXCEPTION_BIT,
     STANDARD_EXCEPTION_TEXTS,
@@ -26,9 +27,6 @@ from starterbus.transports.modbus.codec.frames import (
     WriteRegistersResponse,
     WriteRequest,
     WriteResponse,
-    decode_request,
-    decode_response,
-    request_length,
 )
 from starterbus.transports.modbus.settings import TRANSPORT, max_read_registers, modbus_settings
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 from itertools import combinations
 
 from starterbus.core import DecodeError, DeviceUrl, PointDef, Profile, RemoteDeviceError, TimeoutError
-from starterbus.transports.modbus.codec.frames import ExceptionResponse, ReadRequest, ReadResponse
+from starterbus.transports.modbus.codec.messages import ExceptionResponse, ReadRequest, ReadResponse
 from starterbus.transports.modbus.codec.timing import char_time, silent_interval
 from starterbus.transports.modbus.driver.line import RtuLine
 from starterbus.transports.modbus.driver.link import SerialSettings

@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 from starterbus.core import Kind, PointDef, Profile, Refusal, SimulatedStarter, SimulatorRefusal
-from starterbus.transports.modbus.codec.frames import (
+from starterbus.transports.modbus.codec.messages import (
     BROADCAST,
     AnyRequest,
     ExceptionCode,

@@ -13,7 +13,7 @@ import os
 from dataclasses import dataclass
 
 from starterbus.core import ConfigurationError, DeviceUrl, Profile
-from starterbus.transports.modbus.codec.frames import BROADCAST, MAX_UNIT
+from starterbus.transports.modbus.codec.messages import BROADCAST, MAX_UNIT
 from starterbus.transports.modbus.codec.timing import silent_interval
 from starterbus.transports.modbus.driver.link import Link, PySerialLink, SerialSettings, com_port
 from starterbus.transports.modbus.master.exchange import TransactionPolicy

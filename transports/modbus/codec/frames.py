@@ -1,457 +1,78 @@
-"""Modbus RTU frames as these soft starters speak them: FC03 and FC06 requests, responses and exceptions; and what a
-register gateway adds (FC04 reads, FC16 writes: a Profibus gateway's images, docs/profibus.md).
+"""The Modbus RTU frame codec in one import: the messages (:mod:`.messages`: requests, responses, function and
+exception codes, frame constants) and their decoding and checks (:mod:`.decoding`).
 
-Pure functions and frozen dataclasses, no I/O. A frame is ``unit id + PDU + CRC``; :meth:`encode` gives the
-whole frame, :func:`decode_request` / :func:`decode_response` take a whole frame and either return a value or
-raise a :class:`~starterbus.core.errors.DecodeError` (or :class:`ChecksumError`) naming the bytes. Checking an
-answer against the request it answers (unit, function, byte count, FC06 echo) is :func:`check_response`.
+The package's own modules import from those two directly; this module is the path the rest of the project, the
+tests and the benchmarks import the codec by.
 """
 
 from __future__ import annotations
 
-import enum
-from dataclasses import dataclass
-from typing import ClassVar
-
-from starterbus.core import DecodeError, EncodeError
-from starterbus.spaces.modbus import STANDARD_EXCEPTION_TEXTS as _STANDARD_TEXTS
-from starterbus.transports.modbus.codec.crc import CRC_LENGTH, append_crc, strip_crc
-
-
-class FunctionCode(enum.IntEnum):
-    READ_HOLDING_REGISTERS = 0x03
-    READ_INPUT_REGISTERS = 0x04
-    WRITE_SINGLE_REGISTER = 0x06
-    WRITE_MULTIPLE_REGISTERS = 0x10
-
-
-class ExceptionCode(enum.IntEnum):
-    """Exception codes these devices send; their meaning per model comes from the profile."""
-
-    ILLEGAL_FUNCTION = 0x01
-    ILLEGAL_DATA_ADDRESS = 0x02
-    ILLEGAL_DATA_VALUE = 0x03
-    PARAMETER_MODIFY_FORBIDDEN = 0x04  # Modbus "server device failure"; JJR5000/SSD1: "parameter modify" = 0
-
-
-#: standard texts, used only when a profile does not name an exception code
-STANDARD_EXCEPTION_TEXTS = dict(_STANDARD_TEXTS)
-
-EXCEPTION_BIT = 0x80
-BROADCAST = 0
-MAX_UNIT = 247  # 248-255 are reserved by Modbus
-MAX_READ_REGISTERS = 125  # Modbus application protocol limit for FC03
-MAX_WRITE_REGISTERS = 123  # and for FC16
-EXCEPTION_FRAME_LENGTH = 5  # unit, function | 0x80, code, CRC
-WRITE_FRAME_LENGTH = 8  # unit, 06, address, value, CRC (request and echo)
-READ_REQUEST_LENGTH = 8  # unit, 03, address, count, CRC
-
-
-def _check_field(name: str, value: int, lo: int, hi: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise EncodeError(f"{value!r} is outside {lo}..{hi}", field=name)
-
-
-# -- requests -----------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class ReadRequest:
-    """FC03: read ``count`` registers from ``address`` (both data areas of these devices)."""
-
-    unit: int
-    address: int
-    count: int
-    function: ClassVar[int] = FunctionCode.READ_HOLDING_REGISTERS
-
-    def __post_init__(self) -> None:
-        _check_field("unit", self.unit, 0, 0xFF)
-        _check_field("address", self.address, 0, 0xFFFF)
-        _check_field("count", self.count, 0, 0xFFFF)
-
-    def encode(self) -> bytes:
-        if not 1 <= self.count <= MAX_READ_REGISTERS:
-            raise EncodeError(
-                f"{self.count} registers: FC{self.function:02d} reads 1..{MAX_READ_REGISTERS}", field="count"
-            )
-        if self.address + self.count - 1 > 0xFFFF:
-            raise EncodeError(f"{self.count} registers from {self.address:#06x} pass 0xFFFF", field="count")
-        return append_crc(
-            bytes((self.unit, self.function)) + self.address.to_bytes(2, "big") + self.count.to_bytes(2, "big")
-        )
-
-
-@dataclass(frozen=True, slots=True)
-class ReadInputRequest(ReadRequest):
-    """FC04: read ``count`` input registers from ``address`` (a gateway's input image; the FC03 layout)."""
-
-    function: ClassVar[int] = FunctionCode.READ_INPUT_REGISTERS
-
-
-@dataclass(frozen=True, slots=True)
-class _SingleRegister:
-    """The FC06 layout, shared by the request and its echo (they differ only in type)."""
-
-    unit: int
-    address: int
-    value: int
-    function: ClassVar[int] = FunctionCode.WRITE_SINGLE_REGISTER
-
-    def __post_init__(self) -> None:
-        _check_field("unit", self.unit, 0, 0xFF)
-        _check_field("address", self.address, 0, 0xFFFF)
-        _check_field("value", self.value, 0, 0xFFFF)
-
-    def encode(self) -> bytes:
-        return append_crc(
-            bytes((self.unit, self.function)) + self.address.to_bytes(2, "big") + self.value.to_bytes(2, "big")
-        )
-
-
-@dataclass(frozen=True, slots=True)
-class WriteRequest(_SingleRegister):
-    """FC06: write ``value`` to the register ``address``."""
-
-
-@dataclass(frozen=True, slots=True)
-class OtherRequest:
-    """A request with a function code these devices do not support (a slave answers exception 01)."""
-
-    unit: int
-    function: int
-    data: bytes = b""
-
-    def __post_init__(self) -> None:
-        _check_field("unit", self.unit, 0, 0xFF)
-        _check_field("function", self.function, 1, 0x7F)
-        if self.function in (FunctionCode.READ_HOLDING_REGISTERS, FunctionCode.WRITE_SINGLE_REGISTER):
-            raise EncodeError(f"function {self.function:#04x} has its own request class", field="function")
-
-    def encode(self) -> bytes:
-        return append_crc(bytes((self.unit, self.function)) + self.data)
-
-
-@dataclass(frozen=True, slots=True)
-class WriteRegistersRequest:
-    """FC16: write ``values`` to the registers from ``address`` on (a gateway's output image)."""
-
-    unit: int
-    address: int
-    values: tuple[int, ...]
-    function: ClassVar[int] = FunctionCode.WRITE_MULTIPLE_REGISTERS
-
-    def __post_init__(self) -> None:
-        _check_field("unit", self.unit, 0, 0xFF)
-        _check_field("address", self.address, 0, 0xFFFF)
-        for i, value in enumerate(self.values):
-            _check_field(f"values[{i}]", value, 0, 0xFFFF)
-
-    def encode(self) -> bytes:
-        count = len(self.values)
-        if not 1 <= count <= MAX_WRITE_REGISTERS:
-            raise EncodeError(f"{count} registers: FC16 writes 1..{MAX_WRITE_REGISTERS}", field="values")
-        if self.address + count - 1 > 0xFFFF:
-            raise EncodeError(f"{count} registers from {self.address:#06x} pass 0xFFFF", field="values")
-        head = bytes((self.unit, self.function)) + self.address.to_bytes(2, "big") + count.to_bytes(2, "big")
-        return append_crc(head + bytes((2 * count,)) + b"".join(v.to_bytes(2, "big") for v in self.values))
-
-
-Request = ReadRequest | WriteRequest | WriteRegistersRequest
-AnyRequest = ReadRequest | WriteRequest | OtherRequest  # what a starter takes (FC04, FC16: other requests)
-
-
-# -- responses ----------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class ReadResponse:
-    """FC03 answer: the register values, in order."""
-
-    unit: int
-    values: tuple[int, ...]
-    function: ClassVar[int] = FunctionCode.READ_HOLDING_REGISTERS
-
-    def __post_init__(self) -> None:
-        _check_field("unit", self.unit, 0, 0xFF)
-        if not 1 <= len(self.values) <= 127:
-            raise EncodeError(f"{len(self.values)} values: a FC03 answer holds 1..127 registers", field="values")
-        for i, value in enumerate(self.values):
-            _check_field(f"values[{i}]", value, 0, 0xFFFF)
-
-    @classmethod
-    def from_words(cls, unit: int, words: tuple[int, ...]) -> ReadResponse:
-        """The answer decoded from a frame: ``unit`` is a byte and ``words`` are 1..127 unpacked 16-bit words,
-        so the constructor's checks cannot fail (skipping them is most of the cost of building the value)."""
-        response = object.__new__(cls)
-        object.__setattr__(response, "unit", unit)
-        object.__setattr__(response, "values", words)
-        return response
-
-    def encode(self) -> bytes:
-        payload = b"".join(v.to_bytes(2, "big") for v in self.values)
-        return append_crc(bytes((self.unit, self.function, len(payload))) + payload)
-
-
-@dataclass(frozen=True, slots=True)
-class ReadInputResponse(ReadResponse):
-    """FC04 answer: the input register values, in order."""
-
-    function: ClassVar[int] = FunctionCode.READ_INPUT_REGISTERS
-
-
-@dataclass(frozen=True, slots=True)
-class WriteResponse(_SingleRegister):
-    """FC06 answer: the echo of the request."""
-
-
-@dataclass(frozen=True, slots=True)
-class WriteRegistersResponse:
-    """FC16 answer: where the registers were written and how many."""
-
-    unit: int
-    address: int
-    count: int
-    function: ClassVar[int] = FunctionCode.WRITE_MULTIPLE_REGISTERS
-
-    def __post_init__(self) -> None:
-        _check_field("unit", self.unit, 0, 0xFF)
-        _check_field("address", self.address, 0, 0xFFFF)
-        _check_field("count", self.count, 0, 0xFFFF)
-
-    def encode(self) -> bytes:
-        return append_crc(
-            bytes((self.unit, self.function)) + self.address.to_bytes(2, "big") + self.count.to_bytes(2, "big")
-        )
-
-
-@dataclass(frozen=True, slots=True)
-class ExceptionResponse:
-    """The device refused: ``function`` is the request's function code (without the 0x80 bit)."""
-
-    unit: int
-    function: int
-    code: int
-
-    def __post_init__(self) -> None:
-        _check_field("unit", self.unit, 0, 0xFF)
-        _check_field("function", self.function, 1, 0x7F)
-        _check_field("code", self.code, 0, 0xFF)
-
-    def encode(self) -> bytes:
-        return append_crc(bytes((self.unit, self.function | EXCEPTION_BIT, self.code)))
-
-
-Response = ReadResponse | WriteResponse | WriteRegistersResponse | ExceptionResponse
-
-
-_READS: dict[int, type[ReadResponse]] = {
-    FunctionCode.READ_HOLDING_REGISTERS: ReadResponse,
-    FunctionCode.READ_INPUT_REGISTERS: ReadInputResponse,
-}
-
-
-# -- lengths ------------------------------------------------------------------------------------------------
-
-
-def expected_response_length(request: Request) -> int:
-    """Length of the normal answer to ``request``: FC03/FC04 -> 5 + 2n, FC06 and FC16 -> 8 (an exception is 5)."""
-    if isinstance(request, ReadRequest):
-        return 5 + 2 * request.count
-    return WRITE_FRAME_LENGTH
-
-
-#: request frame lengths by function code, where the header alone fixes it (Modbus application protocol)
-_FIXED_REQUEST_LENGTHS = {
-    0x01: 8, 0x02: 8, 0x03: 8, 0x04: 8, 0x05: 8, 0x06: 8, 0x07: 4, 0x08: 8, 0x0B: 4, 0x0C: 4, 0x11: 4, 0x16: 10,
-}  # fmt: skip
-#: function code -> (offset of its byte count, bytes before the counted data) for variable-length requests
-_COUNTED_REQUESTS = {0x0F: (6, 7), 0x10: (6, 7), 0x17: (10, 11)}
-
-
-def request_length(header: bytes) -> int | None:
-    """Length of a request frame from its first bytes; None if these bytes cannot tell (yet or ever).
-
-    A slave that gets None for a complete header (unknown function code) delimits the frame by silence.
-    """
-    if len(header) < 2:
-        return None
-    function = header[1]
-    fixed = _FIXED_REQUEST_LENGTHS.get(function)
-    if fixed is not None:
-        return fixed
-    counted = _COUNTED_REQUESTS.get(function)
-    if counted is not None:
-        offset, before = counted
-        if len(header) <= offset:
-            return None
-        return before + header[offset] + CRC_LENGTH
-    return None
-
-
-# -- decoding -----------------------------------------------------------------------------------------------
-
-
-def _body(frame: bytes, crc: bool) -> bytes:
-    data = bytes(frame)
-    body = strip_crc(data) if crc else data
-    if len(body) < 2:
-        raise DecodeError("a frame needs at least a unit id and a function code", data, "frame")
-    return body
-
-
-def decode_request(frame: bytes, *, crc: bool = True) -> AnyRequest:
-    """A whole request frame -> request. ``crc=False`` for frames printed without CRC (JJR8000 manual)."""
-    data = bytes(frame)
-    body = _body(data, crc)
-    unit, function = body[0], body[1]
-    if function & EXCEPTION_BIT:
-        raise DecodeError(f"function code {function:#04x} has the exception bit: not a request", data, "function")
-    if function == 0:
-        raise DecodeError("function code 0x00 is not a Modbus function", data, "function")
-    if function in (FunctionCode.READ_HOLDING_REGISTERS, FunctionCode.WRITE_SINGLE_REGISTER):
-        if len(body) != 6:
-            raise DecodeError(
-                f"a FC{function:02X} request has 6 bytes before the CRC, this one {len(body)}", data, "length"
-            )
-        address = int.from_bytes(body[2:4], "big")
-        word = int.from_bytes(body[4:6], "big")
-        if function == FunctionCode.READ_HOLDING_REGISTERS:
-            return ReadRequest(unit, address, word)
-        return WriteRequest(unit, address, word)
-    return OtherRequest(unit, function, body[2:])
-
-
-def decode_register_request(frame: bytes, *, crc: bool = True) -> ReadRequest | WriteRegistersRequest:
-    """A whole FC03, FC04 or FC16 request frame (what a register gateway serves) -> request; anything else a
-    :class:`DecodeError`. (:func:`decode_request` is what the starters take: FC04 and FC16 are other requests.)"""
-    data = bytes(frame)
-    body = _body(data, crc)
-    unit, function = body[0], body[1]
-    if function in _READS:
-        if len(body) != 6:
-            raise DecodeError(
-                f"a FC{function:02d} request has 6 bytes before the CRC, this one {len(body)}", data, "length"
-            )
-        read = ReadRequest if function == FunctionCode.READ_HOLDING_REGISTERS else ReadInputRequest
-        return read(unit, int.from_bytes(body[2:4], "big"), int.from_bytes(body[4:6], "big"))
-    if function != FunctionCode.WRITE_MULTIPLE_REGISTERS:
-        raise DecodeError(f"function code {function:#04x} is not FC03, FC04 or FC16", data, "function")
-    count = int.from_bytes(body[4:6], "big") if len(body) >= 6 else -1
-    if len(body) < 7 or body[6] != 2 * count or len(body) != 7 + 2 * count:
-        raise DecodeError(
-            f"a FC16 request of {count} registers has {7 + 2 * count} bytes before the CRC (byte count {2 * count}), "
-            f"this one {len(body)}",
-            data,
-            "length",
-        )
-    values = tuple(int.from_bytes(body[i : i + 2], "big") for i in range(7, 7 + 2 * count, 2))
-    return WriteRegistersRequest(unit, int.from_bytes(body[2:4], "big"), values)
-
-
-def _registers(data: bytes, body: bytes, function: int) -> tuple[int, ...]:
-    """The register values of a FC03/FC04 answer's body."""
-    if len(body) < 3:
-        raise DecodeError(f"a FC{function:02d} response needs a byte count", data, "byte_count")
-    count = body[2]
-    if count == 0 or count % 2:
-        raise DecodeError(f"byte count {count} is not an even number of register bytes", data, "byte_count")
-    if len(body) != 3 + count:
-        raise DecodeError(
-            f"byte count {count} announces {3 + count} bytes before the CRC, this one has {len(body)}",
-            data,
-            "length",
-        )
-    return tuple(int.from_bytes(body[i : i + 2], "big") for i in range(3, 3 + count, 2))
-
-
-def decode_response(frame: bytes, *, crc: bool = True, request: Request | None = None) -> Response:
-    """A whole response frame -> response; with ``request``, also checked as the answer to it."""
-    data = bytes(frame)
-    if request is not None and len(data) >= 2:
-        check_header(request, data)
-    body = _body(data, crc)
-    unit, function = body[0], body[1]
-    response: Response
-    if function & EXCEPTION_BIT:
-        if len(body) != 3:
-            raise DecodeError(
-                f"an exception response has 3 bytes before the CRC, this one {len(body)}",
-                data,
-                "length",
-            )
-        response = ExceptionResponse(unit, function & ~EXCEPTION_BIT, body[2])
-    elif function in _READS:
-        response = _READS[function].from_words(unit, _registers(data, body, function))
-    elif function == FunctionCode.WRITE_SINGLE_REGISTER:
-        if len(body) != 6:
-            raise DecodeError(
-                f"a FC06 response echoes the request: 6 bytes before the CRC, this one has {len(body)}",
-                data,
-                "length",
-            )
-        response = WriteResponse(unit, int.from_bytes(body[2:4], "big"), int.from_bytes(body[4:6], "big"))
-    elif function == FunctionCode.WRITE_MULTIPLE_REGISTERS:
-        if len(body) != 6:
-            raise DecodeError(
-                f"a FC16 response has 6 bytes before the CRC (address, count), this one has {len(body)}", data, "length"
-            )
-        response = WriteRegistersResponse(unit, int.from_bytes(body[2:4], "big"), int.from_bytes(body[4:6], "big"))
-    else:
-        raise DecodeError(f"function code {function:#04x} is not one these devices answer with", data, "function")
-    if request is not None:
-        check_response(request, response, data)
-    return response
-
-
-def check_header(request: Request, data: bytes) -> None:
-    """Unit and function of an answer, checkable from its first two bytes."""
-    unit, function = data[0], data[1]
-    if unit != request.unit:
-        raise DecodeError(f"answer from unit {unit}, the request went to unit {request.unit}", data, "unit")
-    if function not in (request.function, request.function | EXCEPTION_BIT):
-        raise DecodeError(
-            f"function code {function:#04x} does not answer a FC{request.function:02d} request", data, "function"
-        )
-
-
-def check_response(request: Request, response: Response, data: bytes = b"") -> None:
-    """Raise :class:`DecodeError` unless ``response`` is a well-formed answer to ``request``."""
-    if response.unit != request.unit:
-        raise DecodeError(f"answer from unit {response.unit}, the request went to unit {request.unit}", data, "unit")
-    if isinstance(response, ExceptionResponse):
-        if response.function != request.function:
-            raise DecodeError(
-                f"exception for FC{response.function:02d} does not answer a FC{request.function:02d} request",
-                data,
-                "function",
-            )
-        return
-    if response.function != request.function:
-        raise DecodeError(
-            f"FC{response.function:02d} response does not answer a FC{request.function:02d} request", data, "function"
-        )
-    if isinstance(request, ReadRequest):
-        assert isinstance(response, ReadResponse)
-        if len(response.values) != request.count:
-            raise DecodeError(
-                f"{len(response.values)} registers returned, {request.count} requested", data, "byte_count"
-            )
-        return
-    if isinstance(request, WriteRegistersRequest):
-        assert isinstance(response, WriteRegistersResponse)
-        if (response.address, response.count) != (request.address, len(request.values)):
-            raise DecodeError(
-                f"not the answer to the write of {len(request.values)} registers at {request.address:#06x}: "
-                f"got {response.count} at {response.address:#06x}",
-                data,
-                "echo",
-            )
-        return
-    assert isinstance(response, WriteResponse)
-    if (response.address, response.value) != (request.address, request.value):
-        raise DecodeError(
-            f"not an echo of the write ({request.address:#06x} = {request.value:#06x}): "
-            f"got {response.address:#06x} = {response.value:#06x}",
-            data,
-            "echo",
-        )
+from starterbus.transports.modbus.codec.decoding import (
+    check_header,
+    check_response,
+    decode_register_request,
+    decode_request,
+    decode_response,
+    expected_response_length,
+    request_length,
+)
+from starterbus.transports.modbus.codec.messages import (
+    BROADCAST,
+    EXCEPTION_BIT,
+    EXCEPTION_FRAME_LENGTH,
+    MAX_READ_REGISTERS,
+    MAX_UNIT,
+    MAX_WRITE_REGISTERS,
+    READ_REQUEST_LENGTH,
+    STANDARD_EXCEPTION_TEXTS,
+    WRITE_FRAME_LENGTH,
+    AnyRequest,
+    ExceptionCode,
+    ExceptionResponse,
+    FunctionCode,
+    OtherRequest,
+    ReadInputRequest,
+    ReadInputResponse,
+    ReadRequest,
+    ReadResponse,
+    Request,
+    Response,
+    WriteRegistersRequest,
+    WriteRegistersResponse,
+    WriteRequest,
+    WriteResponse,
+)
+
+__all__ = [
+    "BROADCAST",
+    "EXCEPTION_BIT",
+    "EXCEPTION_FRAME_LENGTH",
+    "MAX_READ_REGISTERS",
+    "MAX_UNIT",
+    "MAX_WRITE_REGISTERS",
+    "READ_REQUEST_LENGTH",
+    "STANDARD_EXCEPTION_TEXTS",
+    "WRITE_FRAME_LENGTH",
+    "AnyRequest",
+    "ExceptionCode",
+    "ExceptionResponse",
+    "FunctionCode",
+    "OtherRequest",
+    "ReadInputRequest",
+    "ReadInputResponse",
+    "ReadRequest",
+    "ReadResponse",
+    "Request",
+    "Response",
+    "WriteRegistersRequest",
+    "WriteRegistersResponse",
+    "WriteRequest",
+    "WriteResponse",
+    "check_header",
+    "check_response",
+    "decode_register_request",
+    "decode_request",
+    "decode_response",
+    "expected_response_length",
+    "request_length",
+]

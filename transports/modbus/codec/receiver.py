@@ -17,18 +17,20 @@ from __future__ import annotations
 import enum
 
 from starterbus.core import DecodeError
-from starterbus.transports.modbus.codec.frames import (
+from starterbus.transports.modbus.codec.decoding import (
+    check_header,
+    decode_request,
+    decode_response,
+    expected_response_length,
+    request_length,
+)
+from starterbus.transports.modbus.codec.messages import (
     EXCEPTION_BIT,
     EXCEPTION_FRAME_LENGTH,
     AnyRequest,
     ReadRequest,
     Request,
     Response,
-    check_header,
-    decode_request,
-    decode_response,
-    expected_response_length,
-    request_length,
 )
 
 

@@ -23,7 +23,7 @@ from starterbus.core import (
     TransportCounters,
     TransportError,
 )
-from starterbus.transports.modbus.codec.frames import Request, Response
+from starterbus.transports.modbus.codec.messages import Request, Response
 from starterbus.transports.modbus.codec.receiver import NEED_DATA, ResponseReceiver
 from starterbus.transports.modbus.codec.timing import char_time
 from starterbus.transports.modbus.driver.link import Link, SerialSettings

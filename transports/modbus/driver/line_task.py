@@ -29,7 +29,7 @@ from starterbus.core import (
     TransportCounters,
     TransportError,
 )
-from starterbus.transports.modbus.codec.frames import Response
+from starterbus.transports.modbus.codec.messages import Response
 from starterbus.transports.modbus.driver.line import RtuLine
 from starterbus.transports.modbus.master.exchange import Exchange
 from starterbus.transports.modbus.master.rtu_engine import RtuEngine, RtuTicket

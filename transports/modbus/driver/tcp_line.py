@@ -28,7 +28,7 @@ from starterbus.core import (
     TransportError,
     process_scheduler,
 )
-from starterbus.transports.modbus.codec.frames import Response
+from starterbus.transports.modbus.codec.messages import Response
 from starterbus.transports.modbus.master.exchange import Exchange
 from starterbus.transports.modbus.master.mbap import HEADER_LENGTH, MbapEngine, MbapTicket
 

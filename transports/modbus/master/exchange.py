@@ -10,7 +10,8 @@ import struct
 from dataclasses import dataclass
 
 from starterbus.transports.modbus.codec.crc import crc16
-from starterbus.transports.modbus.codec.frames import (
+from starterbus.transports.modbus.codec.decoding import expected_response_length
+from starterbus.transports.modbus.codec.messages import (
     BROADCAST,
     EXCEPTION_FRAME_LENGTH,
     ReadRequest,
@@ -20,7 +21,6 @@ from starterbus.transports.modbus.codec.frames import (
     WriteRegistersRequest,
     WriteRegistersResponse,
     WriteResponse,
-    expected_response_length,
 )
 
 

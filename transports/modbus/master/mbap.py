@@ -1,11 +1,11 @@
 """Sans-IO Modbus TCP framing: the MBAP header and the matching of answers to transactions.
 
 An ADU is ``transaction id (2) | protocol id (2, always 0) | length (2: unit + PDU) | unit (1) | PDU``. The PDU
-is the RTU frame without its unit byte and CRC, so the RTU codec (``frames.py``) encodes requests and decodes
-answers. :class:`MbapEngine` numbers requests, splits the received byte stream into ADUs and says which waiting
-transaction each answers: an answer whose transaction id no transaction waits for (a late answer to one that
-timed out, a duplicate, another client's) is dropped and counted, never delivered as a value. Nothing here reads
-a clock or does I/O.
+is the RTU frame without its unit byte and CRC, so the RTU codec (``codec/messages.py``, ``codec/decoding.py``)
+encodes requests and decodes answers. :class:`MbapEngine` numbers requests, splits the received byte stream into
+ADUs and says which waiting transaction each answers: an answer whose transaction id no transaction waits for (a
+late answer to one that timed out, a duplicate, another client's) is dropped and counted, never delivered as a
+value. Nothing here reads a clock or does I/O.
 
 It is also the connection's :class:`~starterbus.core.engine.Engine` (docs/engine.md): a prepared
 :class:`~starterbus.transports.modbus.master.exchange.Exchange` submitted is a :class:`MbapTicket`, sent when one of
@@ -24,7 +24,8 @@ from dataclasses import dataclass
 
 from starterbus.core import FOREVER, DecodeError, StarterbusError, Ticket, TimeoutError
 from starterbus.spaces.modbus import GATEWAY_EXCEPTIONS, STANDARD_EXCEPTION_TEXTS
-from starterbus.transports.modbus.codec.frames import ExceptionResponse, Response, decode_response
+from starterbus.transports.modbus.codec.decoding import decode_response
+from starterbus.transports.modbus.codec.messages import ExceptionResponse, Response
 from starterbus.transports.modbus.master.exchange import Exchange
 
 HEADER = struct.Struct(">HHHB")  # transaction id, protocol id, length, unit

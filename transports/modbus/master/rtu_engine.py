@@ -21,7 +21,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 
 from starterbus.core import FOREVER, DecodeError, StarterbusError, Ticket, TimeoutError, TransportError
-from starterbus.transports.modbus.codec.frames import Response
+from starterbus.transports.modbus.codec.messages import Response
 from starterbus.transports.modbus.codec.receiver import NEED_DATA, ResponseReceiver
 from starterbus.transports.modbus.master.exchange import Exchange
 from starterbus.transports.modbus.master.guard import LineGuard, hex_bytes

@@ -27,7 +27,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
 from starterbus.core import ConfigurationError, DecodeError, RunningSimulator, SimulatedStarter, precise_timers
-from starterbus.transports.modbus.codec.frames import AnyRequest, ExceptionResponse, Response
+from starterbus.transports.modbus.codec.messages import AnyRequest, ExceptionResponse, Response
 from starterbus.transports.modbus.codec.receiver import NEED_DATA, RequestReceiver
 from starterbus.transports.modbus.codec.timing import silent_interval
 from starterbus.transports.modbus.driver.link import Link, SerialSettings

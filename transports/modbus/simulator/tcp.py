@@ -13,7 +13,8 @@ import threading
 from collections.abc import Callable, Mapping
 
 from starterbus.core import ConfigurationError, DecodeError, RunningSimulator, SimulatedStarter
-from starterbus.transports.modbus.codec.frames import ExceptionResponse, Response, decode_request
+from starterbus.transports.modbus.codec.decoding import decode_request
+from starterbus.transports.modbus.codec.messages import ExceptionResponse, Response
 from starterbus.transports.modbus.master.mbap import HEADER, HEADER_LENGTH, MAX_PDU, PROTOCOL_ID, encode_adu
 from starterbus.transports.modbus.slave import SlaveLogic
 

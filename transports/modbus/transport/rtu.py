@@ -35,7 +35,7 @@ from starterbus.core import (
     UnsupportedOperationError,
     status_with_currents,
 )
-from starterbus.transports.modbus.codec.frames import (
+from starterbus.transports.modbus.codec.messages import (
     BROADCAST,
     ExceptionResponse,
     ReadRequest,

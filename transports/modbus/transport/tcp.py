@@ -25,12 +25,7 @@ from starterbus.core import (
     status_with_currents,
 )
 from starterbus.spaces.modbus import MAX_UNIT, ModbusSettings
-from starterbus.transports.modbus.codec.frames import (
-    ExceptionResponse,
-    ReadResponse,
-    Request,
-    Response,
-)
+from starterbus.transports.modbus.codec.messages import ExceptionResponse, ReadResponse, Request, Response
 from starterbus.transports.modbus.codec.timing import silent_interval
 from starterbus.transports.modbus.decoder import exception_meaning
 from starterbus.transports.modbus.driver.link import SerialSettings
