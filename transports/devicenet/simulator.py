@@ -9,17 +9,17 @@ Programmatic use (in-process, e.g. on python-can's ``virtual`` bus)::
 
 Several nodes share one simulator (one python-can bus, one thread): ``DeviceNetSimulator(bus).add_node(...)``.
 The node logic is :class:`~starterbus.transports.devicenet.slave.node.SlaveNode` (sans-IO); this module is its
-driver plus the JJR8000 application: input assemblies 1/101 from the starter's state, output assemblies 2/102
-written as the control word with bit 3 (bus control) set, since DeviceNet is the network control path and the
-JJR8000 obeys commands only with bit 3 = 1. When the polled connection times out (4 x expected packet rate),
-is released, or the master goes idle, the starter's ``command_lost()`` drops the run command: the motor
-soft-stops and stays stopped until the master sends a new start edge (the documented safe state).
+driver; the JJR8000 application is ``slave/application.py`` (:class:`StarterApplication`): input assemblies
+1/101 from the starter's state, output assemblies 2/102 written as the control word with bit 3 (bus control) set,
+since DeviceNet is the network control path and the JJR8000 obeys commands only with bit 3 = 1. When the polled
+connection times out (4 x expected packet rate), is released, or the master goes idle, the starter's
+``command_lost()`` drops the run command: the motor soft-stops and stays stopped until the master sends a new
+start edge (the documented safe state).
 """
 
 from __future__ import annotations
 
 import logging
-import struct
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -28,156 +28,37 @@ from typing import TypeVar
 import can
 
 from starterbus.core import (
-    CW_BUS_CONTROL,
-    SW_FAULT,
-    SW_RUNNING,
-    SW_STARTING,
-    SW_STOPPING,
     CanFrame,
     ConfigurationError,
-    Kind,
-    PointDef,
-    Refusal,
     RunningSimulator,
     SimulatedStarter,
-    SimulatorRefusal,
     open_bus,
     shutdown_bus,
 )
-from starterbus.transports.devicenet.codec.assemblies import (
-    OUTPUT_SIZES,
-    AssemblySet,
-    InputBit,
-    decode_output,
-)
-from starterbus.transports.devicenet.codec.cip import PROTOCOL
+from starterbus.transports.devicenet.codec.assemblies import AssemblySet
 from starterbus.transports.devicenet.codec.dupmac import DEFAULT_WAIT
 from starterbus.transports.devicenet.codec.identity import Identity
 from starterbus.transports.devicenet.codec.ids import MAX_MAC, poll_command_id, poll_response_id
-from starterbus.transports.devicenet.settings import devicenet_settings, profile_identity
+from starterbus.transports.devicenet.settings import profile_identity
+from starterbus.transports.devicenet.slave.application import IO_REFRESH, PRO_TYPE_KEY, StarterApplication
 from starterbus.transports.devicenet.slave.node import SlaveNode
 from starterbus.transports.devicenet.slave.state import NodeState
+
+__all__ = [
+    "IO_REFRESH",
+    "PRO_TYPE_KEY",
+    "BusSpec",
+    "DeviceNetSimulator",
+    "DeviceNetSlaveSimulator",
+    "StarterApplication",
+]
 
 log = logging.getLogger(__name__)
 SimulatorT = TypeVar("SimulatorT", bound="DeviceNetSimulator")
 
-IO_REFRESH = 0.001  # seconds: how often a node refreshes its input assembly from the starter
-_FAULT = int(InputBit.FAULT)
-_WARNING = int(InputBit.WARNING)
-_RUNNING = int(InputBit.RUNNING)
-_STARTING = int(InputBit.STARTING)
-_STOPPING = int(InputBit.STOPPING)
-_NETWORK_CONTROL = int(InputBit.NETWORK_CONTROL)
-_AT_REFERENCE = int(InputBit.AT_REFERENCE)
-PRO_TYPE_KEY = "profibus_type"  # JJR8000 p71: 0 = P1/M1 (basic 1/2), 1 = P3/M2 (extended 101/102)
 BusSpec = can.BusABC | tuple[str, str]
 Handler = Callable[[bytes, float], list[CanFrame]]
 Route = tuple[SlaveNode, Handler, int | None]  # node, handler, poll response id (the fast path) or None
-
-
-class StarterApplication:
-    """The JJR8000 behind a slave node: assemblies <-> :class:`SimulatedStarter`.
-
-    ``assemblies`` None follows the starter's PRO type parameter (p71) like the real device; a fixed set
-    overrides it. The status parameter selected by output assembly 102 byte 1 starts at address 0x01 (status
-    word); an address the model does not define reads as 0.
-    """
-
-    def __init__(
-        self,
-        starter: SimulatedStarter,
-        assemblies: AssemblySet | None = AssemblySet.EXTENDED,
-        io_refresh: float = IO_REFRESH,
-    ) -> None:
-        self.starter = starter
-        self.fixed = assemblies
-        self.io_refresh = io_refresh
-        self.selected_address = 0x01
-        self.outputs: dict[int, bytes] = {instance: bytes(size) for instance, size in OUTPUT_SIZES.items()}
-        self._written: int | None = None
-        self._points: dict[int, PointDef | None] = {}
-        self._cache: dict[int, tuple[float, bytes]] = {}
-
-    def assembly_set(self) -> AssemblySet:
-        if self.fixed is not None:
-            return self.fixed
-        pro_type = self.starter.params.get(PRO_TYPE_KEY, 0)
-        return AssemblySet.EXTENDED if pro_type == 1 else AssemblySet.BASIC
-
-    def instance_numbers(self) -> tuple[int, int]:
-        return devicenet_settings(self.starter.profile).instances(self.assembly_set())
-
-    def produce(self, instance: int) -> bytes:
-        """The input assembly, refreshed from the starter at most every ``io_refresh`` seconds (like the
-        internal cycle of a real communication module) and at once after outputs were applied."""
-        now = time.monotonic()
-        cached = self._cache.get(instance)
-        if cached is not None and now - cached[0] < self.io_refresh:
-            return cached[1]
-        data = self._produce(instance)
-        self._cache[instance] = (now, data)
-        return data
-
-    def _produce(self, instance: int) -> bytes:
-        starter = self.starter
-        with starter.lock:
-            word = starter.status_word()
-            amps = starter.current()
-            bits = 0
-            if word & SW_FAULT:
-                bits |= _FAULT
-            if starter.warning:
-                bits |= _WARNING
-            if word & SW_RUNNING:
-                bits |= _RUNNING
-            if word & SW_STARTING:
-                bits |= _STARTING
-            if word & SW_STOPPING:
-                bits |= _STOPPING
-            if starter.control_word & CW_BUS_CONTROL:
-                bits |= _NETWORK_CONTROL
-            current = max(0, min(0xFFFF, round(amps)))
-            if instance == 1:
-                if word & SW_RUNNING and starter.at_reference:
-                    bits |= _AT_REFERENCE
-                return struct.pack("<BBH", bits, 0, current)
-            code = (starter.fault_code or 0) if word & SW_FAULT else 0
-            return struct.pack("<BBHH", bits, code, current, self._selected_value())
-
-    def _selected_value(self) -> int:
-        address = self.selected_address
-        if address not in self._points:
-            try:
-                self._points[address] = self.starter.point_at(PROTOCOL, Kind.MEASUREMENT, address)
-            except SimulatorRefusal as exc:
-                if exc.reason is not Refusal.NOT_AVAILABLE:
-                    raise
-                self._points[address] = None
-        point = self._points[address]
-        return 0 if point is None else self.starter.read(point) & 0xFFFF
-
-    def consume(self, instance: int, data: bytes) -> None:
-        if data == self.outputs.get(instance) and self.starter.control_word == self._written:
-            return  # the same outputs again: no edge, nothing to do
-        output = decode_output(data, instance)
-        self.outputs[instance] = bytes(data)
-        if output.address is not None:
-            self.selected_address = output.address
-        word = output.control_word()
-        self.starter.write_control_word(word, cyclic=True, source=f"DeviceNet output assembly {instance}")
-        self._written = word
-        self._cache.clear()
-
-    def output_data(self, instance: int) -> bytes:
-        return self.outputs.get(instance, bytes(OUTPUT_SIZES.get(instance, 0)))
-
-    def idle(self) -> None:
-        self.starter.command_lost("DeviceNet master idle (zero-length poll command)")
-        self._cache.clear()
-
-    def connection_lost(self, reason: str) -> None:
-        self.starter.command_lost(reason)
-        self._cache.clear()
 
 
 class DeviceNetSimulator(RunningSimulator):
