@@ -13,12 +13,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
-from starterbus.core import TransportError
+from starterbus.core import CanFrame, TransportError
 from starterbus.transports.devicenet.codec.assemblies import AssemblySet, OutputAssembly
 from starterbus.transports.devicenet.codec.connection import DEFAULT_EXPLICIT_EPR_MS, inactivity_timeout
 from starterbus.transports.devicenet.codec.dupmac import DEFAULT_WAIT
 from starterbus.transports.devicenet.codec.explicit import ExplicitRequest, ExplicitResponse
 from starterbus.transports.devicenet.codec.fragmentation import Fragmenter, Reassembler
+from starterbus.transports.devicenet.codec.ids import poll_command_id
 
 ANSWER_GUARD = 0.002  # seconds an answer waits for a second one (a duplicate responder) before it is published
 KEEPALIVE = 2.5  # longest time between explicit keep-alive reads (the default inactivity timeout is 10 s)
@@ -146,6 +147,7 @@ class MasterLink:
         self.urgent = 0  # polls wanted as soon as possible (a read or command waits for them)
         # poll bookkeeping
         self.poll_data = b""
+        self.poll_frame = CanFrame(poll_command_id(config.mac))  # the poll command of poll_data (built with it)
         self.built_seq = -1
         self.built_select: int | None = None
         self.sent_seq = 0

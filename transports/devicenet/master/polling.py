@@ -20,7 +20,6 @@ import math
 from collections import deque
 
 from starterbus.core import CanFrame
-from starterbus.transports.devicenet.codec.ids import poll_command_id
 from starterbus.transports.devicenet.master.link import DuplicateResponderError, InputSample, MasterLink
 from starterbus.transports.devicenet.master.sequence import ConnectionSequence
 
@@ -128,6 +127,7 @@ class PollScheduler(ConnectionSequence):
             if seq != link.built_seq:
                 output = link.output()
                 link.poll_data = output.encode()
+                link.poll_frame = CanFrame(link.poll_frame.can_id, link.poll_data)
                 link.built_seq = seq
                 link.built_select = output.address
             link.sent_seq = link.built_seq
@@ -143,7 +143,7 @@ class PollScheduler(ConnectionSequence):
             self._wake_fast(deadline)
             self._in_flight += 1
             self.polls_sent += 1
-            self._out.append(CanFrame(poll_command_id(link.mac), link.poll_data))
+            self._out.append(link.poll_frame)
 
     def _on_poll_response(self, link: MasterLink, data: bytes, now: float) -> None:
         link.answers += 1
