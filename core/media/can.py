@@ -300,8 +300,9 @@ class CanDriver(EngineSet):
         cpu = time.thread_time()
         try:
             reader, direct = self._reader, self._queue
+            flushed: set[CanEngine] | tuple[()] = ()
             if ready or (direct is not None and direct.pending) or (reader is not None and reader.queued):
-                self._take_input(now)  # frames read before any timer runs
+                flushed = self._take_input(now)  # frames read before any timer runs
             held = self._held
             for engine in self.engines:
                 if now >= engine.deadline and not (held and now < held.get(engine, 0.0)):
@@ -310,13 +311,16 @@ class CanDriver(EngineSet):
                     except Exception as exc:
                         self._failed(engine, exc, now, "advance")
                         held[engine] = now + BUG_BACKOFF
+                elif engine in flushed:
+                    continue  # its output was taken after its frames at this same time: nothing new since
                 self._flush(engine, now)
             if self._periodics:
                 self._send_periodics(now)
         finally:
             self._step_cpu += time.thread_time() - cpu
 
-    def _take_input(self, now: float) -> None:
+    def _take_input(self, now: float) -> set[CanEngine]:
+        """Read what is ready and deliver it; the engines that got frames (their output already written)."""
         reader, direct = self._reader, self._queue
         if direct is not None:
             messages = direct.take()
@@ -337,8 +341,7 @@ class CanDriver(EngineSet):
             self._received += len(messages)
         else:
             messages = reader.take()
-        if messages:
-            self._deliver(messages, now)
+        return self._deliver(messages, now) if messages else set()
 
     def write(self, frames: Sequence[CanFrame]) -> None:
         """Write what the engines give (in the loop): a failed send is logged and counted in :attr:`errors`, the

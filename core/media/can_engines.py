@@ -76,8 +76,9 @@ class EngineSet:
 
     # -- frames to the engines ------------------------------------------------------------------------------------
 
-    def _deliver(self, messages: list[can.Message], now: float) -> None:
-        """Give each frame read to the engines that want it; then what they answer goes out."""
+    def _deliver(self, messages: list[can.Message], now: float) -> set[CanEngine]:
+        """Give each frame read to the engines that want it; then what they answer goes out. Returns those
+        engines."""
         self._sync_routes()
         routes = self._routes
         touched: set[CanEngine] = set()
@@ -98,6 +99,7 @@ class EngineSet:
                 touched.add(engine)
         for engine in touched:  # answers go out after the burst, each engine's in order
             self._flush(engine, now)
+        return touched
 
     def _sync_routes(self) -> None:
         """Route again if an engine's ``wanted`` changed (compared by identity: an engine gives a new set)."""
