@@ -106,6 +106,7 @@ class CyclicLink:
             raise ValueError("cycle and pulse must be >= 0 and hold >= 1")
         self.channel = channel
         self.ppo: Ppo = channel.ppo
+        self._has_pkw = self.ppo.has_pkw
         self.engine = engine
         self.cycle = cycle
         self.hold = hold
@@ -124,6 +125,8 @@ class CyclicLink:
             return station
 
         first = [make_station(engine)]
+        self._pkw_budget = first[0].pkw_budget  # the same for every station made here (their limits are the same)
+        self._pkw_what = f"{name}: PKW task"
         self._loop = loop_for(channel, clock)
         self._driver = channel.driver(
             name or where, lambda: first.pop() if first else make_station(), self._loop.clock, channel_error
@@ -241,7 +244,8 @@ class CyclicLink:
         if not self._added:
             raise TransportError(f"{self.name or self.channel.describe()}: the link is not open")
         (ticket,) = self._loop.run(self._driver, [request], bound + STALL, what)
-        return cast(StationTicket, ticket)
+        assert isinstance(ticket, StationTicket)
+        return ticket
 
     def run_cycle(self) -> None:
         """One exchange (the next cycle's, with ``cycle > 0``); a channel failure is recorded, not raised."""
@@ -276,10 +280,9 @@ class CyclicLink:
 
     def pkw(self, request: PkwRequest, what: str = "") -> PkwJob:
         """Run one PKW task to its end; returns the finished job or raises its error."""
-        if not self.ppo.has_pkw:
+        if not self._has_pkw:
             raise ValueError("PPO3 has no PKW area")
-        budget = self.engine.limits.timeout + max(self.cycle, 0.001) * 4 + 1.0
-        ticket = self._run(PkwTask(request, what), budget, f"{self.name}: {what or 'PKW task'}")
+        ticket = self._run(PkwTask(request, what), self._pkw_budget, f"{self.name}: {what}" if what else self._pkw_what)
         job = ticket.job
         assert job is not None
         if job.error is not None:

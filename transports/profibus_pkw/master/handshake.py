@@ -77,6 +77,13 @@ class JobState(str, enum.Enum):
     FAILED = "failed"
 
 
+# Module constants of the members read on every exchange: an Enum's class attribute goes through the enum type's
+# __getattr__ hook at each access (several times the cost of a global).
+_CLEARING, _SENDING, _DONE, _FAILED = JobState.CLEARING, JobState.SENDING, JobState.DONE, JobState.FAILED
+_NO_TASK_CODE, _WRITE = TaskCode.NO_TASK, TaskCode.WRITE_PARAMETER
+_VALUE, _CANNOT_EXECUTE = ResponseCode.VALUE, ResponseCode.CANNOT_EXECUTE
+
+
 @dataclass(eq=False, slots=True)
 class PkwJob:
     """One task and what became of it."""
@@ -99,7 +106,8 @@ class PkwJob:
 
     @property
     def done(self) -> bool:
-        return self.state in (JobState.DONE, JobState.FAILED)
+        state = self.state
+        return state is _DONE or state is _FAILED
 
     def describe(self) -> str:
         task = self.request.task
@@ -162,7 +170,7 @@ class PkwEngine:
     # -- requests --------------------------------------------------------------------------------------------
 
     def submit(self, request: PkwRequest, what: str = "") -> PkwJob:
-        if request.task == TaskCode.NO_TASK:
+        if request.task == _NO_TASK_CODE:
             raise ValueError("'no task' is what the engine sends between tasks; submit a real task")
         job = PkwJob(request, what)
         self._queue.append(job)
@@ -193,7 +201,7 @@ class PkwEngine:
         if job is None and self._queue:
             job = self._current = self._queue.popleft()
             job.started = now
-            job.state = JobState.CLEARING
+            job.state = _CLEARING
             self._fence = None
             self._chaining = False
             if self._last is not None and self._last[1] == 0:
@@ -201,7 +209,7 @@ class PkwEngine:
         if job is None:
             return NO_TASK
         job.cycles += 1
-        if job.state is JobState.SENDING:
+        if job.state is _SENDING:
             return job.request
         if self._fence is not None or self._chaining:
             job.fence_cycles += 1
@@ -220,7 +228,7 @@ class PkwEngine:
         code = (ind >> 8) & 0xFF
         self._last = (obs, code)
         job = self._current
-        if job is None or job.state is not JobState.SENDING:
+        if job is None or job.state is not _SENDING:
             if code and book.records:
                 book.late(response, obs)
             if job is None:
@@ -247,12 +255,12 @@ class PkwEngine:
         if not book.fresh(self._basis, obs):
             job.stale += 1
             return self._check_limits(job, now)
-        if code == ResponseCode.VALUE and (request.ind >> 8 != TaskCode.WRITE_PARAMETER or response.pwe == request.pwe):
+        if code == _VALUE and (request.ind >> 8 != _WRITE or response.pwe == request.pwe):
             job.response = response  # the common case first: a value that answers the task
             book.answered(request, self._basis, obs)
-            return self._finish(job, JobState.DONE, now)
+            return self._finish(job, _DONE, now)
         raw = pkw_bytes(response)
-        if code > ResponseCode.CANNOT_EXECUTE:
+        if code > _CANNOT_EXECUTE:
             job.error = DecodeError(
                 f"unknown response code {code} (INDH) to {job.describe()}; no value taken", raw, "INDH"
             )
@@ -289,7 +297,7 @@ class PkwEngine:
         basis = self._book.proof(job.request.indl, obs)
         if basis is not None:
             self._basis = basis
-            job.state = JobState.SENDING
+            job.state = _SENDING
             return
         if self._book.orphan(job.request.indl) is None:
             return  # the previous answer on this INDL may still be shown: wait for a fresh "no response"
@@ -337,7 +345,7 @@ class PkwEngine:
     def _finish(self, job: PkwJob, state: JobState, now: float) -> PkwJob:
         if job.error is not None:
             ended = Mark(self._n, now)
-            if job.state is JobState.SENDING and not isinstance(job.error, PkwError):
+            if job.state is _SENDING and not isinstance(job.error, PkwError):
                 self._book.unanswered(job.request, self._basis, ended)  # sent, never verifiably answered
             if self._fence is not None:
                 self._book.unanswered(self._fence.request, self._fence.basis, ended)

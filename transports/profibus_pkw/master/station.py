@@ -50,6 +50,9 @@ from starterbus.transports.profibus_pkw.master.handshake import PkwEngine, PkwJo
 
 #: a deadline that never comes
 FOREVER = math.inf
+# Module constants of the enum members read on every exchange: an Enum's class attribute goes through the enum
+# type's __getattr__ hook at each access (several times the cost of a global).
+_PPO1, _QUEUED = Ppo.PPO1, TicketState.QUEUED
 
 __all__ = [
     "ControlWords",
@@ -120,6 +123,10 @@ class StationEngine:
         if cycle < 0 or hold < 1 or pulse < 0:
             raise ValueError("cycle and pulse must be >= 0 and hold >= 1")
         self.ppo, self.pkw, self.cycle, self.hold, self.pulse = ppo, pkw, cycle, hold, pulse
+        self._words = ppo.words  # the input words of one exchange
+        self._ppo1 = ppo is _PPO1
+        #: how long a PKW task may wait for the exchanges that apply its own limits
+        self.pkw_budget = pkw.limits.timeout + max(cycle, 0.001) * 4 + 1.0
         self.where = where  # the channel, in messages
         self.reply_within = reply_within  # an exchange not answered by then failed (only a peer that drops one)
         self.control: int | None = 0
@@ -171,12 +178,12 @@ class StationEngine:
     def submit(self, request: StationRequest, now: float) -> StationTicket:
         ticket = StationTicket(request)
         if isinstance(request, PkwTask):
-            if not self.ppo.has_pkw:
+            if not self._ppo1:
                 ticket.failed(EncodeError("PPO3 has no PKW area: parameter tasks need PPO1", field="ppo"), now)
                 self._done.append(ticket)
                 return ticket
             ticket.job = self.pkw.submit(request.request, request.what)
-            ticket.give_up = now + self._stall_budget()
+            ticket.give_up = now + self.pkw_budget
         elif isinstance(request, ControlWords):
             words = request.words
             bad = [w for w in words if not 0 <= w <= 0xFFFF]
@@ -231,7 +238,8 @@ class StationEngine:
         elif not self._waiting:
             return ()
         self.attempts = n = self.attempts + 1
-        pkw = self.pkw.output(now) if self.ppo is Ppo.PPO1 else NO_TASK
+        ppo1 = self._ppo1
+        pkw = self.pkw.output(now) if ppo1 else NO_TASK
         if self._plan:
             stw: int | None = int(self._plan[0][0])
             self._plan_sent = True
@@ -241,8 +249,10 @@ class StationEngine:
             self._next_at = now  # the first exchange, or one after a pause (nobody ran the loop): a new start
         self._out, self._out_at = n, now
         for ticket in self._waiting:
-            if ticket.state is TicketState.QUEUED and (ticket.job is None or ticket.job.started is not None):
+            if ticket.state is _QUEUED and (ticket.job is None or ticket.job.started is not None):
                 ticket.sent(now)
+        if ppo1:  # output_words_of's, without its call (on every exchange)
+            return ((n, (pkw.ind, pkw.pwe, stw, None if stw is None else 0)),)
         return ((n, output_words_of(self.ppo, pkw, stw)),)
 
     def receive(self, data: DpOut | None, now: float) -> None:
@@ -255,11 +265,12 @@ class StationEngine:
             self.stray += 1
             return
         self._out = 0
-        try:  # count and range
-            if self.ppo is Ppo.PPO1:
-                from_words(Ppo1In, words)
-            else:
-                from_words(PzdIn, words)
+        try:  # count and range (checked here without making a telegram; from_words names what is wrong)
+            if len(words) != self._words or not all(0 <= w <= 0xFFFF for w in words):
+                if self._ppo1:
+                    from_words(Ppo1In, words)
+                else:
+                    from_words(PzdIn, words)
         except Exception as exc:  # what a third-party channel returned is checked here, typed
             error = exc if isinstance(exc, StarterbusError) else TransportError(f"channel failed: {exc!r}")
             self._failed(n, error, now)
@@ -267,7 +278,7 @@ class StationEngine:
         self.exchanges += 1
         self.last_in = tuple(words)
         self.last_ok = True
-        finished = self.pkw.receive(PkwResponse(words[0], words[1]), now) if self.ppo is Ppo.PPO1 else None
+        finished = self.pkw.receive(PkwResponse(words[0], words[1]), now) if self._ppo1 else None
         plan = self._plan
         if plan:
             step = plan[0]
@@ -297,8 +308,11 @@ class StationEngine:
                 if now >= ticket.give_up and not ticket.ended:
                     self._give_up(ticket, now)
 
-    def take_completed(self) -> list[StationTicket]:
-        done, self._done = self._done, []
+    def take_completed(self) -> Sequence[StationTicket]:
+        done = self._done
+        if not done:
+            return ()
+        self._done = []
         return done
 
     # -- helpers --------------------------------------------------------------------------------------------
@@ -310,10 +324,6 @@ class StationEngine:
                 self.pkw.cancel(ticket.job, error, now)
             ticket.failed(error, now)
             self._forget(ticket)
-
-    def _stall_budget(self) -> float:
-        """How long a PKW task may wait for the exchanges that apply its own limits."""
-        return self.pkw.limits.timeout + max(self.cycle, 0.001) * 4 + 1.0
 
     def _failed(self, n: int, error: StarterbusError, now: float) -> None:
         self.failures += 1
@@ -362,9 +372,10 @@ class StationEngine:
     def _forget(self, ticket: StationTicket) -> None:
         if ticket is self._plan_ticket:
             self._plan_ticket = None
-        if ticket in self._waiting:
-            self._waiting.remove(ticket)
-            self._limit = min((t.give_up for t in self._waiting), default=FOREVER)
+        waiting = self._waiting
+        if ticket in waiting:
+            waiting.remove(ticket)
+            self._limit = min(t.give_up for t in waiting) if waiting else FOREVER
         if ticket in self._fresh:
             self._fresh.remove(ticket)
         self._done.append(ticket)
@@ -373,7 +384,7 @@ class StationEngine:
         request = ticket.request
         job = ticket.job
         if job is not None:  # no exchange came back in time to apply the limits: the channel stalled
-            why = TimeoutError(f"{PROTOCOL}: {job.describe()}: no DP exchange within {self._stall_budget():.2f} s")
+            why = TimeoutError(f"{PROTOCOL}: {job.describe()}: no DP exchange within {self.pkw_budget:.2f} s")
             self.pkw.cancel(job, why, now)
             ticket.failed(job.error or why, now)
         elif isinstance(request, ControlWords):
