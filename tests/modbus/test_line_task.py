@@ -134,8 +134,8 @@ def test_an_answer_sent_twice_is_never_delivered_even_when_the_task_looks_late()
 
 @pytest.mark.parametrize("wire_check", [False, True])
 def test_a_partial_answer_is_looked_at_again_when_the_rest_can_be_there(wire_check: bool) -> None:
-    """Without wire timing (pty, TCP) the task stops watching its input until all but the last byte of the
-    rest can have come at the baud rate; bytes after the answer still make it suspect."""
+    """Without wire timing (pty, TCP) the task stops watching its input until the whole rest can have come at
+    the baud rate; bytes after the answer still make it suspect."""
 
     def split(n: int, frame: bytes, at: float) -> list[tuple[float, bytes]]:
         answer = numbered(n, frame)
@@ -150,7 +150,7 @@ def test_a_partial_answer_is_looked_at_again_when_the_rest_can_be_there(wire_che
         deadline = link.writes[0][0] + poll.exchanges[0].budget
         assert poll.task.fd == link.fd and poll.task.wake_at == pytest.approx(deadline)
     else:
-        assert poll.task.fd == -1 and poll.task.wake_at == pytest.approx(clock.now + 5 * line.char_time)
+        assert poll.task.fd == -1 and poll.task.wake_at == pytest.approx(clock.now + 6 * line.char_time)
     outcome = drive(poll.task)
     assert isinstance(outcome, DecodeError) and outcome.field == "trailing", outcome
 

@@ -244,9 +244,13 @@ class HangUpLink(ScriptedLink):
     """Answers, then the other end closes: every look at the input after the answer says so."""
 
     def take_input(self, limit: int = 512) -> bytes:
-        if self.writes and not self.buffer and not self.inbox:
+        if self.hung_up():
             raise TransportError("scripted: the other end closed the connection")
         return super().take_input(limit)
+
+    def hung_up(self) -> bool:
+        """Closed: a descriptor watched now is readable at once."""
+        return bool(self.writes) and not self.buffer and not self.inbox
 
 
 def test_a_hang_up_after_the_answer_delivers_it_and_waits_out_the_silence_by_time_alone() -> None:
@@ -259,7 +263,10 @@ def test_a_hang_up_after_the_answer_delivers_it_and_waits_out_the_silence_by_tim
     while not task.done:
         task.advance(clock.now)
         looks.append((line.broken, task.fd, task.done))
-        due = task.wake_at if task.fd < 0 or link._next() is None else min(task.wake_at, link._next() or 0.0)
+        if task.fd >= 0 and link.hung_up():
+            due = clock.now  # the loop's select reports the closed descriptor readable at once
+        else:
+            due = task.wake_at if task.fd < 0 or link._next() is None else min(task.wake_at, link._next() or 0.0)
         clock.now = max(clock.now, due)
     assert values(task.result(), poll) == [(0, 1)]
     after_hang_up = [fd for broken, fd, done in looks if broken and not done]

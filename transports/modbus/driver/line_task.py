@@ -89,10 +89,9 @@ class RtuDriver(StreamDriver[RtuEngine]):
             if engine.must_look(now):
                 now = self.look()
         else:
-            answering = engine.answering is not None
+            # (an answer complete in this look is followed by the watch of its silence: bytes after it wake the
+            # loop, the silence's end looks again)
             now = self.look()
-            if answering and engine.trailing:  # the answer is complete: what follows it, if anything is there
-                now = self.look()
         if now >= engine.deadline:
             engine.advance(now)
         if engine.wants_to_send:
@@ -213,11 +212,12 @@ class LineTask(PollTask):
         exchange = engine.answering
         if exchange is not None and not line.guard.min_char_time:
             # the rest of a normal answer cannot be here sooner than the baud rate brings it: look again when
-            # all but its last byte can have come, instead of at every byte (only where no wire timing is
-            # checked: pty, TCP); the last byte is read as soon as it is there
+            # all of it can have come, instead of at every byte (only where no wire timing is checked: pty,
+            # TCP). ``at`` is after the first bytes arrived, so the rest is usually all there then (one wake
+            # for it, not two); what is not is waited for on the descriptor
             got, at = engine.answer_so_far
-            rest = at + (exchange.answer_length - got - 1) * line.char_time
-            if got > 0 and exchange.answer_length - got > 1 and rest > now:
+            rest = at + (exchange.answer_length - got) * line.char_time
+            if got > 0 and exchange.answer_length > got and rest > now:
                 self.fd = -1
                 self.wake_at = min(self.wake_at, rest)
 

@@ -72,6 +72,7 @@ class RtuEngine:
         self._data = b""  # ANSWER: what arrived (while it looks like a normal answer)
         self._receiver: ResponseReceiver | None = None  # ANSWER: anything else
         self._at = 0.0  # when the last byte of the answer so far was read
+        self._empty_at = 0.0  # TRAIL: when the input was last found empty
         self._answer: tuple[bytes, Response] | None = None  # TRAIL
         self._completed: list[RtuTicket] = []
         self.transactions = 0
@@ -156,8 +157,11 @@ class RtuEngine:
     def receive(self, data: bytes | None, now: float) -> None:
         step = self._step
         if not data:
-            if data is None and step in (_Step.IDLE, _Step.START, _Step.QUIET) and not self._stray:
-                self.guard.found_empty(now)
+            if data is None:
+                if step is _Step.TRAIL:
+                    self._empty_at = now
+                elif step is not _Step.ANSWER and not self._stray:
+                    self.guard.found_empty(now)
             return
         if step is _Step.ANSWER:
             self._attempt(self._receive, data, now)
@@ -224,6 +228,7 @@ class RtuEngine:
             return (exchange.frame,)
         self._deadline = now + exchange.budget
         self._data, self._receiver = b"", None
+        self._empty_at = 0.0
         self._step = _Step.ANSWER
         return (exchange.frame,)
 
@@ -309,7 +314,10 @@ class RtuEngine:
         ticket, answer = self._current, self._answer
         assert ticket is not None and answer is not None
         frame, response = answer
-        self.guard.delivered(frame)
+        guard = self.guard
+        guard.delivered(frame)
+        if self._empty_at > guard.checked_at:  # found empty after the silence: no look needed before a request
+            guard.found_empty(self._empty_at)
         ticket.received = len(frame)
         ticket.done(response, now)
         self._completed.append(ticket)
