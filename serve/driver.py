@@ -1,11 +1,12 @@
 """The thin driver: runs an :class:`EdgeSession` on asyncio with paho-mqtt and an :class:`AsyncFleet`.
 
 paho runs on the event loop through its external-loop hooks: its socket, non-blocking once connected, is
-watched with ``add_reader``/``add_writer`` and ``loop_read``/``loop_write``/``loop_misc`` do the work, so a
-burst of publishes costs no thread hand-off. Only ``connect`` (TCP and the TLS handshake, which block) runs in
-a worker thread. A new paho client is made for every connection, with the Will (NDEATH with the new bdSeq) set
-before its CONNECT; paho's own reconnect is not used, because it would reuse the old Will (SPARKPLUG.md
-pitfalls). bdSeq advances once per CONNECT sent: an attempt that got no TCP or TLS connection reuses it.
+watched with ``add_reader`` (``add_writer`` only while the kernel's send buffer is full) and
+``loop_read``/``loop_write``/``loop_misc`` do the work, so a burst of publishes costs no thread hand-off and is
+written by one ``loop_write`` in the next turn of the loop. Only ``connect`` (TCP and the TLS handshake, which
+block) runs in a worker thread. A new paho client is made for every connection, with the Will (NDEATH with the
+new bdSeq) set before its CONNECT; paho's own reconnect is not used, because it would reuse the old Will
+(SPARKPLUG.md pitfalls). bdSeq advances once per CONNECT sent: an attempt that got no TCP or TLS connection reuses it.
 
 Every DCMD/NCMD refused or ignored is appended to the audit log (:class:`~starterbus.core.audit.AuditLog`, the
 one the guarded path writes the executed operations to) with its reason, the topic and the actor: by the
@@ -49,6 +50,11 @@ from starterbus.serve.state import save_bdseq
 log = logging.getLogger("starterbus.serve")
 
 
+def _current(client: mqtt.Client, sock: object) -> bool:
+    """``sock`` is still the client's socket."""
+    return client.socket() is sock
+
+
 class EdgeNodeDriver:
     def __init__(
         self,
@@ -84,6 +90,7 @@ class EdgeNodeDriver:
         self._tasks: set[asyncio.Task[None]] = set()
         self._watched: dict[int, tuple[int, asyncio.Task[None]]] = {}  # id(socket) -> (fileno, keepalive task)
         self._loop_thread = 0
+        self._flushing: set[int] = set()
         self.connections = 0  # sessions established (births sent at least once)
 
     @property
@@ -184,7 +191,20 @@ class EdgeNodeDriver:
             task.cancel()
 
     def _want_write(self, client: mqtt.Client, sock: Any) -> None:
-        if sock.fileno() >= 0:
+        """paho queued a packet on an idle socket: write it, and all queued with it in this turn of the loop, in
+        the next turn (one ``loop_write`` for a burst of publishes). The socket's writability is watched only
+        when the kernel took less than that (a full send buffer): paho unregisters it once all is written. Not
+        watching it for every burst spares two ``epoll_ctl`` calls and a wake-up per burst."""
+        if sock.fileno() >= 0 and id(sock) not in self._flushing:
+            self._flushing.add(id(sock))
+            asyncio.get_running_loop().call_soon(self._flush, client, sock)
+
+    def _flush(self, client: mqtt.Client, sock: Any) -> None:
+        self._flushing.discard(id(sock))
+        if sock.fileno() < 0 or not _current(client, sock):  # closed (or another connection) meanwhile
+            return
+        client.loop_write()
+        if client.want_write() and _current(client, sock):  # paho still counts the socket as registered
             asyncio.get_running_loop().add_writer(sock, client.loop_write)
 
     def _unwatch_write(self, sock: Any) -> None:

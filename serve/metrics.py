@@ -58,6 +58,9 @@ _STATUS_METRICS: tuple[tuple[str, DataType], ...] = (
 )
 
 
+_POINT_PREFIXES = ("Measurements/", "Parameters/")
+
+
 @dataclass(frozen=True, slots=True)
 class MetricDef:
     name: str
@@ -78,10 +81,19 @@ class MetricSet:
     defs: list[MetricDef]
     by_name: dict[str, MetricDef] = field(default_factory=dict)
     by_alias: dict[int, MetricDef] = field(default_factory=dict)
+    #: point key -> the metrics a sample's value of it sets (``Measurements/<key>``, ``Parameters/<key>``) and
+    #: whether each is integral: :func:`sample_values` looks each value up once, without building names
+    by_point: dict[str, tuple[tuple[str, bool], ...]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         self.by_name = {d.name: d for d in self.defs}
         self.by_alias = {d.alias: d for d in self.defs if d.alias is not None}
+        by_point: dict[str, list[tuple[str, bool]]] = {}
+        for prefix in _POINT_PREFIXES:
+            for d in self.defs:
+                if d.name.startswith(prefix):
+                    by_point.setdefault(d.name[len(prefix) :], []).append((d.name, d.datatype is DataType.INT32))
+        self.by_point = {key: tuple(names) for key, names in by_point.items()}
 
 
 class Aliases:
@@ -191,17 +203,16 @@ def sample_values(sample: Sample, metrics: MetricSet) -> dict[str, Scalar | None
                 "Status/Stopping": status.stopping,
             }
         )
+    by_point = metrics.by_point
     for key, value in sample.values.items():
-        for prefix in ("Measurements", "Parameters"):
-            name = f"{prefix}/{key}"
-            if name in metrics.by_name:
-                integral = metrics.by_name[name].datatype is DataType.INT32
-                out[name] = round(value.value) if integral else float(value.value)
+        for name, integral in by_point.get(key, ()):
+            out[name] = round(value.value) if integral else float(value.value)
     return out
 
 
 def changed(defn: MetricDef, old: Scalar | None, new: Scalar | None) -> bool:
-    """Report by exception: a numeric value outside the deadband, any other change."""
+    """Report by exception: a numeric value outside the deadband, any other change. Equal values are never a
+    change (``EdgeSession._device_data`` skips them without calling this)."""
     if old is None or new is None or isinstance(new, (bool, str)) or isinstance(old, (bool, str)):
         return old != new or (old is None) != (new is None)
     return abs(float(new) - float(old)) >= defn.deadband * (1 - 1e-9) and new != old

@@ -43,12 +43,23 @@ def encode(
     """A payload: in a BIRTH every metric has name, alias, datatype and properties; in DATA only the alias.
 
     ``quality``: metric name -> the Sparkplug ``Quality`` property to attach (Int32: 192 good, 0 bad)."""
-    quality = quality or {}
     payload = Payload(timestamp=timestamp)
     if seq is not None:
         payload.seq = seq
+    add = payload.metrics.add
+    if not (birth or historical or quality):  # the DDATA of every sample: one call makes each metric
+        for defn, value, ts in entries:
+            alias = defn.alias
+            metric = add(timestamp=ts, name=defn.name) if alias is None else add(timestamp=ts, alias=alias)
+            if value is None:
+                metric.is_null = True
+            else:
+                datatype = defn.datatype
+                setattr(metric, value_field(datatype), to_wire(datatype, value))
+        return bytes(payload.SerializeToString())
+    quality = quality or {}
     for defn, value, ts in entries:
-        metric = payload.metrics.add(timestamp=ts)
+        metric = add(timestamp=ts)
         if birth or defn.alias is None:
             metric.name = defn.name
         if defn.alias is not None:

@@ -111,7 +111,9 @@ class EdgeSession(SessionCommands):
         self.published = 0
         self.commands_allowed = options.commands_allowed
         self.topic_prefix = f"{NAMESPACE}/{options.group}"
+        self._topics: dict[tuple[str, str | None], str] = {}  # (kind, device) -> topic, built once
         self._node_reported: dict[str, Scalar | None] = {}
+        self._node_key: tuple[object, ...] | None = None  # _node_key() when _node_reported was last complete
         self._will_pending = False  # the Will of next_will() is not yet sent in a CONNECT
         self._connected_at: float | None = None
 
@@ -148,8 +150,11 @@ class EdgeSession(SessionCommands):
     # -- topics -------------------------------------------------------------------------------------------
 
     def topic(self, kind: str, device: str | None = None) -> str:
-        base = f"{self.topic_prefix}/{kind}/{self.options.node}"
-        return f"{base}/{device}" if device is not None else base
+        topic = self._topics.get((kind, device))
+        if topic is None:
+            base = f"{self.topic_prefix}/{kind}/{self.options.node}"
+            topic = self._topics[kind, device] = f"{base}/{device}" if device is not None else base
+        return topic
 
     def subscriptions(self) -> list[tuple[str, int]]:
         subs = [(self.topic("NCMD"), 1), (self.topic("DCMD", "+"), 1)]
@@ -215,6 +220,11 @@ class EdgeSession(SessionCommands):
             NODE_COMMAND_COUNT: self.node_commands,
         }
 
+    def _node_state(self) -> tuple[object, ...]:
+        """What the node's NDATA metrics depend on: unchanged since the NBIRTH or NDATA that reported it, so
+        is every one of them (every sample asks; this spares building and comparing them)."""
+        return (self.online, self.store.dropped, self.refused, self.node_last_command, self.node_commands)
+
     @property
     def dropped(self) -> int:
         """Buffered DDATA dropped: beyond a bound, not storable, or no longer publishable."""
@@ -225,6 +235,7 @@ class EdgeSession(SessionCommands):
         self.born = True
         values = self._node_values()
         self._node_reported = dict(values)
+        self._node_key = self._node_state()
         entries: list[Entry] = [(d, values[d.name], _ms(now)) for d in self.node.defs]
         out: list[Action] = [
             Publish(self.topic("NBIRTH"), encode(entries, timestamp=_ms(now), seq=self._next_seq(), birth=True))
@@ -305,8 +316,9 @@ class EdgeSession(SessionCommands):
         ts = _ms(sample.time)
         values = sample_values(sample, dev.metrics)
         dev.fresh = {name for name, value in values.items() if value is not None}
+        current = dev.current
         for name, value in values.items():
-            dev.current[name] = (value, ts)
+            current[name] = (value, ts)
         if self.born and not dev.born:
             out.append(self._dbirth(dev, now))
             if self.store.pending().get(dev.name):
@@ -314,7 +326,10 @@ class EdgeSession(SessionCommands):
         else:
             full = self.options.refresh > 0 and now - dev.last_full >= self.options.refresh
             out += self._device_data(dev, now, full=full)
-        return out + self._node_data(now) + self._births_due(now)
+        out += self._node_data(now)
+        if not self.born:  # born: no births are due
+            out += self._births_due(now)
+        return out
 
     def _births_due(self, now: float) -> list[Action]:
         return self._births(now) if self._may_birth(now) else []
@@ -322,24 +337,37 @@ class EdgeSession(SessionCommands):
     def _device_data(
         self, dev: DeviceState, now: float, *, full: bool = False, always: frozenset[str] = frozenset()
     ) -> list[Action]:
-        """DDATA of what changed (``full``: everything; ``always``: these metrics whether changed or not)."""
+        """DDATA of what changed (``full``: everything; ``always``: these metrics whether changed or not).
+
+        Runs for every sample, so the per-metric work is inlined: equal values are never a change (see
+        :func:`~starterbus.serve.metrics.changed`), and the Quality is :meth:`_quality`'s."""
         entries: list[Entry] = []
         quality: dict[str, int] = {}
+        current, reported, fresh, published_quality = dev.current, dev.reported, dev.fresh, dev.quality
+        now_ms = _ms(now)
         for d in dev.metrics.defs:
-            if d.name not in dev.current:
+            name = d.name
+            held = current.get(name)
+            if held is None:
                 continue
-            value, ts = dev.current[d.name]
-            q = self._quality(dev, d) if d.polled else GOOD
-            q_changed = d.polled and dev.quality.get(d.name) != q
-            if full or d.name in always or d.name not in dev.reported or changed(d, dev.reported[d.name], value):
-                entries.append((d, value, ts or _ms(now)))
-                dev.reported[d.name] = value
+            value, ts = held
+            is_polled = d.polled
+            q = (GOOD if name in fresh else BAD) if is_polled else GOOD
+            q_changed = is_polled and published_quality.get(name) != q
+            if (
+                full
+                or name in always
+                or name not in reported
+                or (reported[name] != value and changed(d, reported[name], value))
+            ):
+                entries.append((d, value, ts or now_ms))
+                reported[name] = value
             elif q_changed:
-                entries.append((d, value, ts or _ms(now)))
+                entries.append((d, value, ts or now_ms))
             else:
                 continue
-            if d.polled and (q_changed or q != GOOD):  # Quality is needed only when not good, or good again
-                quality[d.name] = dev.quality[d.name] = q
+            if is_polled and (q_changed or q != GOOD):  # Quality is needed only when not good, or good again
+                quality[name] = published_quality[name] = q
         if full:
             dev.last_full = now
         if not entries:
@@ -359,12 +387,16 @@ class EdgeSession(SessionCommands):
     def _node_data(self, now: float) -> list[Action]:
         if not self.born:
             return []
+        state = self._node_state()
+        if state == self._node_key:
+            return []
         values = self._node_values()
         entries: list[Entry] = [
             (d, values[d.name], _ms(now))
             for d in self.node.defs
             if d.alias is not None and self._node_reported.get(d.name) != values[d.name]
         ]
+        self._node_key = state  # reported as it is now once these are
         if not entries:
             return []
         self._node_reported.update({d.name: v for d, v, _ in entries})
