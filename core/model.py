@@ -204,7 +204,10 @@ class PointDef:
         factor = self.scale if scale is None else scale
         if factor == 1:
             return raw
-        return round(raw * factor, _decimals(factor))
+        places = _PLACES.get(factor)
+        if places is None:
+            places = _PLACES[factor] = _decimals(factor)
+        return round(raw * factor, places)
 
     def _shown(self, raw: int) -> str:
         return f"{self.to_engineering(raw)} {self.unit}".rstrip()
@@ -297,6 +300,10 @@ def _decimals(step: float) -> int:
     return max(0, round(-math.log10(step))) if 0 < step < 1 else 0
 
 
+#: the decimal places of the scales met so far (a handful: every value read is scaled by one of them)
+_PLACES: dict[float, int] = {}
+
+
 def _finite(value: object) -> float | None:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return None
@@ -335,7 +342,12 @@ class Value:
     @classmethod
     def from_raw(cls, point: PointDef, raw: int, scale: float | None = None, source: str = "") -> Value:
         factor = point.scale if scale is None else scale
-        return cls(point, raw, point.to_engineering(raw, factor), factor, source)
+        if factor == 1:
+            return cls(point, raw, raw, factor, source)
+        places = _PLACES.get(factor)
+        if places is None:
+            places = _PLACES[factor] = _decimals(factor)
+        return cls(point, raw, round(raw * factor, places), factor, source)  # to_engineering, written out
 
     def text(self) -> str:
         """Human form: "390 A", "current limit (0)", "0x0900"."""

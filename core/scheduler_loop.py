@@ -229,12 +229,16 @@ class SchedulerLoop:
         blocker = _blocker(drivers)
         self._blocker = blocker  # before the inbox is looked at below: a post from now on interrupts the blocker
         wait_until = until
+        watched = self._watched
         for driver in drivers:
             if driver is not blocker:
                 fd, writing = driver.fd, driver.writing
-                if self._watched.get(driver, (-1, False)) != (fd, writing):
+                was = watched.get(driver)
+                if (was[0] != fd or was[1] != writing) if was is not None else fd >= 0:
                     self._watch(driver, fd, writing)
-            wait_until = min(wait_until, driver.deadline)
+            deadline = driver.deadline
+            if deadline < wait_until:  # noqa: PLR1730 (min() is a call: this runs for every driver at every turn)
+                wait_until = deadline
         if done is not None and done():
             return
         if self._inbox or self._due:
@@ -249,16 +253,21 @@ class SchedulerLoop:
                 ready = []
                 self._drop_closed()
         now = self.clock()
-        stepped: list[Served] = []
-        for which in ready:
-            if which is None:
-                self._drain()
-            else:
-                stepped.append(which)
-                self._step(which, now, True)
-        for driver in self.drivers:
-            if driver.deadline <= now and driver not in stepped:
-                self._step(driver, now, False)
+        if ready:
+            stepped: list[Served] = []
+            for which in ready:
+                if which is None:
+                    self._drain()
+                else:
+                    stepped.append(which)
+                    self._step(which, now, True)
+            for driver in self.drivers:
+                if driver.deadline <= now and driver not in stepped:
+                    self._step(driver, now, False)
+        else:
+            for driver in self.drivers:
+                if driver.deadline <= now:
+                    self._step(driver, now, False)
 
     def _step(self, driver: Served, now: float, ready: bool) -> None:
         try:
