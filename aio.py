@@ -316,9 +316,8 @@ class AsyncFleet:
         poller = self.poller
         if poller is None:
             raise StarterbusError("the fleet is not running (use `async with AsyncFleet(...)`)")
-        if poller.stopping.is_set():  # a job after the end runs in the submitting thread: not the event loop's
-            return await asyncio.wrap_future(edge_pool().submit(lambda: poller.submit(name, fn).result()))
-        return await asyncio.wrap_future(poller.submit(name, fn))
+        # a job the fleet would run in the submitting thread (after its end) runs in the pool: never on the loop
+        return await asyncio.wrap_future(poller.submit(name, fn, elsewhere=edge_pool().run))
 
     async def remote_command(self, name: str, command: Command, *, actor: str) -> Outcome:
         if not self.device_config(name).remote.allows_command(command):

@@ -11,6 +11,7 @@ Each bus adds up what its transports report putting on the wire (:meth:`FleetPol
 
 from __future__ import annotations
 
+import functools
 import os
 import random
 import threading
@@ -161,19 +162,28 @@ class FleetPoller:
     def runtimes(self) -> list[DeviceRuntime]:
         return [r for w in self.workers for r in w.devices]
 
-    def submit(self, device: str, fn: Callable[[Device], T]) -> Future[T]:
+    def submit(
+        self, device: str, fn: Callable[[Device], T], *, elsewhere: Callable[[Callable[[], None]], object] | None = None
+    ) -> Future[T]:
         """Run ``fn(device)`` on the device's bus, between polls; returns a Future of its result. Before the
         poller starts, and once it is over, the job runs at once in the calling thread (after the end on the
-        device opened for it and closed again)."""
+        device opened for it and closed again), or, given ``elsewhere`` (a pool's ``run``), there: a caller that
+        must not block (an event loop) never runs it, even when the end comes between its look and the submit."""
         for worker in self.workers:
             if any(r.config.name == device for r in worker.devices):
                 future: Future[T] = Future()
-                if not worker.jobs.put((device, fn, future)):
-                    worker.run_after_the_end((device, fn, future))
+                job = (device, fn, future)
+                if not worker.jobs.put(job):
+                    if elsewhere is None:
+                        worker.run_after_the_end(job)
+                    else:
+                        elsewhere(functools.partial(worker.run_after_the_end, job))
                 elif self._driven(worker):
                     worker.notify()
-                else:  # not started yet: at once, on the device the polls will use
+                elif elsewhere is None:  # not started yet: at once, on the device the polls will use
                     worker.run_jobs()
+                else:
+                    elsewhere(worker.run_jobs)
                 return future
         raise StarterbusError(f"no device named {device!r} in the fleet")
 

@@ -18,6 +18,7 @@ from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.core.worker_pool import WorkerPool
 from starterbus.fleet.config import parse_fleet
+from starterbus.fleet.poller import FleetPoller
 from starterbus.testing import wait_until
 from starterbus.testing.waits import wait_until_async
 from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
@@ -225,3 +226,37 @@ url = "modbus-rtu://{port}?timeout=0.3"
     during, after = asyncio.run(scenario())
     assert during[1] == after[1] == 10
     assert during[0] != threading.main_thread().name and after[0] == POOL_THREAD
+
+
+def test_a_job_the_fleet_would_run_in_the_calling_thread_goes_where_the_caller_says(
+    sim: tuple[ModbusRtuSimulator, dict[int, SimulatedStarter]],
+) -> None:
+    """The window ``AsyncFleet.run`` had (the end coming between its look at ``stopping`` and the submit) is
+    closed in the submit itself: a job it would run in the calling thread goes to ``elsewhere`` instead, before
+    the start and after the end alike; nothing of it runs in the submitting thread."""
+    simulator, _ = sim
+    port = simulator.client_urls()[4].split("://", 1)[1].split("?", 1)[0]
+    config = parse_fleet(
+        f'[poll]\nperiod = 0.05\n\n[[bus]]\nname = "l1"\nurl = "modbus-rtu://{port}?timeout=0.3"\n\n'
+        '  [[bus.device]]\n  name = "d4"\n  model = "ssd1"\n  address = 4\n',
+        "f.toml",
+    )
+    threads: list[str] = []
+
+    def ramp_time(device: Device) -> object:
+        threads.append(threading.current_thread().name)
+        return device.read("ramp_time")["ramp_time"].raw
+
+    poller = FleetPoller(config)
+    for moment in ("before the start", "after the end"):
+        if moment == "after the end":
+            poller.start()
+            poller.stop()
+        handed: list[Callable[[], None]] = []
+        future = poller.submit("d4", ramp_time, elsewhere=handed.append)
+        assert len(handed) == 1 and not future.done() and not threads, moment
+        worker = threading.Thread(target=handed[0], name=f"elsewhere {moment}")
+        worker.start()
+        worker.join()
+        assert future.result(timeout=5) == 10 and threads == [f"elsewhere {moment}"], moment
+        threads.clear()
