@@ -36,29 +36,29 @@ class Waiter(Generic[D]):
 
     def __init__(self) -> None:
         self._data: dict[int, D] = {}
-        self._fds: list[int] = []
-        self._writers: list[int] = []
+        self._readers: dict[int, None] = {}  # ordered sets of the descriptors watched
+        self._writers: dict[int, None] = {}
+        self._lists: tuple[list[int], list[int]] | None = ([], [])  # select's sets, made again after a change
         self._poll: select.poll | None = None
 
     def register(self, fd: int, data: D, write: bool = False) -> None:
         self._data[fd] = data
-        if write:
-            self._writers = [*self._writers, fd]
-        else:
-            self._fds = [*self._fds, fd]
+        (self._writers if write else self._readers)[fd] = None
+        self._lists = None
         if self._poll is not None:
             self._poll.register(fd, select.POLLOUT if write else select.POLLIN)
         elif fd >= FD_SETSIZE:
             self._poll = select.poll()
-            for known in self._fds:
+            for known in self._readers:
                 self._poll.register(known, select.POLLIN)
             for known in self._writers:
                 self._poll.register(known, select.POLLOUT)
 
     def unregister(self, fd: int) -> None:
         del self._data[fd]
-        self._fds = [f for f in self._fds if f != fd]
-        self._writers = [f for f in self._writers if f != fd]
+        self._readers.pop(fd, None)
+        self._writers.pop(fd, None)
+        self._lists = None
         if self._poll is not None:
             self._poll.unregister(fd)
             if not self._data or max(self._data) < FD_SETSIZE:
@@ -68,9 +68,13 @@ class Waiter(Generic[D]):
         """The data of the descriptors that are ready (or closed, or failed), after at most ``timeout`` s."""
         if self._poll is not None:
             return [self._data[fd] for fd, _ in self._poll.poll(math.ceil(timeout * 1000))]
-        if not self._writers:
-            return [self._data[fd] for fd in select.select(self._fds, (), (), timeout)[0]]
-        readable, writable, _ = select.select(self._fds, self._writers, (), timeout)
+        lists = self._lists
+        if lists is None:  # (a line waiting for the rest of an answer leaves the set and comes back: often)
+            lists = self._lists = (list(self._readers), list(self._writers))
+        readers, writers = lists
+        if not writers:
+            return [self._data[fd] for fd in select.select(readers, (), (), timeout)[0]]
+        readable, writable, _ = select.select(readers, writers, (), timeout)
         return [self._data[fd] for fd in (*readable, *writable)]
 
     def close(self) -> None:
