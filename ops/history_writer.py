@@ -27,6 +27,7 @@ from starterbus.core.errors import ConfigurationError
 from starterbus.core.supervision import Supervisor
 from starterbus.core.timestamps import iso_time
 from starterbus.ops.history import ALL_DEVICES, SQLITE_MAGIC, HistoryStore, Retention
+from starterbus.ops.history_faults import Corrupt, file_system_view, is_corrupt, sqlite_error
 
 log = logging.getLogger("starterbus.history")
 
@@ -35,46 +36,8 @@ DEFAULT_BACKLOG = 10_000
 #: seconds between two attempts while the history cannot be written
 DEFAULT_RETRY = 2.0
 _BATCH = 1000  # rows of each table per transaction
-_LOW_SPACE = 64 * 1024  # a file system with less than this free is called full
 
 Row = dict[str, Any]
-
-
-class _Corrupt(Exception):
-    """The database cannot be read as one (SQLite's CORRUPT or NOTADB)."""
-
-
-def _sqlite_error(exc: BaseException) -> sqlite3.Error | None:
-    if isinstance(exc, sqlite3.Error):
-        return exc
-    cause = exc.__cause__
-    return cause if isinstance(cause, sqlite3.Error) else None
-
-
-def is_corrupt(exc: BaseException) -> bool:
-    error = _sqlite_error(exc)
-    if error is None:
-        return False
-    name = getattr(error, "sqlite_errorname", "")
-    text = str(error)
-    return name in ("SQLITE_CORRUPT", "SQLITE_NOTADB") or "malformed" in text or "not a database" in text
-
-
-def file_system_view(path: Path) -> str:
-    """What the file system says about writing ``path`` now: read-only, full, the directory gone; or ''."""
-    directory = path.parent
-    try:
-        st = os.statvfs(directory)
-    except FileNotFoundError:
-        return f"the directory {directory} is gone"
-    except OSError as exc:
-        return f"the directory {directory}: {exc.strerror or exc}"
-    if st.f_flag & os.ST_RDONLY:
-        return f"the file system of {directory} is read-only"
-    free = st.f_bavail * st.f_frsize
-    if free < _LOW_SPACE:
-        return f"the file system of {directory} is full ({free // 1024} KiB free)"
-    return ""
 
 
 class HistoryWriter:
@@ -132,7 +95,7 @@ class HistoryWriter:
             raise ConfigurationError(f"{self.path}: no such directory {self.path.parent}")
         try:
             self._open()
-        except (sqlite3.Error, ConfigurationError, OSError, _Corrupt) as exc:
+        except (sqlite3.Error, ConfigurationError, OSError, Corrupt) as exc:
             self._failed(exc)  # polling starts anyway; the history follows once it can be written
         supervisor = supervisor or Supervisor()
         self.thread = supervisor.thread("history-writer", self._run, restart=True, until=self._closing)
@@ -247,7 +210,7 @@ class HistoryWriter:
         self._last_prune = time.monotonic()
         try:
             self._ensure_open().prune(self.retention)
-        except (sqlite3.Error, ConfigurationError, OSError, _Corrupt) as exc:
+        except (sqlite3.Error, ConfigurationError, OSError, Corrupt) as exc:
             self._failed(exc)
 
     def _attempt(self) -> bool:
@@ -259,7 +222,7 @@ class HistoryWriter:
         try:
             store = self._ensure_open()
             store.add_batch([r for _, r in samples], [r for _, r in events] + ([gap] if gap is not None else []))
-        except (sqlite3.Error, ConfigurationError, OSError, _Corrupt) as exc:
+        except (sqlite3.Error, ConfigurationError, OSError, Corrupt) as exc:
             self._failed(exc)
             return False
         with self._cond:
@@ -303,7 +266,7 @@ class HistoryWriter:
             store = HistoryStore(self.path, busy_timeout=self.busy_timeout)
         except ConfigurationError as exc:
             if is_corrupt(exc):
-                raise _Corrupt(str(exc.__cause__)) from exc
+                raise Corrupt(str(exc.__cause__)) from exc
             raise
         st = os.stat(self.path)
         self.store, self._identity = store, (st.st_dev, st.st_ino)
@@ -352,9 +315,9 @@ class HistoryWriter:
     # -- failing and recovering -----------------------------------------------------------------------------
 
     def _failed(self, exc: BaseException) -> None:
-        error = _sqlite_error(exc)
+        error = sqlite_error(exc)
         text = str(error if error is not None else exc)
-        if isinstance(exc, _Corrupt) or is_corrupt(exc):
+        if isinstance(exc, Corrupt) or is_corrupt(exc):
             self._corrupted(text)
             return
         view = file_system_view(self.path)
