@@ -7,7 +7,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from starterbus.serve.metrics import BDSEQ, QUALITY, MetricDef, Property, Scalar
-from starterbus.serve.schema import DataType, Payload, from_wire, to_wire, value_field
+from starterbus.serve.schema import WRITERS, DataType, Payload, from_wire, to_wire, value_field
 
 #: one metric value to publish: its definition, the value (None: null) and its acquisition time in ms
 Entry = tuple[MetricDef, "Scalar | None", int]
@@ -54,8 +54,8 @@ def encode(
             if value is None:
                 metric.is_null = True
             else:
-                datatype = defn.datatype
-                setattr(metric, value_field(datatype), to_wire(datatype, value))
+                field, wire = WRITERS[defn.datatype]
+                setattr(metric, field, wire(value))
         return bytes(payload.SerializeToString())
     quality = quality or {}
     for defn, value, ts in entries:
