@@ -148,7 +148,8 @@ class Scheduler(SchedulerLoop):
         finally:
             with self._lock:
                 self._leader = None
-                self._changed.notify_all()
+                if self._waiting:
+                    self._changed.notify_all()
         return tickets
 
     def _follow(self, driver: Served, requests: Sequence[object], bound: float, what: str) -> list[Ticket[Any, Any]]:
@@ -192,7 +193,7 @@ class Scheduler(SchedulerLoop):
                 if lead:
                     self._leader = me
                 elif watching and not future.done():  # not done: its callback notifies after this wait began
-                    self._changed.wait(remaining)
+                    self._await_change(remaining)
             if not lead and not watching:
                 watching = True
                 future.add_done_callback(self._notify)  # outside the lock: a done future calls it at once
@@ -202,7 +203,8 @@ class Scheduler(SchedulerLoop):
                 finally:
                     with self._lock:
                         self._leader = None
-                        self._changed.notify_all()
+                        if self._waiting:
+                            self._changed.notify_all()
         return future.result()
 
     def _stalled(self, what: str, bound: float) -> TimeoutError:
@@ -211,7 +213,8 @@ class Scheduler(SchedulerLoop):
 
     def _notify(self, _: Future[Any]) -> None:
         with self._lock:
-            self._changed.notify_all()
+            if self._waiting:
+                self._changed.notify_all()
 
     def hold(self, holder: Holder) -> threading.Thread | None:
         """The loop's own thread runs at least until ``holder`` lets go (:meth:`unhold`); started now if it does
@@ -284,7 +287,7 @@ class Scheduler(SchedulerLoop):
         precise_timers()
         with self._lock:
             while self._leader is not None:  # a caller leading now hands over at its next check
-                self._changed.wait()
+                self._await_change()
             self._leader = threading.get_ident()
         self._serving.set()
         failure: Exception | None = None
@@ -301,7 +304,8 @@ class Scheduler(SchedulerLoop):
                 self._held_thread = False  # (before the thread is gone: a holder starting one anew sets it)
                 self._thread = None
                 self._stopping = False
-                self._changed.notify_all()
+                if self._waiting:
+                    self._changed.notify_all()
             if failure is not None:
                 self._tell(holders, failure)
 

@@ -108,6 +108,7 @@ class SchedulerLoop:
         self.clock = clock
         self._lock = threading.Lock()  # the inbox, the leadership
         self._changed = threading.Condition(self._lock)  # a future ended or the leadership was given back
+        self._waiting = 0  # threads waiting on _changed: only then is it notified (notify_all is Python code)
         self._inbox: list[Callable[[float], None]] = []
         self._leader: int | None = None  # the thread running the loop
         self._thread: threading.Thread | None = None
@@ -156,7 +157,16 @@ class SchedulerLoop:
         """Give back the leadership taken with :meth:`lead` (the waiters, if any, are told)."""
         with self._lock:
             self._leader = None
-            self._changed.notify_all()
+            if self._waiting:
+                self._changed.notify_all()
+
+    def _await_change(self, timeout: float | None = None) -> None:
+        """Wait (holding ``_lock``) until a future ends or the leadership is given back, counted in ``_waiting``."""
+        self._waiting += 1
+        try:
+            self._changed.wait(timeout)
+        finally:
+            self._waiting -= 1
 
     def in_loop(self) -> bool:
         """Whether the calling thread runs the loop now (its own thread, or a leader): a blocking wait from here
@@ -190,7 +200,8 @@ class SchedulerLoop:
         finally:
             with self._lock:
                 self._leader = None
-                self._changed.notify_all()
+                if self._waiting:
+                    self._changed.notify_all()
         return True
 
     # -- in the loop --------------------------------------------------------------------------------------------
