@@ -68,36 +68,43 @@ class LocalDriver(Driver[E]):
         self.refusals = 0  # of which the peer raised on
 
     def step(self, now: float, ready: bool) -> None:
-        engine = self.engine
+        engine, exchange, clock = self.engine, self.exchange, self.clock
+        due = engine.deadline
         for _ in range(BURST):
-            if now >= engine.deadline:
+            if now >= due:
                 engine.advance(now)
                 self.complete(now)  # a batch that failed is withdrawn before its next request could go out
             out = engine.take_output(now)
             if not out:
                 return
-            now = self.call(out)
+            for unit in out:  # :meth:`write`'s, inline (once per unit)
+                self.units += 1
+                try:
+                    reply = exchange(unit)
+                except Exception as exc:  # the peer's failure is this unit's, typed
+                    self.refusals += 1
+                    now = clock()
+                    engine.refused(unit, self._error(exc), now)
+                    continue
+                now = clock()
+                engine.receive(reply, now)
             waiting = len(self._futures)
             self.complete(now)
-            if len(self._futures) < waiting or engine.deadline > now:
-                return  # a ticket ended (its waiter may go on), or nothing more is due now
+            if len(self._futures) < waiting:
+                return  # a ticket ended: its waiter may go on
+            due = engine.deadline
+            if due > now:
+                return  # nothing more is due now
 
     def write(self, units: Sequence[Any], now: float) -> None:
-        self.call(units)
-
-    def call(self, units: Sequence[Any]) -> float:
-        """Give each unit to the peer and its answer to the engine; the time after the last."""
+        """Give each unit to the peer and its answer to the engine, at the time it came."""
         engine, exchange, clock = self.engine, self.exchange, self.clock
-        now = 0.0
         for unit in units:
             self.units += 1
             try:
                 reply = exchange(unit)
             except Exception as exc:  # the peer's failure is this unit's, typed
                 self.refusals += 1
-                now = clock()
-                engine.refused(unit, self._error(exc), now)
+                engine.refused(unit, self._error(exc), clock())
                 continue
-            now = clock()
-            engine.receive(reply, now)
-        return now
+            engine.receive(reply, clock())
