@@ -99,6 +99,14 @@ def test_an_answer_in_two_pieces_is_assembled(peer: PtyPeer) -> None:
     assert _read4(peer) == (390, 10, 20, 380)
 
 
+def test_no_answer_to_a_fresh_exchange_is_a_timeout(peer: PtyPeer) -> None:
+    """A fresh exchange has no last answer (empty bytes): an empty read is not that answer (RtuLine.run takes the
+    same bytes as the last good answer without decoding them again)."""
+    peer.serve([None])
+    with pytest.raises(TimeoutError, match="no answer from unit 2"):
+        _read4(peer)
+
+
 def test_a_good_start_then_silence_is_truncated(peer: PtyPeer) -> None:
     peer.serve([[GOOD4[:9]]])
     with pytest.raises(DecodeError) as info:
