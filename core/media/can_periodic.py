@@ -44,13 +44,7 @@ class Periodic:
 
 
 def to_message(frame: CanFrame) -> can.Message:
-    """The python-can message of a frame the driver sends (kept and sent again: never changed). Its data stays
-    the frame's ``bytes``, not the ``bytearray`` python-can makes of it: the virtual bus deep-copies each message
-    it delivers (the copy's data a bytearray again), and a deepcopy of bytes is free where a bytearray's goes
-    through copyreg (about 2 us of each send); the interfaces read the data (``bytes(msg.data)``, ``list``)."""
-    message = can.Message(arbitration_id=frame.can_id, data=frame.data, is_extended_id=False)
-    setattr(message, "data", frame.data)  # noqa: B010 (bytes where python-can declares bytearray: see above)
-    return message
+    return can.Message(arbitration_id=frame.can_id, data=frame.data, is_extended_id=False)
 
 
 def kernel_periodic(bus: can.BusABC) -> bool:

@@ -250,3 +250,37 @@ def test_what_one_engine_writes_reaches_the_others_that_want_it(loop: Scheduler,
     assert run(loop, driver, asker, b"\x20")[0].result == b"\x21"
     assert [frame.text() for frame in listener.seen] == ["601#20"]  # as separate sockets on one interface see it
     assert [frame.can_id for frame in asker.seen] == [0x581]  # not its own
+
+
+class RecordingBus(can.BusABC):
+    """A bus of no particular interface, without a descriptor: it records what is sent."""
+
+    def __init__(self) -> None:
+        super().__init__(channel="recording")
+        self.sent_messages: list[can.Message] = []
+        self._quiet = threading.Event()
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        self.sent_messages.append(msg)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        self._quiet.wait(timeout)  # nothing ever arrives
+        return None, False
+
+
+def test_only_the_virtual_bus_gets_messages_holding_bytes(loop: Scheduler, driver: CanDriver) -> None:
+    bus = RecordingBus()
+    other = CanDriver(bus, "recording", loop, owns_bus=False)
+    try:
+        frame = CanFrame(0x601, b"\x01\x02")
+        other.write([frame, frame])
+        # other interfaces may write into the data (gs_usb pads it, ixxat takes a writable buffer)
+        assert [type(m.data) for m in bus.sent_messages] == [bytearray, bytearray]
+        assert bytes(bus.sent_messages[0].data) == b"\x01\x02"
+    finally:
+        other.close()
+    engine = AskEngine(0x601, 0x581)
+    add(driver, engine)
+    assert run(loop, driver, engine, b"\x30")[0].result == b"\x31"  # the responder read the bytes
+    data: object = driver._message(CanFrame(0x601, b"\x30")).data  # (python-can declares a bytearray)
+    assert type(data) is bytes  # the virtual bus copies them for free
