@@ -90,7 +90,8 @@ class EdgeNodeDriver:
         self._tasks: set[asyncio.Task[None]] = set()
         self._watched: dict[int, tuple[int, asyncio.Task[None]]] = {}  # id(socket) -> (fileno, keepalive task)
         self._loop_thread = 0
-        self._flushing: set[int] = set()
+        self._flushing: set[int] = set()  # id(socket): a _flush is scheduled
+        self._writers: set[int] = set()  # id(socket): its writability is watched (a full send buffer)
         self.connections = 0  # sessions established (births sent at least once)
 
     @property
@@ -188,6 +189,7 @@ class EdgeNodeDriver:
             loop = asyncio.get_running_loop()
             loop.remove_reader(fileno)
             loop.remove_writer(fileno)
+            self._writers.discard(id(sock))
             task.cancel()
 
     def _want_write(self, client: mqtt.Client, sock: Any) -> None:
@@ -206,10 +208,13 @@ class EdgeNodeDriver:
         client.loop_write()
         if client.want_write() and _current(client, sock):  # paho still counts the socket as registered
             asyncio.get_running_loop().add_writer(sock, client.loop_write)
+            self._writers.add(id(sock))
 
     def _unwatch_write(self, sock: Any) -> None:
-        if sock.fileno() >= 0:
-            asyncio.get_running_loop().remove_writer(sock)
+        if id(sock) in self._writers:  # else nothing to undo (paho says so after every burst written)
+            self._writers.discard(id(sock))
+            if sock.fileno() >= 0:
+                asyncio.get_running_loop().remove_writer(sock)
 
     @staticmethod
     async def _misc(client: mqtt.Client) -> None:
