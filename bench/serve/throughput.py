@@ -46,16 +46,15 @@ PROFILE = get_profile("jjr5000")
 
 
 class _Stream:
-    """The synthetic samples as a subscriber's stream: nothing waits in it at a stop (generated on demand)."""
+    """The synthetic samples as a subscriber's stream: nothing waits in it at a stop (generated on demand).
+    Iterating it iterates the source itself, as the baseline does: no coroutine of this bench's between the
+    source and serve, whose cost would be counted as serve's."""
 
     def __init__(self, source: AsyncIterator[Sample]) -> None:
         self._source = source
 
-    def __aiter__(self) -> _Stream:
-        return self
-
-    async def __anext__(self) -> Sample:
-        return await self._source.__anext__()
+    def __aiter__(self) -> AsyncIterator[Sample]:
+        return self._source
 
     def drain(self) -> list[Sample]:
         return []
