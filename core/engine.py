@@ -52,7 +52,9 @@ class TicketState(enum.Enum):
     CANCELLED = "cancelled"
 
 
-_QUEUED, _SENT = TicketState.QUEUED, TicketState.SENT
+# module constants, compared by identity (an Enum class's attribute goes through the enum type's __getattr__ hook)
+_QUEUED, _SENT, _DONE = TicketState.QUEUED, TicketState.SENT, TicketState.DONE
+_FAILED, _CANCELLED = TicketState.FAILED, TicketState.CANCELLED
 
 
 @dataclass(eq=False, slots=True)
@@ -79,21 +81,21 @@ class Ticket(Generic[Req, Res]):
         """One more send of the request (the first moves it to SENT)."""
         if self.ended:
             raise TicketStateError(f"ticket for {self.request!r} sent after it ended ({self.state.value})")
-        if self.state is TicketState.QUEUED:
-            self.state = TicketState.SENT
+        if self.state is _QUEUED:
+            self.state = _SENT
             self.sent_at = now
         self.attempts += 1
 
     def done(self, result: Res, now: float) -> None:
-        self._end(TicketState.DONE, now)
+        self._end(_DONE, now)
         self.result = result
 
     def failed(self, error: StarterbusError, now: float) -> None:
-        self._end(TicketState.FAILED, now)
+        self._end(_FAILED, now)
         self.error = error
 
     def cancelled(self, now: float) -> None:
-        self._end(TicketState.CANCELLED, now)
+        self._end(_CANCELLED, now)
 
     def _end(self, state: TicketState, now: float) -> None:
         if self.ended:
@@ -106,7 +108,7 @@ class Ticket(Generic[Req, Res]):
 
     def outcome(self) -> Res:
         """The result of a DONE ticket; a FAILED one raises its error; a CANCELLED one a TicketStateError."""
-        if self.state is TicketState.DONE:
+        if self.state is _DONE:
             return self.result  # type: ignore[return-value]  # set with DONE
         if self.error is not None:
             raise self.error

@@ -30,6 +30,8 @@ Res = TypeVar("Res")
 Unit = TypeVar("Unit")
 E = TypeVar("E", bound=Engine[Any, Any, Any])
 
+_DONE = TicketState.DONE  # (an Enum class's attributes are slow to read)
+
 #: bytes taken from a stream per read (a Modbus ADU is at most 260)
 READ_SIZE = 4096
 
@@ -102,7 +104,7 @@ class Driver(Generic[E]):
             for ticket in done:
                 future = self._futures.pop(ticket, None)
                 batch = self._batches.pop(ticket, None)
-                if batch is not None and ticket.state is not TicketState.DONE:
+                if batch is not None and ticket.state is not _DONE:
                     for other in batch:
                         if not other.ended:
                             self.engine.cancel(other, now)

@@ -34,6 +34,8 @@ from starterbus.transports.modbus.driver.line import RtuLine
 from starterbus.transports.modbus.master.exchange import Exchange
 from starterbus.transports.modbus.master.rtu_engine import RtuEngine, RtuTicket
 
+_DONE, _FAILED = TicketState.DONE, TicketState.FAILED  # (an Enum class's attributes are slow to read)
+
 #: how soon a task looks again at a line that another thread holds
 LOCK_RETRY = 0.001
 
@@ -225,7 +227,7 @@ class LineTask(PollTask):
         self._ticket = None
         self._release()
         self._counted(ticket)
-        if ticket.state is not TicketState.DONE:
+        if ticket.state is not _DONE:
             assert ticket.error is not None
             self._end(ticket.error)
             return
@@ -244,9 +246,9 @@ class LineTask(PollTask):
         """What the ended (or cancelled) transaction put on the wire, into the counters; a transport error
         breaks the line (reopened before the next transaction)."""
         line, exchange = self.line, ticket.request
-        if ticket.state is TicketState.DONE:
+        if ticket.state is _DONE:
             line.count(self._counters, exchange, ticket.attempts, ticket.received, None)
-        elif ticket.state is TicketState.FAILED:
+        elif ticket.state is _FAILED:
             assert ticket.error is not None
             line.given_up(self._counters, exchange, ticket.attempts, ticket.error)
         elif ticket.attempts:

@@ -45,6 +45,10 @@ class _Step(enum.Enum):
     TRAIL = "trail"
 
 
+# module constants: an Enum class's attribute goes through the enum type's __getattr__ hook (read at every step)
+_IDLE, _START, _QUIET, _ANSWER, _TRAIL = _Step.IDLE, _Step.START, _Step.QUIET, _Step.ANSWER, _Step.TRAIL
+
+
 class RtuTicket(Ticket[Exchange, "Response | None"]):
     """An exchange's ticket, with what the line counts: the bytes of the answer delivered (0: none)."""
 
@@ -64,7 +68,7 @@ class RtuEngine:
         self.name = name
         self._queue: deque[RtuTicket] = deque()
         self._current: RtuTicket | None = None
-        self._step = _Step.IDLE
+        self._step = _IDLE
         self._stray = b""  # bytes seen while no request was under way: discarded at the next start
         self._give_up = 0.0  # QUIET: when waiting for silence becomes an error
         self._look_at = 0.0  # QUIET, silent long enough: when to ask again for a look at the input
@@ -84,20 +88,20 @@ class RtuEngine:
     @property
     def deadline(self) -> float:
         step = self._step
-        if step is _Step.START:
+        if step is _START:
             return -FOREVER  # due now: take_output sends or starts waiting
-        if step is _Step.QUIET:
+        if step is _QUIET:
             return min(max(self.guard.quiet_at, self._look_at), self._give_up)
-        if step is _Step.ANSWER:
+        if step is _ANSWER:
             return self._deadline
-        if step is _Step.TRAIL:
+        if step is _TRAIL:
             return self.guard.trail_until
         return FOREVER
 
     @property
     def answering(self) -> Exchange | None:
         """The exchange whose answer is being read (a driver may look later on a pty: see ``LineTask``)."""
-        return self._current.request if self._step is _Step.ANSWER and self._current is not None else None
+        return self._current.request if self._step is _ANSWER and self._current is not None else None
 
     @property
     def answer_so_far(self) -> tuple[int, float]:
@@ -108,7 +112,7 @@ class RtuEngine:
     def want(self) -> int:
         """How many bytes to read at most: the rest of the answer while one is read (the bytes after it are
         read when its silence is watched), else :data:`READ_CHUNK`."""
-        if self._step is _Step.ANSWER and self._current is not None:
+        if self._step is _ANSWER and self._current is not None:
             receiver = self._receiver
             if receiver is None:
                 return self._current.request.answer_length - len(self._data)
@@ -118,16 +122,16 @@ class RtuEngine:
     @property
     def trailing(self) -> bool:
         """An answer is complete and its silence is being watched."""
-        return self._step is _Step.TRAIL
+        return self._step is _TRAIL
 
     @property
     def wants_to_send(self) -> bool:
-        return self._step is _Step.START or self._step is _Step.QUIET
+        return self._step is _START or self._step is _QUIET
 
     def must_look(self, now: float) -> bool:
         """Whether the input must be looked at (``receive``) now: always while waiting for the silence (bytes then
         are stray), else unless it was found empty a moment ago (the silence after the last answer)."""
-        return self._step is _Step.QUIET or self.guard.must_discard(now)
+        return self._step is _QUIET or self.guard.must_discard(now)
 
     @property
     def pending(self) -> int:
@@ -138,7 +142,7 @@ class RtuEngine:
     def submit(self, request: Exchange, now: float) -> RtuTicket:
         ticket = RtuTicket(request)
         self._queue.append(ticket)
-        if self._step is _Step.IDLE:
+        if self._step is _IDLE:
             self._next()
         return ticket
 
@@ -149,7 +153,7 @@ class RtuEngine:
             self._queue.remove(ticket)  # type: ignore[arg-type]
             self._end_cancelled(ticket, now)  # type: ignore[arg-type]
             return
-        if self._step in (_Step.ANSWER, _Step.TRAIL):  # an answer may still come: the line is not silent
+        if self._step in (_ANSWER, _TRAIL):  # an answer may still come: the line is not silent
             self.guard.failed(now, ticket.request.quarantine)
         self._end_cancelled(ticket, now)
         self._next()
@@ -158,17 +162,17 @@ class RtuEngine:
         step = self._step
         if not data:
             if data is None:
-                if step is _Step.TRAIL:
+                if step is _TRAIL:
                     self._empty_at = now
-                elif step is not _Step.ANSWER and not self._stray:
+                elif step is not _ANSWER and not self._stray:
                     self.guard.found_empty(now)
             return
-        if step is _Step.ANSWER:
+        if step is _ANSWER:
             self._attempt(self._receive, data, now)
-        elif step is _Step.TRAIL:
+        elif step is _TRAIL:
             assert self._answer is not None
             self._attempt(self._trailing, data, now)
-        elif step is _Step.QUIET:
+        elif step is _QUIET:
             assert self._current is not None
             self.guard.stray(data, now, self._current.request.quarantine)
         else:  # nobody's: stray, quarantined when the next request starts
@@ -176,7 +180,7 @@ class RtuEngine:
 
     def advance(self, now: float) -> None:
         step = self._step
-        if step is _Step.QUIET:
+        if step is _QUIET:
             if now >= self._give_up:
                 assert self._current is not None
                 exchange = self._current.request
@@ -187,10 +191,10 @@ class RtuEngine:
                     else f"its input was not looked at before a send within {exchange.quiet_limit:g} s"
                 )
                 self._given_up(TransportError(f"{self.name}: {why}"), now)
-        elif step is _Step.ANSWER:
+        elif step is _ANSWER:
             if now >= self._deadline:
                 self._attempt(self._late, b"", now)
-        elif step is _Step.TRAIL and now >= self.guard.trail_until:
+        elif step is _TRAIL and now >= self.guard.trail_until:
             self._deliver(now)
 
     def take_output(self, now: float) -> Sequence[bytes]:
@@ -198,7 +202,7 @@ class RtuEngine:
         if ticket is None:
             return ()
         exchange = ticket.request
-        if self._step is _Step.START:
+        if self._step is _START:
             if ticket.attempts == 0:
                 self.transactions += 1
             if self._stray:
@@ -207,9 +211,9 @@ class RtuEngine:
             if not guard.send_now(now):
                 self._give_up = now + exchange.quiet_limit
                 self._look_at = now if guard.quiet_at > now else now + max(guard.fresh, LOOK_AGAIN)
-                self._step = _Step.QUIET
+                self._step = _QUIET
                 return ()
-        elif self._step is _Step.QUIET:
+        elif self._step is _QUIET:
             if guard.quiet_at > now:
                 return ()
             if guard.must_discard(now):  # the input was not looked at just now: the driver is asked to
@@ -229,7 +233,7 @@ class RtuEngine:
         self._deadline = now + exchange.budget
         self._data, self._receiver = b"", None
         self._empty_at = 0.0
-        self._step = _Step.ANSWER
+        self._step = _ANSWER
         return (exchange.frame,)
 
     def take_completed(self) -> Sequence[RtuTicket]:
@@ -257,7 +261,7 @@ class RtuEngine:
                 self._given_up(exc, now)
             else:
                 self.retries += 1
-                self._step = _Step.START
+                self._step = _START
 
     def _receive(self, exchange: Exchange, chunk: bytes, at: float) -> None:
         self._at = at
@@ -304,7 +308,7 @@ class RtuEngine:
         if error is not None:
             raise error
         self._answer = (frame, response)
-        self._step = _Step.TRAIL
+        self._step = _TRAIL
 
     def _trailing(self, _exchange: Exchange, extra: bytes, _now: float) -> None:
         assert self._answer is not None
@@ -339,5 +343,5 @@ class RtuEngine:
 
     def _next(self) -> None:
         self._current = self._queue.popleft() if self._queue else None
-        self._step = _Step.START if self._current is not None else _Step.IDLE
+        self._step = _START if self._current is not None else _IDLE
         self._answer = None
