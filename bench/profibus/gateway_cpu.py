@@ -64,6 +64,9 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--seconds", type=float, default=2.0, help="time per row (default 2.0)")
     parser.add_argument("--gateway-cycle", type=float, default=0.001, help="the simulated gateway's DP cycle (s)")
+    parser.add_argument(
+        "--stale-time", type=float, default=0.0, help="the URL's stale_time (s; the simulated gateway's URLs: 2 cycles)"
+    )
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args(argv)
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}  # the server from the installed tree
@@ -79,6 +82,8 @@ def main(argv: list[str] | None = None) -> int:
         assert server.stdout is not None
         port = int(server.stdout.readline())
         url = f"profibus-pkw+gateway://127.0.0.1:{port}?ppo=1&out=0&in=0&unit=1&cycle=0"
+        if args.stale_time:
+            url += f"&stale_time={args.stale_time:g}"
         rows: dict[str, dict[str, float]] = {}
         with open_device(url, "jjr8000") as dev:
             link = dev.transport.link  # type: ignore[attr-defined]
@@ -94,10 +99,15 @@ def main(argv: list[str] | None = None) -> int:
             server.stdin.close()
         server.wait(10)
     if args.json:
-        json.dump({"gateway_dp_cycle": args.gateway_cycle, "rows": rows}, sys.stdout, indent=2)
+        json.dump(
+            {"gateway_dp_cycle": args.gateway_cycle, "stale_time": args.stale_time, "rows": rows}, sys.stdout, indent=2
+        )
         print()
         return 0
-    print(f"gateway channel, cycle=0, simulated gateway DP cycle {args.gateway_cycle * 1000:g} ms")
+    print(
+        f"gateway channel, cycle=0, simulated gateway DP cycle {args.gateway_cycle * 1000:g} ms, "
+        f"stale_time {args.stale_time * 1000:g} ms"
+    )
     print(
         f"{'row':7} {'ops':>6} {'CPU us/op':>10} {'user us/op':>11} {'wall us/op':>11} {'exch/op':>8} "
         f"{'CPU us/exch':>12}"

@@ -77,6 +77,14 @@ def station(cycle: float) -> StationEngine:
 
 ON_DEMAND = EngineKit(lambda: station(0.0), request, Slave(), scale=0.5)
 CYCLIC = EngineKit(lambda: station(0.01), request, Slave(), scale=0.5)
+#: inputs fresh by time (a gateway's margin): on demand, the station holds back exchanges it could not use
+TIMED = Limits(max_cycles=20, timeout=0.5, stale_cycles=1, stale_time=0.002)
+ON_DEMAND_TIMED = EngineKit(
+    lambda: StationEngine(Ppo.PPO1, PkwEngine(limits=TIMED), cycle=0.0, hold=2, reply_within=0.05),
+    request,
+    Slave(),
+    scale=0.5,
+)
 
 
 @settings(max_examples=150, deadline=None)
@@ -89,6 +97,36 @@ def test_the_station_engine_on_demand_keeps_every_rule(schedule: list[Step]) -> 
 @given(schedules())
 def test_the_station_engine_cycling_keeps_every_rule(schedule: list[Step]) -> None:
     CYCLIC.check(schedule)
+
+
+@settings(max_examples=150, deadline=None)
+@given(schedules())
+def test_the_station_engine_on_demand_with_a_time_margin_keeps_every_rule(schedule: list[Step]) -> None:
+    ON_DEMAND_TIMED.check(schedule)
+
+
+def test_on_demand_a_read_on_the_same_index_skips_the_exchanges_it_could_not_use() -> None:
+    """p3 read again and again with a 2 ms margin (stale_cycles=1), each exchange answered 0.5 ms after it
+    starts: "no task" goes out at once, the "no response" that starts the task is asked for so that it comes
+    after the margin, the task goes out at once, its answer is asked for so that it comes after the margin: four
+    exchanges a read, none of them spent on an input that could not be used, every answer fresh (the engine
+    keeps its rule: an earlier exchange is never asked for, the margin decides what is accepted)."""
+    engine = StationEngine(Ppo.PPO1, PkwEngine(limits=TIMED), cycle=0.0, hold=2, reply_within=0.05)
+    p3 = pkw_request(TaskCode.READ_PARAMETER, 3)
+    now, rtt = 0.0, 0.0005
+    for _ in range(4):
+        ticket = engine.submit(PkwTask(p3), now)
+        before = engine.attempts
+        while not ticket.ended:
+            now = max(now, engine.deadline)
+            engine.advance(now)
+            (unit,) = engine.take_output(now)
+            (reply,) = Slave().replies(unit)
+            now += rtt
+            engine.receive(reply, now)
+            engine.take_completed()
+        assert ticket.state is TicketState.DONE and ticket.result == PkwResponse(0x0103, 1003)
+        assert engine.attempts - before == 4  # the first read too: an unused INDL counts as answered at the start
 
 
 def exchange(engine: StationEngine, now: float, slave: Slave | None = None) -> DpOut:
@@ -185,19 +223,33 @@ def test_after_a_defect_the_fresh_engine_leaves_the_control_word_alone(jjr8000: 
 
 
 @pytest.mark.parametrize(
-    ("stale_cycles", "stale_time", "first_fresh"), [(0, 0.0, 1), (1, 0.0, 2), (0, 0.0035, 5), (4, 0.0065, 8)]
+    ("stale_cycles", "stale_time", "cycle", "first_fresh"),
+    [
+        (0, 0.0, 0.001, 1),
+        (1, 0.0, 0.001, 2),
+        (0, 0.0035, 0.001, 5),
+        (4, 0.0065, 0.001, 8),
+        (0, 0.0, 0.0, 1),
+        (1, 0.0, 0.0, 2),
+        (0, 0.0035, 0.0, 2),  # on demand: no exchange between the first and the one that can be used
+        (4, 0.0065, 0.0, 5),  # the four the count needs, then the one started 6.5 ms after the request
+    ],
 )
 def test_fresh_inputs_come_from_an_exchange_the_staleness_allows(
-    stale_cycles: int, stale_time: float, first_fresh: int
+    stale_cycles: int, stale_time: float, cycle: float, first_fresh: int
 ) -> None:
     """A gateway's image lags (its own DP cycle): a status read takes the input of an exchange that started more
-    than ``stale_cycles`` exchanges and at least ``stale_time`` seconds after the request, never one before."""
+    than ``stale_cycles`` exchanges and at least ``stale_time`` seconds after the request, never one before. On
+    demand the station asks for no input it could not use (it starts no exchange before it is due)."""
     limits = Limits(max_cycles=20, timeout=0.5, stale_cycles=stale_cycles, stale_time=stale_time)
-    engine = StationEngine(Ppo.PPO1, PkwEngine(limits=limits), cycle=0.0, hold=2, reply_within=0.05)
+    engine = StationEngine(Ppo.PPO1, PkwEngine(limits=limits), cycle=cycle, hold=2, reply_within=0.05)
     fresh = engine.submit(FreshInputs(0.5), 0.0)
     n = 0
+    starts: list[float] = []
     while not fresh.ended:
         n += 1
         assert n <= 10, "fresh inputs never came"
-        exchange(engine, 0.001 * (n - 1))  # exchange n starts at (n - 1) ms
+        starts.append(max(0.001 * (n - 1), engine.deadline))  # exchange n at (n - 1) ms, or when it is due
+        exchange(engine, starts[-1])
     assert n == first_fresh and fresh.state is TicketState.DONE and fresh.result == engine.last_in
+    assert n > stale_cycles and starts[-1] >= stale_time

@@ -38,6 +38,7 @@ No clocks, sockets or threads here: the driver passes ``now`` in and moves the w
 from __future__ import annotations
 
 import enum
+import math
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -160,6 +161,7 @@ class PkwEngine:
     _basis: Mark = field(default_factory=lambda: Mark(0, 0.0))  # the current job's answers: fresh after this
     _fence: _Fence | None = None
     _chaining: bool = False  # a start-chain fence was answered, the next one is not sent yet
+    _sending_from: int = 0  # the inputs received when the current job began sending its task
 
     def __post_init__(self) -> None:
         limits = self.limits
@@ -186,6 +188,38 @@ class PkwEngine:
 
     def pending(self) -> list[PkwJob]:
         return ([self._current] if self._current else []) + list(self._queue)
+
+    def useful_from(self) -> float:
+        """When an input can next move the current job on, if it waits for one that is fresh by time after a mark
+        (``stale_time``): its answer after its proof, or the "no response" that starts it by rule 2 after the last
+        answer on its INDL; inputs received before are spent in vain. -inf: the next one may do (no such wait, a
+        count of exchanges still to run, its task or "no task" not yet sent, a fence). A hint for a driver that
+        exchanges on demand: what is accepted does not depend on it."""
+        job = self._current
+        stale_time = self.limits.stale_time
+        if job is None or stale_time <= 0:
+            return -math.inf
+        book = self._book
+        if job.state is _SENDING:
+            if self._n <= self._sending_from:
+                return -math.inf  # the task has not gone out yet
+            mark = self._basis
+        elif job.state is _CLEARING and self._fence is None and not self._chaining and not book.unknown:
+            record = book.records.get(job.request.indl)
+            if record is None:  # its INDL unused in this session: answered at the start (Freshness.proof)
+                ended = answered = book.start
+            else:
+                ended, answered = record.ended, record.answered
+            if ended is None or answered is None:
+                return -math.inf  # quarantined: fences decide
+            if book.accepted is not None and book.accepted.n > ended.n:
+                return -math.inf  # rule 1: the next "no response" starts it
+            mark = answered
+        else:
+            return -math.inf
+        if self._n < mark.n + book.stale_cycles:
+            return -math.inf  # the next input counts towards the exchanges the rule needs
+        return mark.t + stale_time
 
     def quarantined(self, indl: int) -> bool:
         """Is INDL ``indl`` blocked by a task that ended without a verified answer?"""
@@ -297,6 +331,7 @@ class PkwEngine:
         basis = self._book.proof(job.request.indl, obs)
         if basis is not None:
             self._basis = basis
+            self._sending_from = self._n
             job.state = _SENDING
             return
         if self._book.orphan(job.request.indl) is None:

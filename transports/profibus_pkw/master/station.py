@@ -125,6 +125,7 @@ class StationEngine:
         self.ppo, self.pkw, self.cycle, self.hold, self.pulse = ppo, pkw, cycle, hold, pulse
         self._words = ppo.words  # the input words of one exchange
         self._ppo1 = ppo is _PPO1
+        self._timed = pkw.limits.stale_time > 0  # inputs fresh by time: on demand, an exchange may wait (_after)
         #: how long a PKW task may wait for the exchanges that apply its own limits
         self.pkw_budget = pkw.limits.timeout + max(cycle, 0.001) * 4 + 1.0
         self.where = where  # the channel, in messages
@@ -173,7 +174,10 @@ class StationEngine:
             return min(due, self._out_at + self.reply_within)
         if self.cycle > 0:
             return min(due, self._next_at)
-        return self._ready_at if self._waiting else due
+        if self._waiting:
+            ready = self._ready_at
+            return ready if ready < due else due
+        return due
 
     def submit(self, request: StationRequest, now: float) -> StationTicket:
         ticket = StationTicket(request)
@@ -209,7 +213,7 @@ class StationEngine:
             ticket.not_before = now + limits.stale_time if limits.stale_time > 0 else -math.inf
             ticket.give_up = now + request.timeout
             self._fresh.append(ticket)
-        if not self._waiting:
+        if not self._waiting or now < self._ready_at:  # a new request is not held back (_worth_starting)
             self._ready_at = now
         self._waiting.append(ticket)
         self._limit = min(self._limit, ticket.give_up)
@@ -235,7 +239,7 @@ class StationEngine:
         if self.cycle > 0:
             if now < self._next_at:
                 return ()
-        elif not self._waiting:
+        elif not self._waiting or now < self._ready_at:
             return ()
         self.attempts = n = self.attempts + 1
         ppo1 = self._ppo1
@@ -353,6 +357,22 @@ class StationEngine:
             job_ended = True
         if job_ended:
             self._sweep(now)
+        if self._timed and error is None and not self.cycle and not self._plan and self._waiting:
+            self._ready_at = self._worth_starting(now)
+
+    def _worth_starting(self, now: float) -> float:
+        """On demand with inputs fresh by time (``stale_time``): when the next exchange is worth starting. An input
+        that no waiting ticket can use is not asked for: the PKW engine's (its answer, or the "no response" that
+        starts it, must be fresh by time after a mark: the exchange starts half a round trip before, so that its
+        input comes after) and a status read's (an exchange started ``stale_time`` after the request, once the
+        exchanges it counts have run). What is accepted is the same; the exchanges in between would be spent in
+        vain (each one a gateway's FC16 and read). A control word is never held back (no plan runs here)."""
+        start = math.inf
+        if self.pkw.busy:
+            start = self.pkw.useful_from() - (now - self._out_at) / 2
+        for ticket in self._fresh:
+            start = min(start, ticket.not_before if self.attempts >= ticket.fresh_after else now)
+        return start if now < start < math.inf else now
 
     def _sweep(self, now: float) -> None:
         for ticket in list(self._waiting):
