@@ -36,6 +36,12 @@ class PkwAnswer:
 
 
 _R2 = PkwAnswer(ResponseCode.NO_WRITE_PERMISSION)
+# Module constants of the enum members read on every exchange: an Enum's class attribute goes through the enum
+# type's __getattr__ hook at each access (several times the cost of a global).
+_PPO1, _NO_TASK, _WRITE = Ppo.PPO1, TaskCode.NO_TASK, TaskCode.WRITE_PARAMETER
+_READ_MEASUREMENT = TaskCode.READ_MEASUREMENT
+_TASKS = (TaskCode.READ_PARAMETER, TaskCode.WRITE_PARAMETER, TaskCode.READ_MEASUREMENT)
+_MEASUREMENT, _PARAMETER, _VALUE = Kind.MEASUREMENT, Kind.PARAMETER, ResponseCode.VALUE
 
 
 def _r3(error: int) -> PkwAnswer:
@@ -116,6 +122,9 @@ class SimulatedDpSlave:
             raise ValueError("latency is a number of exchanges >= 0")
         self.latency = latency
         self.name = name
+        self._words = self.ppo.words
+        self._ppo1 = self.ppo is _PPO1
+        self._source = ("", "")  # (slave name, the source of its control words): made again when the name changes
         self.answers = refusal_answers(self.profile)
         self.exchanges = 0
         self.outputs: tuple[int, ...] | None = None  # the last output words received
@@ -132,31 +141,41 @@ class SimulatedDpSlave:
         """One data exchange. ``None`` words keep the previous output (an in-process master that leaves the
         control word alone); a ``None`` control word is not applied to the starter."""
         given = tuple(out_words)
-        if len(given) != self.ppo.words or any(w is not None and not 0 <= w <= 0xFFFF for w in given):
+        if len(given) != self._words or any(w is not None and not 0 <= w <= 0xFFFF for w in given):
             raise DecodeError(
                 f"{self.ppo.name} slave {self.name!r} expects {self.ppo.words} 16-bit output words, got {list(given)}"
             )
         with self.starter.lock:
-            previous = self.outputs or (0,) * self.ppo.words
-            words = tuple(p if w is None else w for w, p in zip(given, previous, strict=True))
+            if None in given:
+                previous = self.outputs or (0,) * self._words
+                words = tuple(p if w is None else w for w, p in zip(given, previous, strict=True))
+            else:
+                words = given  # type: ignore[assignment]  # no None in it
             self.exchanges += 1
             self.outputs = words
-            stw_index = 2 if self.ppo is Ppo.PPO1 else 0
-            if self.ppo is Ppo.PPO1:
+            ppo1 = self._ppo1
+            if ppo1:
                 self._pkw(PkwRequest(words[0], words[1]))
+            stw_index = 2 if ppo1 else 0
             if given[stw_index] is not None:
-                where = f" (slave {self.name})" if self.name else ""
-                self.starter.write_control_word(
-                    words[stw_index], cyclic=True, source=f"Profibus {self.ppo.name} STW{where}"
-                )
+                self.starter.write_control_word(words[stw_index], cyclic=True, source=self._control_source())
             return self.inputs()
+
+    def _control_source(self) -> str:
+        """How the control words of this slave are named in the starter's record (its name may be set later)."""
+        name, source = self._source
+        if name != self.name or not source:
+            where = f" (slave {self.name})" if self.name else ""
+            source = f"Profibus {self.ppo.name} STW{where}"
+            self._source = (self.name, source)
+        return source
 
     def inputs(self) -> tuple[int, ...]:
         """The input words as they stand (what the next exchange returns before its own effects)."""
         with self.starter.lock:
             zsw = self.starter.status_word()
             act = max(0, min(0xFFFF, round(self.starter.current() * 10)))
-            if self.ppo is Ppo.PPO1:
+            if self._ppo1:
                 return (self._shown.ind, self._shown.pwe, zsw, act)
             return (zsw, act)
 
@@ -173,14 +192,14 @@ class SimulatedDpSlave:
         """Carry out one PKW task on the starter now and return the response (no latching)."""
         task = request.task
         index = request.indl
-        if task == TaskCode.NO_TASK:
+        if task == _NO_TASK:
             return NO_RESPONSE
-        if task not in (TaskCode.READ_PARAMETER, TaskCode.WRITE_PARAMETER, TaskCode.READ_MEASUREMENT):
+        if task not in _TASKS:
             return self._refused(UNSUPPORTED_TASK, index)
-        kind = Kind.MEASUREMENT if task == TaskCode.READ_MEASUREMENT else Kind.PARAMETER
+        kind = _MEASUREMENT if task == _READ_MEASUREMENT else _PARAMETER
         try:
             point = self.starter.point_at(PROTOCOL, kind, index)
-            if task == TaskCode.WRITE_PARAMETER:
+            if task == _WRITE:
                 self.starter.write(point, request.pwe)
                 value = request.pwe
             else:
@@ -188,7 +207,7 @@ class SimulatedDpSlave:
         except SimulatorRefusal as refusal:
             return self._refused(refusal.reason, index)
         self.tasks_executed += 1
-        return PkwResponse((ResponseCode.VALUE << 8) | index, value & 0xFFFF)
+        return PkwResponse((_VALUE << 8) | index, value & 0xFFFF)
 
     def _refused(self, why: Refusal | str, index: int) -> PkwResponse:
         answer = self.answers.get(why) or self.answers[UNSUPPORTED_TASK]
