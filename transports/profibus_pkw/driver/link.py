@@ -125,7 +125,7 @@ class CyclicLink:
             return station
 
         first = [make_station(engine)]
-        self._pkw_budget = first[0].pkw_budget  # the same for every station made here (their limits are the same)
+        self._pkw_bound = first[0].pkw_budget + STALL  # the same for every station made here (the same limits)
         self._pkw_what = f"{name}: PKW task"
         self._loop = loop_for(channel, clock)
         self._driver = channel.driver(
@@ -282,7 +282,11 @@ class CyclicLink:
         """Run one PKW task to its end; returns the finished job or raises its error."""
         if not self._has_pkw:
             raise ValueError("PPO3 has no PKW area")
-        ticket = self._run(PkwTask(request, what), self._pkw_budget, f"{self.name}: {what}" if what else self._pkw_what)
+        if not self._added:  # _run's, inline (once per read)
+            raise TransportError(f"{self.name or self.channel.describe()}: the link is not open")
+        text = f"{self.name}: {what}" if what else self._pkw_what
+        (ticket,) = self._loop.run(self._driver, [PkwTask(request, what)], self._pkw_bound, text)
+        assert isinstance(ticket, StationTicket)
         job = ticket.job
         assert job is not None
         if job.error is not None:

@@ -50,6 +50,7 @@ from starterbus.transports.profibus_pkw.master.handshake import PkwEngine, PkwJo
 
 #: a deadline that never comes
 FOREVER = math.inf
+_NEVER = -math.inf
 # Module constants of the enum members read on every exchange: an Enum's class attribute goes through the enum
 # type's __getattr__ hook at each access (several times the cost of a global).
 _PPO1, _QUEUED = Ppo.PPO1, TicketState.QUEUED
@@ -249,7 +250,7 @@ class StationEngine:
             self._plan_sent = True
         else:
             stw = self.control
-        if self._next_at == -math.inf or now - self._next_at > self.cycle:
+        if self._next_at == _NEVER or now - self._next_at > self.cycle:
             self._next_at = now  # the first exchange, or one after a pause (nobody ran the loop): a new start
         self._out, self._out_at = n, now
         for ticket in self._waiting:
