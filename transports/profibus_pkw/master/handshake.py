@@ -172,7 +172,7 @@ class PkwEngine:
     # -- requests --------------------------------------------------------------------------------------------
 
     def submit(self, request: PkwRequest, what: str = "") -> PkwJob:
-        if request.ind >> 8 == _NO_TASK_CODE:  # INDH (request.task without its table)
+        if (request.ind >> 8) & 0xFF == _NO_TASK_CODE:  # INDH (request.task without its table)
             raise ValueError("'no task' is what the engine sends between tasks; submit a real task")
         job = PkwJob(request, what)
         self._queue.append(job)
