@@ -95,10 +95,12 @@ class Driver(Generic[E]):
         """Put ``units`` on the medium."""
         raise NotImplementedError
 
-    def complete(self, now: float) -> None:
-        """End the futures of the ended tickets; a ticket of a batch that ended other than DONE withdraws the
-        batch's tickets that have not ended (cancelled: never sent, or forgotten)."""
-        done = self.engine.take_completed()
+    def complete(self, now: float, done: Sequence[Ticket[Any, Any]] | None = None) -> None:
+        """End the futures of the ended tickets (``done``: what the engine's ``take_completed`` just gave, if the
+        caller took it); a ticket of a batch that ended other than DONE withdraws the batch's tickets that have not
+        ended (cancelled: never sent, or forgotten)."""
+        if done is None:
+            done = self.engine.take_completed()
         while done:
             withdrawn = False
             for ticket in done:
@@ -121,6 +123,11 @@ class Driver(Generic[E]):
         """Queue the requests as one batch (the first to fail withdraws the others); each future (None: its
         waiter leads and watches the ticket) gets its ticket once it ends."""
         engine = self.engine
+        if len(requests) == 1:  # the usual case (a sync call): no batch
+            (future,) = futures
+            ticket = engine.submit(requests[0], now)
+            self._futures[ticket] = future
+            return [ticket]
         tickets: list[Ticket[Any, Any]] = [engine.submit(request, now) for request in requests]
         for ticket, future in zip(tickets, futures, strict=True):
             self._futures[ticket] = future

@@ -69,11 +69,14 @@ class LocalDriver(Driver[E]):
 
     def step(self, now: float, ready: bool) -> None:
         engine, exchange, clock = self.engine, self.exchange, self.clock
+        take = engine.take_completed
         due = engine.deadline
         for _ in range(BURST):
             if now >= due:
                 engine.advance(now)
-                self.complete(now)  # a batch that failed is withdrawn before its next request could go out
+                done = take()
+                if done:
+                    self.complete(now, done)  # a batch that failed is withdrawn before its next request could go out
             out = engine.take_output(now)
             if not out:
                 return
@@ -88,9 +91,9 @@ class LocalDriver(Driver[E]):
                     continue
                 now = clock()
                 engine.receive(reply, now)
-            waiting = len(self._futures)
-            self.complete(now)
-            if len(self._futures) < waiting:
+            done = take()
+            if done:
+                self.complete(now, done)
                 return  # a ticket ended: its waiter may go on
             due = engine.deadline
             if due > now:

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from starterbus.core import (
     DecodeError,
@@ -98,12 +99,13 @@ class GatewayDriver(TcpDriver[MbapEngine]):
         except Exception as exc:
             self.crash(exc if isinstance(exc, StarterbusError) else TransportError(f"{self.name}: {exc!r}"), now)
 
-    def complete(self, now: float) -> None:
+    def complete(self, now: float, done: Sequence[Ticket[Any, Any]] | None = None) -> None:
         """As :meth:`Driver.complete`, and a transaction the gateway refused (an exception answer: DONE for the
         Modbus engine) withdraws the rest of its batch too: no read goes out for an exchange whose write was
         refused. Then each exchange that ended goes back to its station."""
         engine = self.engine
-        done = engine.take_completed()
+        if done is None:
+            done = engine.take_completed()
         ended = bool(done)
         while done:
             withdrawn = False
