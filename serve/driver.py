@@ -18,7 +18,6 @@ twice; an error raised while sending may be (the operation's record, and the DCM
 from __future__ import annotations
 
 import asyncio
-import functools
 import logging
 import threading
 import time
@@ -36,6 +35,7 @@ from starterbus.core.supervision import Supervisor
 from starterbus.fleet.poller import Sample
 from starterbus.serve.broker import BrokerOptions
 from starterbus.serve.command_run import run_request
+from starterbus.serve.paho_loop import PahoOnLoop
 from starterbus.serve.session import (
     Action,
     CommandAudit,
@@ -50,12 +50,7 @@ from starterbus.serve.state import save_bdseq
 log = logging.getLogger("starterbus.serve")
 
 
-def _current(client: mqtt.Client, sock: object) -> bool:
-    """``sock`` is still the client's socket."""
-    return client.socket() is sock
-
-
-class EdgeNodeDriver:
+class EdgeNodeDriver(PahoOnLoop):
     def __init__(
         self,
         fleet: AsyncFleet,
@@ -164,63 +159,6 @@ class EdgeNodeDriver:
         client.on_socket_register_write = lambda c, _u, sock: self._call(self._want_write, c, sock)
         client.on_socket_unregister_write = lambda _c, _u, sock: self._call(self._unwatch_write, sock)
         return client
-
-    # -- paho's socket on the event loop -------------------------------------------------------------------
-
-    def _watch(self, client: mqtt.Client, sock: Any) -> None:
-        loop = asyncio.get_running_loop()
-
-        def read() -> None:
-            client.loop_read()
-            while client.socket() is sock and getattr(sock, "pending", lambda: 0)():  # TLS: decrypted, buffered
-                client.loop_read()
-
-        fileno = sock.fileno()
-        if fileno < 0:  # closed again before the loop got here
-            return
-        loop.add_reader(fileno, read)
-        keepalive = self._supervisor().task("serve-keepalive", functools.partial(self._misc, client))
-        self._watched[id(sock)] = (fileno, keepalive)
-
-    def _unwatch(self, sock: Any) -> None:
-        watched = self._watched.pop(id(sock), None)
-        if watched is not None:
-            fileno, task = watched
-            loop = asyncio.get_running_loop()
-            loop.remove_reader(fileno)
-            loop.remove_writer(fileno)
-            self._writers.discard(id(sock))
-            task.cancel()
-
-    def _want_write(self, client: mqtt.Client, sock: Any) -> None:
-        """paho queued a packet on an idle socket: write it, and all queued with it in this turn of the loop, in
-        the next turn (one ``loop_write`` for a burst of publishes). The socket's writability is watched only
-        when the kernel took less than that (a full send buffer): paho unregisters it once all is written. Not
-        watching it for every burst spares two ``epoll_ctl`` calls and a wake-up per burst."""
-        if sock.fileno() >= 0 and id(sock) not in self._flushing:
-            self._flushing.add(id(sock))
-            asyncio.get_running_loop().call_soon(self._flush, client, sock)
-
-    def _flush(self, client: mqtt.Client, sock: Any) -> None:
-        self._flushing.discard(id(sock))
-        if sock.fileno() < 0 or not _current(client, sock):  # closed (or another connection) meanwhile
-            return
-        client.loop_write()
-        if client.want_write() and _current(client, sock):  # paho still counts the socket as registered
-            asyncio.get_running_loop().add_writer(sock, client.loop_write)
-            self._writers.add(id(sock))
-
-    def _unwatch_write(self, sock: Any) -> None:
-        if id(sock) in self._writers:  # else nothing to undo (paho says so after every burst written)
-            self._writers.discard(id(sock))
-            if sock.fileno() >= 0:
-                asyncio.get_running_loop().remove_writer(sock)
-
-    @staticmethod
-    async def _misc(client: mqtt.Client) -> None:
-        """Keepalive pings and the detection of a silent broker, once a second."""
-        while client.loop_misc() == mqtt.MQTT_ERR_SUCCESS:
-            await asyncio.sleep(1.0)
 
     # -- event loop side -----------------------------------------------------------------------------------
 
