@@ -165,9 +165,7 @@ class RtuLine:
                 while True:
                     attempt += 1
                     started = clock()  # no later than the request's first byte
-                    if guard.quiet_at <= started and started - guard.checked_at <= guard.fresh:
-                        guard.started = started  # guard.send_now(started), written out
-                    else:
+                    if not guard.send_now(started):
                         started = self._wait_quiet(exchange)
                         guard.sent(started)
                     self.requests += 1
@@ -181,17 +179,12 @@ class RtuLine:
                         deadline, length = started + exchange.budget, exchange.answer_length
                         data = link.transfer(exchange.frame, exchange.header_length, deadline, length, exchange.budget)
                         at = clock()
-                        last, response = exchange.last  # the same bytes as the last good answer: that answer
-                        if data != last or response is None:
-                            response = exchange.quick_decode(data) if len(data) == length else None
-                            if response is None:
-                                data, response, at = self._receive_rest(exchange, data, at, deadline)
-                        if guard.min_char_time:
-                            error = guard.answer_complete(exchange.frame_length, data, at)
-                            if error is not None:
-                                raise error
-                        else:  # no wire timing to check (pty, TCP): guard.answer_complete, written out
-                            guard.trail_until = at + guard.silence
+                        response = exchange.quick_decode(data) if len(data) == length else None
+                        if response is None:
+                            data, response, at = self._receive_rest(exchange, data, at, deadline)
+                        error = guard.answer_complete(exchange.frame_length, data, at)
+                        if error is not None:
+                            raise error
                         try:
                             extra = link.take_input() if link.wait_readable(guard.trail_until - at) else b""
                         except TransportError:  # the connection closed after the answer: no byte followed it
