@@ -201,13 +201,7 @@ class PointDef:
 
     def to_engineering(self, raw: int, scale: float | None = None) -> float | int:
         """Raw word -> engineering value (``scale`` overrides the profile's, for transports with other resolution)."""
-        factor = self.scale if scale is None else scale
-        if factor == 1:
-            return raw
-        places = _PLACES.get(factor)
-        if places is None:
-            places = _PLACES[factor] = _decimals(factor)
-        return round(raw * factor, places)
+        return _engineering(raw, self.scale if scale is None else scale)
 
     def _shown(self, raw: int) -> str:
         return f"{self.to_engineering(raw)} {self.unit}".rstrip()
@@ -304,6 +298,16 @@ def _decimals(step: float) -> int:
 _PLACES: dict[float, int] = {}
 
 
+def _engineering(raw: int, factor: float) -> float | int:
+    """``raw`` x ``factor``, rounded to the factor's decimal places (``raw`` itself for a factor of 1)."""
+    if factor == 1:
+        return raw
+    places = _PLACES.get(factor)
+    if places is None:
+        places = _PLACES[factor] = _decimals(factor)
+    return round(raw * factor, places)
+
+
 def _finite(value: object) -> float | None:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return None
@@ -342,12 +346,7 @@ class Value:
     @classmethod
     def from_raw(cls, point: PointDef, raw: int, scale: float | None = None, source: str = "") -> Value:
         factor = point.scale if scale is None else scale
-        if factor == 1:
-            return cls(point, raw, raw, factor, source)
-        places = _PLACES.get(factor)
-        if places is None:
-            places = _PLACES[factor] = _decimals(factor)
-        return cls(point, raw, round(raw * factor, places), factor, source)  # to_engineering, written out
+        return cls(point, raw, _engineering(raw, factor), factor, source)
 
     def text(self) -> str:
         """Human form: "390 A", "current limit (0)", "0x0900"."""
