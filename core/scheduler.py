@@ -148,8 +148,7 @@ class Scheduler(SchedulerLoop):
         finally:
             with self._lock:
                 self._leader = None
-                if self._waiting:
-                    self._changed.notify_all()
+                self._wake_waiters()
         return tickets
 
     def _follow(self, driver: Served, requests: Sequence[object], bound: float, what: str) -> list[Ticket[Any, Any]]:
@@ -203,8 +202,7 @@ class Scheduler(SchedulerLoop):
                 finally:
                     with self._lock:
                         self._leader = None
-                        if self._waiting:
-                            self._changed.notify_all()
+                        self._wake_waiters()
         return future.result()
 
     def _stalled(self, what: str, bound: float) -> TimeoutError:
@@ -213,8 +211,7 @@ class Scheduler(SchedulerLoop):
 
     def _notify(self, _: Future[Any]) -> None:
         with self._lock:
-            if self._waiting:
-                self._changed.notify_all()
+            self._wake_waiters()
 
     def hold(self, holder: Holder) -> threading.Thread | None:
         """The loop's own thread runs at least until ``holder`` lets go (:meth:`unhold`); started now if it does
@@ -304,8 +301,7 @@ class Scheduler(SchedulerLoop):
                 self._held_thread = False  # (before the thread is gone: a holder starting one anew sets it)
                 self._thread = None
                 self._stopping = False
-                if self._waiting:
-                    self._changed.notify_all()
+                self._wake_waiters()
             if failure is not None:
                 self._tell(holders, failure)
 

@@ -157,8 +157,12 @@ class SchedulerLoop:
         """Give back the leadership taken with :meth:`lead` (the waiters, if any, are told)."""
         with self._lock:
             self._leader = None
-            if self._waiting:
-                self._changed.notify_all()
+            self._wake_waiters()
+
+    def _wake_waiters(self) -> None:
+        """Tell the threads waiting on ``_changed`` (holding ``_lock``); none waiting: nothing to do."""
+        if self._waiting:
+            self._changed.notify_all()
 
     def _await_change(self, timeout: float | None = None) -> None:
         """Wait (holding ``_lock``) until a future ends or the leadership is given back, counted in ``_waiting``."""
@@ -200,8 +204,7 @@ class SchedulerLoop:
         finally:
             with self._lock:
                 self._leader = None
-                if self._waiting:
-                    self._changed.notify_all()
+                self._wake_waiters()
         return True
 
     # -- in the loop --------------------------------------------------------------------------------------------
@@ -264,21 +267,16 @@ class SchedulerLoop:
                 ready = []
                 self._drop_closed()
         now = self.clock()
-        if ready:
-            stepped: list[Served] = []
-            for which in ready:
-                if which is None:
-                    self._drain()
-                else:
-                    stepped.append(which)
-                    self._step(which, now, True)
-            for driver in self.drivers:
-                if driver.deadline <= now and driver not in stepped:
-                    self._step(driver, now, False)
-        else:
-            for driver in self.drivers:
-                if driver.deadline <= now:
-                    self._step(driver, now, False)
+        stepped: list[Served] = []
+        for which in ready:
+            if which is None:
+                self._drain()
+            else:
+                stepped.append(which)
+                self._step(which, now, True)
+        for driver in self.drivers:
+            if driver.deadline <= now and driver not in stepped:
+                self._step(driver, now, False)
 
     def _step(self, driver: Served, now: float, ready: bool) -> None:
         try:
