@@ -68,7 +68,7 @@ class LocalDriver(Driver[E]):
         self.refusals = 0  # of which the peer raised on
 
     def step(self, now: float, ready: bool) -> None:
-        engine, exchange, clock = self.engine, self.exchange, self.clock
+        engine = self.engine
         take = engine.take_completed
         due = engine.deadline
         for _ in range(BURST):
@@ -80,17 +80,7 @@ class LocalDriver(Driver[E]):
             out = engine.take_output(now)
             if not out:
                 return
-            for unit in out:  # :meth:`write`'s, inline (once per unit)
-                self.units += 1
-                try:
-                    reply = exchange(unit)
-                except Exception as exc:  # the peer's failure is this unit's, typed
-                    self.refusals += 1
-                    now = clock()
-                    engine.refused(unit, self._error(exc), now)
-                    continue
-                now = clock()
-                engine.receive(reply, now)
+            now = self._give(out)
             done = take()
             if done:
                 self.complete(now, done)
@@ -100,14 +90,21 @@ class LocalDriver(Driver[E]):
                 return  # nothing more is due now
 
     def write(self, units: Sequence[Any], now: float) -> None:
-        """Give each unit to the peer and its answer to the engine, at the time it came."""
+        self._give(units)
+
+    def _give(self, units: Sequence[Any]) -> float:
+        """Give each unit to the peer and its answer to the engine, at the time it came; the time after the last."""
         engine, exchange, clock = self.engine, self.exchange, self.clock
+        now = 0.0
         for unit in units:
             self.units += 1
             try:
                 reply = exchange(unit)
             except Exception as exc:  # the peer's failure is this unit's, typed
                 self.refusals += 1
-                engine.refused(unit, self._error(exc), clock())
+                now = clock()
+                engine.refused(unit, self._error(exc), now)
                 continue
-            engine.receive(reply, clock())
+            now = clock()
+            engine.receive(reply, now)
+        return now
