@@ -19,18 +19,28 @@ from starterbus.core import (
     ConfigurationError,
     DecodeError,
     StarterbusError,
+    TicketState,
     TimeoutError,
     TransportCounters,
     TransportError,
+    process_scheduler,
 )
 from starterbus.transports.modbus.codec.messages import Request, Response
 from starterbus.transports.modbus.codec.receiver import NEED_DATA, ResponseReceiver
 from starterbus.transports.modbus.codec.timing import char_time
 from starterbus.transports.modbus.driver.link import Link, SerialSettings
+from starterbus.transports.modbus.driver.rtu_driver import RtuJobDriver
 from starterbus.transports.modbus.master.exchange import Exchange, TransactionPolicy
 from starterbus.transports.modbus.master.guard import LineGuard, hex_bytes
+from starterbus.transports.modbus.master.rtu_engine import RtuTicket
 
 __all__ = ["Exchange", "Link", "RtuLine", "SerialSettings", "TransactionPolicy"]
+
+_DONE, _FAILED = TicketState.DONE, TicketState.FAILED  # (an Enum class's attributes are slow to read)
+
+#: the outer bound of a blocking caller's wait for its ticket beyond the transaction's own times: only a stalled
+#: loop gets there
+STALL = 30.0
 
 
 class RtuLine:
@@ -55,6 +65,9 @@ class RtuLine:
         self.transactions = 0
         self.retries = 0
         self.requests = 0  # frames written
+        self._loop = process_scheduler()
+        #: the blocking callers' transactions as tickets of the scheduler, while its own thread runs the loop
+        self.jobs = RtuJobDriver(self, self._loop)
 
     @property
     def name(self) -> str:
@@ -154,7 +167,13 @@ class RtuLine:
         answer goes on in :meth:`_receive_rest`), then deliver it only if the guard lets it through: not sooner
         than the wire allows, and followed by silence (the silent interval's wait is here, not before the next
         request). The usual case runs in this one function: it is every transaction's CPU.
+
+        While the scheduler's own thread runs the loop (a service), the transaction is a ticket of the line's
+        :class:`RtuJobDriver` instead, run by that thread under the same guard (a line without a descriptor,
+        pyserial's, stays with its caller); from inside the loop that is refused (``SchedulerReentryError``).
         """
+        if self._loop.thread is not None and self.link.fd >= 0:
+            return self._follow(exchange, counters)
         with self.lock:  # not acquire()/try/finally: a KeyboardInterrupt right after acquire() would leak the lock
             self.transactions += 1
             attempt = 0
@@ -209,13 +228,37 @@ class RtuLine:
                 self.given_up(counters, exchange, attempt, exc)
                 raise
 
+    def _follow(self, exchange: Exchange, counters: TransportCounters | None) -> Response | None:
+        """The transaction as a ticket of :attr:`jobs`, waited for in the caller's thread."""
+        bound = STALL + exchange.quiet_limit + exchange.attempts * (exchange.budget + exchange.quarantine)
+        what = f"{self.name}: unit {exchange.request.unit}"
+        (ticket,) = self._loop.run(self.jobs, (exchange,), bound, what)
+        if counters is not None:
+            self.count_ticket(counters, ticket)  # type: ignore[arg-type]  # the engine's
+        return ticket.outcome()  # type: ignore[no-any-return]
+
+    def count_ticket(self, counters: TransportCounters, ticket: RtuTicket) -> None:
+        """What an ended (or cancelled) ticket's transaction put on the wire, into ``counters``."""
+        exchange, state = ticket.request, ticket.state
+        if state is _DONE:
+            self.count(counters, exchange, ticket.attempts, ticket.received, None)
+        elif state is _FAILED:
+            self.count(counters, exchange, max(1, ticket.attempts), 0, ticket.error)
+        elif ticket.attempts:
+            self.count(counters, exchange, ticket.attempts, 0, None)
+
+    def broke(self, exc: StarterbusError) -> None:
+        """A transaction failed for good with ``exc``: a transport error breaks the link (reopened / reconnected
+        before the next transaction)."""
+        if isinstance(exc, TransportError) and not isinstance(exc, TimeoutError):
+            self._broken = True
+
     def given_up(
         self, counters: TransportCounters | None, exchange: Exchange, attempt: int, exc: StarterbusError
     ) -> None:
         """The transaction failed for good with ``exc`` after ``attempt`` attempts: a transport error breaks the
         link (reopened / reconnected before the next transaction); counted in ``counters``."""
-        if isinstance(exc, TransportError) and not isinstance(exc, TimeoutError):
-            self._broken = True
+        self.broke(exc)
         if counters is not None:
             self.count(counters, exchange, max(1, attempt), 0, exc)
 

@@ -18,95 +18,18 @@ from __future__ import annotations
 
 import weakref
 from collections.abc import Callable, Sequence
-from typing import Any, cast
+from typing import cast
 
-from starterbus.core import (
-    PollResult,
-    PollTask,
-    StarterbusError,
-    StreamDriver,
-    TicketState,
-    TransportCounters,
-    TransportError,
-)
+from starterbus.core import PollResult, PollTask, StarterbusError, TicketState, TransportCounters, TransportError
 from starterbus.transports.modbus.codec.messages import Response
 from starterbus.transports.modbus.driver.line import RtuLine
+from starterbus.transports.modbus.driver.rtu_driver import LOCK_RETRY, RtuDriver
 from starterbus.transports.modbus.master.exchange import Exchange
 from starterbus.transports.modbus.master.rtu_engine import RtuEngine, RtuTicket
 
 _DONE, _FAILED = TicketState.DONE, TicketState.FAILED  # (an Enum class's attributes are slow to read)
 
-#: how soon a task looks again at a line that another thread holds
-LOCK_RETRY = 0.001
-
 __all__ = ["LOCK_RETRY", "LineTask", "RtuDriver"]
-
-
-class RtuDriver(StreamDriver[RtuEngine]):
-    """An :class:`RtuEngine` on a line's link (a serial port or pty, a TCP connection to a device server):
-    reads exactly what the engine wants, with the line's clock read after each read and before each write."""
-
-    def __init__(self, line: RtuLine) -> None:
-        super().__init__(line.name, lambda: RtuEngine(line.guard, line.name))
-        self.line = line
-
-    @property
-    def fd(self) -> int:
-        return self.line.link.fd
-
-    def usable(self, now: float) -> bool:
-        return True
-
-    def take_input(self, now: float) -> None:
-        self.look()
-
-    def look(self) -> float:
-        """Read what is there (at most what the engine wants) and give it to the engine; the time after."""
-        engine, line = self.engine, self.line
-        if line.broken:  # closed after an answer: the rest of its silence is waited for by time alone
-            at = line.clock()
-            engine.receive(None, at)
-            return at
-        want = engine.want
-        if engine.answering is not None:
-            data = line.link.read_ready(want)
-        else:
-            try:
-                data = line.link.take_input(want)
-            except TransportError:
-                if not engine.trailing:
-                    raise
-                line.mark_broken()  # the connection closed after the answer: no byte followed it
-                data = b""
-        at = line.clock()
-        engine.receive(data or None, at)
-        return at
-
-    def step(self, now: float, ready: bool) -> None:
-        """The loop body for a line: the input is looked at first, unless a request is due and the input was
-        found empty a moment ago (the silence after the last answer), as the blocking driver does."""
-        engine, clock = self.engine, self.line.clock
-        if engine.wants_to_send:
-            now = clock()
-            if engine.must_look(now):
-                now = self.look()
-        else:
-            # (an answer complete in this look is followed by the watch of its silence: bytes after it wake the
-            # loop, the silence's end looks again)
-            now = self.look()
-        if now >= engine.deadline:
-            engine.advance(now)
-        if engine.wants_to_send:
-            if engine.guard.must_discard(now):  # not looked at a moment ago (a retry after a timeout)
-                self.look()
-            now = clock()  # no later than the request's first byte
-            out = engine.take_output(now)
-            if out:
-                self.line.link.write(out[0])
-        self.complete(now)
-
-    def write(self, units: Sequence[Any], now: float) -> None:
-        self.line.link.write(units[0])
 
 
 #: one driver per line (its engine shares the line's guard with the blocking driver); the line's lock makes its
@@ -186,7 +109,8 @@ class LineTask(PollTask):
         while not self.done:
             if self._ticket is None:
                 if not self._locked:
-                    if not line.lock.acquire(blocking=False):
+                    # (blocking callers' transactions waiting for the line go first: see RtuJobDriver)
+                    if line.jobs.waiting or not line.lock.acquire(blocking=False):
                         self.fd = -1  # the line's input is its holder's until it is free: look again soon
                         self.wake_at = now + LOCK_RETRY
                         return
@@ -245,14 +169,11 @@ class LineTask(PollTask):
     def _counted(self, ticket: RtuTicket) -> None:
         """What the ended (or cancelled) transaction put on the wire, into the counters; a transport error
         breaks the line (reopened before the next transaction)."""
-        line, exchange = self.line, ticket.request
-        if ticket.state is _DONE:
-            line.count(self._counters, exchange, ticket.attempts, ticket.received, None)
-        elif ticket.state is _FAILED:
+        line = self.line
+        line.count_ticket(self._counters, ticket)
+        if ticket.state is _FAILED:
             assert ticket.error is not None
-            line.given_up(self._counters, exchange, ticket.attempts, ticket.error)
-        elif ticket.attempts:
-            line.count(self._counters, exchange, ticket.attempts, 0, None)
+            line.broke(ticket.error)
 
     def _finish_all(self) -> None:
         try:
