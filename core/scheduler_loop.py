@@ -286,11 +286,18 @@ class SchedulerLoop:
             driver.crash(error or TransportError(f"{driver.name}: {type(exc).__name__}: {exc}"), self.clock())
 
     def _watch(self, driver: Served, fd: int, writing: bool) -> None:
+        """Watch ``fd`` for ``driver`` (-1: nothing). A descriptor has one watcher: two drivers may take turns on
+        one (a line's poll and its blocking callers' tickets, the line's lock between them), and one that takes it
+        in a turn before the other lets go has it; the other, if it still wants it, takes it at its next turn."""
         old = self._watched.pop(driver, None)
+        waiter = self._waiter
         if old is not None:
-            self._waiter.unregister(old[0])
+            waiter.unregister(old[0])
         if fd >= 0:
-            self._waiter.register(fd, driver, writing)
+            other = waiter.watcher(fd)
+            if other is not None:
+                self._watched.pop(other, None)
+            waiter.register(fd, driver, writing)
             self._watched[driver] = (fd, writing)
 
     def _drop_closed(self) -> None:

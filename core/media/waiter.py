@@ -42,6 +42,9 @@ class Waiter(Generic[D]):
         self._poll: select.poll | None = None
 
     def register(self, fd: int, data: D, write: bool = False) -> None:
+        """Watch ``fd`` with ``data`` (replacing what it was registered with)."""
+        if fd in self._data:
+            self.unregister(fd)
         self._data[fd] = data
         (self._writers if write else self._readers)[fd] = None
         self._lists = None
@@ -53,6 +56,10 @@ class Waiter(Generic[D]):
                 self._poll.register(known, select.POLLIN)
             for known in self._writers:
                 self._poll.register(known, select.POLLOUT)
+
+    def watcher(self, fd: int) -> D | None:
+        """The data ``fd`` is registered with (None: not registered)."""
+        return self._data.get(fd)
 
     def unregister(self, fd: int) -> None:
         del self._data[fd]

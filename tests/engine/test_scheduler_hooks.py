@@ -5,6 +5,7 @@ the caller, and the loop failing raised out of ``serve``."""
 from __future__ import annotations
 
 import math
+import os
 import threading
 from collections.abc import Sequence
 from concurrent.futures import Future
@@ -123,3 +124,43 @@ def test_the_loop_s_own_thread_may_be_the_caller_s_and_a_failing_loop_raises_out
     assert state(loop) == (False, None)
     monkeypatch.setattr(Waiter, "wait", original)
     assert loop.wait(loop.call(lambda now: 7), 5.0, "led again") == 7, "callers lead again"
+
+
+class Watching(Counting):
+    """A driver watching ``fd`` (set by the test); its steps with the descriptor ready are counted and drain it."""
+
+    def __init__(self, loop: Scheduler, name: str) -> None:
+        super().__init__(loop)
+        self.name = name
+        self.ready = 0
+
+    def step(self, now: float, ready: bool) -> None:
+        super().step(now, ready)
+        if ready:
+            self.ready += 1
+            os.read(self.fd, 64)
+
+
+def test_a_descriptor_taken_over_in_the_turn_before_its_watcher_lets_go_stays_watched() -> None:
+    """A line's poll and its blocking callers' tickets take turns on the line's descriptor: whichever order the
+    loop reads them in, the driver that has it now is woken by input."""
+    loop = Scheduler()
+    r, w = os.pipe()
+    try:
+        later, first = Watching(loop, "later"), Watching(loop, "first")
+        loop.call(lambda now: (loop.add(later), loop.add(first)))  # read in this order at every turn
+        first.fd = r
+        assert loop.try_turn()
+        later.fd, first.fd = r, -1  # the one read first takes it before the other lets go
+        assert loop.try_turn()
+        os.write(w, b"!")
+        assert loop.try_turn()
+        assert (later.ready, first.ready) == (1, 0)
+        later.fd, first.fd = -1, r  # and back
+        assert loop.try_turn()
+        os.write(w, b"!")
+        assert loop.try_turn()
+        assert (later.ready, first.ready) == (1, 1)
+    finally:
+        os.close(r)
+        os.close(w)
