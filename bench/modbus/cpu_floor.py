@@ -14,7 +14,10 @@ loop watching the line during the silence after each answer (as starterbus does 
 instead of sleeping before the request, and the ratios to it. ``--before DIR`` (A/B in one process) adds
 ``before``: ``read_registers`` through the ``RtuLine`` of ``DIR/starterbus/transports/modbus/driver/line.py`` (an
 untouched copy of an older tree; its imports are this tree's modules), on the same link, its turns interleaved
-with the others', and prints the ratio of this tree's ``read_registers`` to it. Not run by the tests.
+with the others', and prints the ratio of this tree's ``read_registers`` to it. ``--served`` adds ``served``:
+``read_registers`` while the process's scheduler runs its own thread (as under ``serve`` or ``poll``), where the
+transaction is a ticket of the line's ``RtuJobDriver`` run by that thread (the CPU counted is the process's: both
+threads). Not run by the tests.
 """
 
 from __future__ import annotations
@@ -31,6 +34,8 @@ from pathlib import Path
 from typing import Any
 
 from starterbus.bench.modbus import clients, throughput
+from starterbus.core.media.keeper import Holder
+from starterbus.core.scheduler import scheduler as process_scheduler
 
 BAUD = 19200
 WARM = 5  # transactions before each turn, not counted
@@ -81,6 +86,20 @@ def before_op(raw: Callable[[], object], tree: str) -> Callable[[], object]:
     return partial(old.read_registers, *raw.args)
 
 
+def served_turn(op: Callable[[], object]) -> Callable[[int, int], float]:
+    """A turn of ``op`` while the process's scheduler runs its own thread (held for the turn, not counted)."""
+
+    def turn(count: int, warm: int) -> float:
+        loop, holder = process_scheduler(), Holder("cpu_floor")
+        loop.hold(holder)
+        try:
+            return cpu_per_tx(op, count, warm)
+        finally:
+            loop.unhold(holder)
+
+    return turn
+
+
 def open_clients(
     port: str, watch_floor: bool, before: str | None = None
 ) -> tuple[dict[str, Callable[[], object]], list[Callable[[], None]]]:
@@ -105,19 +124,23 @@ def main() -> None:
     parser.add_argument("--changing", action="store_true", help="every FC03 answer differs (pymodbus server)")
     parser.add_argument("--watch-floor", action="store_true", help="also the floor that watches the silence")
     parser.add_argument("--before", metavar="DIR", help="A/B: also read_registers through DIR's RtuLine")
+    parser.add_argument("--served", action="store_true", help="also read_registers while the loop's thread runs")
     args = parser.parse_args()
     emulator = throughput.Emulator(0)
     server = throughput.start_server("pymodbus", emulator.server, BAUD, args.changing)
     try:
         throughput.wait_ready(emulator.client, BAUD)
         ops, closers = open_clients(emulator.client, args.watch_floor, args.before)
-        names = list(ops)
+        turns = {name: partial(cpu_per_tx, op) for name, op in ops.items()}
+        if args.served:
+            turns["served"] = served_turn(ops["raw"])
+        names = list(turns)
         samples: dict[str, list[float]] = {name: [] for name in names}
         try:
             for turn in range(args.rounds):
                 shift = turn % len(names)
                 for name in names[shift:] + names[:shift]:
-                    samples[name].append(cpu_per_tx(ops[name], args.tx, WARM))
+                    samples[name].append(turns[name](args.tx, WARM))
         finally:
             for close in closers:
                 close()
@@ -149,6 +172,12 @@ def report(samples: dict[str, list[float]], args: argparse.Namespace) -> None:
         print(
             f"  A/B: read_registers {mean['raw'] / mean['before']:.3f}x the --before tree's (paired "
             f"{statistics.median(ab):.3f}x); the --before tree's {mean['before'] / floor:.2f}x the floor"
+        )
+    if "served" in mean:
+        ab = [s / r for s, r in zip(samples["served"], samples["raw"], strict=True)]
+        print(
+            f"  served (a ticket run by the loop's own thread): {mean['served'] / mean['raw']:.2f}x read_registers "
+            f"in the caller's thread (paired {statistics.median(ab):.2f}x), {mean['served'] / floor:.2f}x the floor"
         )
     if "watch" in mean:
         watching = mean["watch"]

@@ -6,7 +6,8 @@ runs on the scheduler (docs/engine.md, step 4).
 The rules are the engine's, that is the :class:`~starterbus.transports.modbus.master.guard.LineGuard`'s, which the
 blocking :meth:`RtuLine.run <starterbus.transports.modbus.driver.line.RtuLine.run>` shares: one guard per line. The
 line's lock is held from a request's start to its answer's delivery, so blocking users of the same line in this
-process wait their turn (and the task looks again after :data:`LOCK_RETRY` while one holds it).
+process wait their turn (and the task looks again after :data:`LOCK_RETRY` while one holds it, or while their
+tickets wait for the line: :class:`~starterbus.transports.modbus.driver.rtu_driver.RtuJobDriver`).
 
 Times: the driver reads the line's clock just before a write (the request counts as started then), and just
 after a read (an answer is complete then). It looks at the input before every step, so a task advanced late
