@@ -25,16 +25,22 @@ def _current(client: mqtt.Client, sock: object) -> bool:
 _CORK = getattr(socket, "TCP_CORK", None)  # Linux
 
 
+def _set_tcp(sock: Any, option: int | None, on: bool) -> None:
+    """Nothing where the option is unknown or the socket is not TCP."""
+    if option is not None:
+        try:
+            sock.setsockopt(socket.IPPROTO_TCP, option, on)
+        except (OSError, AttributeError):  # not a TCP socket
+            pass
+
+
 def _cork(sock: Any, on: bool) -> None:
     """Hold the segments of the packets paho sends one by one (``on``), then push them out together: a burst of
     publishes costs the kernel a few full segments through loopback or the network instead of one each (and the
-    broker a few reads). The bytes and their order are paho's; only their split into TCP segments changes.
-    Nothing where the option is unknown."""
-    if _CORK is not None:
-        try:
-            sock.setsockopt(socket.IPPROTO_TCP, _CORK, on)
-        except (OSError, AttributeError):  # not a TCP socket
-            pass
+    broker a few reads). The bytes and their order are paho's; only their split into TCP segments changes. The
+    push at ``on=False`` is immediate only with ``TCP_NODELAY`` (set by ``_watch``): without it Nagle's rule
+    would hold the last segment until the broker's (delayed) ACK of the one before, up to 40 ms."""
+    _set_tcp(sock, _CORK, on)
 
 
 class PahoOnLoop:
@@ -59,6 +65,7 @@ class PahoOnLoop:
         fileno = sock.fileno()
         if fileno < 0:  # closed again before the loop got here
             return
+        _set_tcp(sock, socket.TCP_NODELAY, True)  # every burst out at once (``_cork``)
         loop.add_reader(fileno, read)
         keepalive = self._supervisor().task("serve-keepalive", functools.partial(self._misc, client))
         self._watched[id(sock)] = (fileno, keepalive)
