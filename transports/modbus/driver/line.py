@@ -140,12 +140,6 @@ class RtuLine:
             f"(last bytes {hex_bytes(self.guard.last_stray)})"
         )
 
-    def no_answer(self, exchange: Exchange) -> TimeoutError:
-        return TimeoutError(
-            f"{self.name}: no answer from unit {exchange.request.unit} within "
-            f"{exchange.policy.timeout:g} s to {exchange.frame.hex(' ').upper()}"
-        )
-
     def prepare(self, request: Request, policy: TransactionPolicy) -> Exchange:
         """``request`` made ready for :meth:`run` (encoded and checked: an invalid request raises here)."""
         return Exchange(request, policy, self.char_time)
@@ -279,11 +273,7 @@ class RtuLine:
     def failed(self, exchange: Exchange, exc: TimeoutError | DecodeError, attempt: int) -> None:
         """Attempt ``attempt`` failed with ``exc``: the line is quarantined; raise ``exc`` if it was the last."""
         self.guard.failed(self._clock(), exchange.quarantine)  # the next request waits the quarantine
-        attempts = exchange.attempts
-        if attempt >= attempts:
-            note = f" (attempt {attempt} of {attempts}"
-            note += ")" if exchange.may_retry else "; a write is not repeated unless retry_writes=1)"
-            exc.args = (str(exc) + note,)
+        if exchange.last_attempt(exc, attempt):
             raise exc
         self.retries += 1
 
@@ -315,7 +305,7 @@ class RtuLine:
                 if event is NEED_DATA and len(data) < needed:
                     if receiver.received:
                         raise receiver.truncated_error()
-                    raise self.no_answer(exchange)
+                    raise exchange.no_answer(self.name)
             else:
                 event = receiver.next_event()
             if event is not NEED_DATA:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 
+from starterbus.core import StarterbusError, TimeoutError
 from starterbus.transports.modbus.codec.crc import crc16
 from starterbus.transports.modbus.codec.decoding import expected_response_length
 from starterbus.transports.modbus.codec.messages import (
@@ -85,6 +86,24 @@ class Exchange:
             self.prefix = self.frame  # a good FC06 answer is the request, byte for byte
             self.prefix_crc = 0  # unused: the echo is compared whole
             self.last = (self.frame, WriteResponse(request.unit, request.address, request.value))
+
+    def no_answer(self, line: str) -> TimeoutError:
+        """No answer on ``line`` within the policy's timeout (either driver's words)."""
+        return TimeoutError(
+            f"{line}: no answer from unit {self.request.unit} within {self.policy.timeout:g} s to "
+            f"{self.frame.hex(' ').upper()}"
+        )
+
+    def last_attempt(self, exc: StarterbusError, attempt: int) -> bool:
+        """Whether attempt ``attempt`` that failed with ``exc`` was the last the policy allows; if so, ``exc`` says
+        so (``(attempt 2 of 2)``, and why a write was not repeated)."""
+        attempts = self.attempts
+        if attempt < attempts:
+            return False
+        note = f" (attempt {attempt} of {attempts}"
+        note += ")" if self.may_retry else "; a write is not repeated unless retry_writes=1)"
+        exc.args = (str(exc) + note,)
+        return True
 
     def good_so_far(self, data: bytes) -> bool:
         """True if ``data`` (at least the header) is how a normal answer to the request begins."""

@@ -253,11 +253,7 @@ class RtuEngine:
             step(ticket.request, data, now)
         except (TimeoutError, DecodeError) as exc:
             self.guard.failed(now, ticket.request.quarantine)
-            exchange = ticket.request
-            if ticket.attempts >= exchange.attempts:
-                note = f" (attempt {ticket.attempts} of {exchange.attempts}"
-                note += ")" if exchange.may_retry else "; a write is not repeated unless retry_writes=1)"
-                exc.args = (str(exc) + note,)
+            if ticket.request.last_attempt(exc, ticket.attempts):
                 self._given_up(exc, now)
             else:
                 self.retries += 1
@@ -298,10 +294,7 @@ class RtuEngine:
             receiver.feed(self._data)
         if receiver.received:
             raise receiver.truncated_error()
-        raise TimeoutError(
-            f"{self.name}: no answer from unit {exchange.request.unit} within "
-            f"{exchange.policy.timeout:g} s to {exchange.frame.hex(' ').upper()}"
-        )
+        raise exchange.no_answer(self.name)
 
     def _complete(self, exchange: Exchange, frame: bytes, response: Response, at: float) -> None:
         error = self.guard.answer_complete(exchange.frame_length, frame, at)
