@@ -14,6 +14,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable
+from typing import cast
 
 from starterbus.core import (
     ConfigurationError,
@@ -226,10 +227,11 @@ class RtuLine:
         """The transaction as a ticket of :attr:`jobs`, waited for in the caller's thread."""
         bound = STALL + exchange.quiet_limit + exchange.attempts * (exchange.budget + exchange.quarantine)
         what = f"{self.name}: unit {exchange.request.unit}"
-        (ticket,) = self._loop.run(self.jobs, (exchange,), bound, what)
+        (ended,) = self._loop.run(self.jobs, (exchange,), bound, what)
+        ticket = cast(RtuTicket, ended)
         if counters is not None:
-            self.count_ticket(counters, ticket)  # type: ignore[arg-type]  # the engine's
-        return ticket.outcome()  # type: ignore[no-any-return]
+            self.count_ticket(counters, ticket)
+        return ticket.outcome()
 
     def count_ticket(self, counters: TransportCounters, ticket: RtuTicket) -> None:
         """What an ended (or cancelled) ticket's transaction put on the wire, into ``counters``."""

@@ -24,7 +24,6 @@ from starterbus.core import (
     StreamDriver,
     Ticket,
     TicketState,
-    TimeoutError,
     TransportError,
 )
 from starterbus.transports.modbus.driver.link import Link
@@ -59,6 +58,8 @@ class Line(Protocol):
     def broken(self) -> bool: ...
 
     def mark_broken(self) -> None: ...
+
+    def broke(self, exc: StarterbusError) -> None: ...
 
     def usable_link(self) -> Link: ...
 
@@ -209,9 +210,9 @@ class RtuJobDriver(RtuDriver):
         line, state = self.line, ticket.state
         if state is _DONE or state is _FAILED or ticket.attempts:
             line.transactions += 1
-        error = ticket.error
-        if state is _FAILED and isinstance(error, TransportError) and not isinstance(error, TimeoutError):
-            line.mark_broken()
+        if state is _FAILED:
+            assert ticket.error is not None
+            line.broke(ticket.error)
 
     def _idle(self) -> None:
         """No ticket left: the line's lock given back, the driver no longer served."""
