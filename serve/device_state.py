@@ -3,12 +3,21 @@ host commands in :mod:`starterbus.serve.session_commands` read them)."""
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, field
+from typing import Final
 
 from starterbus.serve.metrics import MetricSet, Scalar
 
 
-@dataclass
+class _Unreported(enum.Enum):
+    UNREPORTED = 0
+
+
+UNREPORTED: Final = _Unreported.UNREPORTED  # ``reported.get(name, UNREPORTED)``: never published in this session
+
+
+@dataclass(slots=True)
 class DeviceState:
     """What the session knows of one device: its metrics, last values and what it published of them."""
 

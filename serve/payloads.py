@@ -43,20 +43,27 @@ def encode(
     """A payload: in a BIRTH every metric has name, alias, datatype and properties; in DATA only the alias.
 
     ``quality``: metric name -> the Sparkplug ``Quality`` property to attach (Int32: 192 good, 0 bad)."""
+    if not (birth or historical or quality):  # the DDATA of every sample: the metrics made in one call
+        metrics: list[dict[str, object]] = []
+        for defn, value, ts in entries:
+            alias = defn.alias
+            fields: dict[str, object] = (
+                {"timestamp": ts, "name": defn.name} if alias is None else {"timestamp": ts, "alias": alias}
+            )
+            if value is None:
+                fields["is_null"] = True
+            else:
+                field, wire = WRITERS[defn.datatype]
+                fields[field] = wire(value)
+            metrics.append(fields)
+        payload = Payload(timestamp=timestamp, metrics=metrics)
+        if seq is not None:
+            payload.seq = seq
+        return bytes(payload.SerializeToString())
     payload = Payload(timestamp=timestamp)
     if seq is not None:
         payload.seq = seq
     add = payload.metrics.add
-    if not (birth or historical or quality):  # the DDATA of every sample: one call makes each metric
-        for defn, value, ts in entries:
-            alias = defn.alias
-            metric = add(timestamp=ts, name=defn.name) if alias is None else add(timestamp=ts, alias=alias)
-            if value is None:
-                metric.is_null = True
-            else:
-                field, wire = WRITERS[defn.datatype]
-                setattr(metric, field, wire(value))
-        return bytes(payload.SerializeToString())
     quality = quality or {}
     for defn, value, ts in entries:
         metric = add(timestamp=ts)

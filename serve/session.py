@@ -39,7 +39,7 @@ from starterbus.serve.actions import (
     Reconnect,
     SessionOptions,
 )
-from starterbus.serve.device_state import DeviceState
+from starterbus.serve.device_state import UNREPORTED, DeviceState
 from starterbus.serve.history import Bounds, HistoryStore, MemoryStore
 from starterbus.serve.metrics import (
     BAD,
@@ -315,7 +315,9 @@ class EdgeSession(SessionCommands):
             return out + self._node_data(now) + self._births_due(now)
         ts = _ms(sample.time)
         values = sample_values(sample, dev.metrics)
-        dev.fresh = {name for name, value in values.items() if value is not None}
+        fresh = dev.fresh = set(values)
+        if None in values.values():  # a status bit the model does not have
+            fresh -= {name for name, value in values.items() if value is None}
         current = dev.current
         for name, value in values.items():
             current[name] = (value, ts)
@@ -354,12 +356,8 @@ class EdgeSession(SessionCommands):
             is_polled = d.polled
             q = (GOOD if name in fresh else BAD) if is_polled else GOOD
             q_changed = is_polled and published_quality.get(name) != q
-            if (
-                full
-                or name in always
-                or name not in reported
-                or (reported[name] != value and changed(d, reported[name], value))
-            ):
+            old = reported.get(name, UNREPORTED)
+            if full or old is UNREPORTED or name in always or (old != value and changed(d, old, value)):
                 entries.append((d, value, ts or now_ms))
                 reported[name] = value
             elif q_changed:
