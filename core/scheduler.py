@@ -116,7 +116,7 @@ class Scheduler(SchedulerLoop):
             return []
         me = threading.get_ident()
         with self._lock:
-            lead = self._leader is None and self._thread is None
+            lead = self._leader is None and self.thread is None
             if lead:
                 self._leader = me
         if not lead:
@@ -188,7 +188,7 @@ class Scheduler(SchedulerLoop):
             if remaining <= 0:
                 raise self._stalled(what, bound)
             with self._lock:
-                lead = self._leader is None and self._thread is None
+                lead = self._leader is None and self.thread is None
                 if lead:
                     self._leader = me
                 elif watching and not future.done():  # not done: its callback notifies after this wait began
@@ -219,11 +219,11 @@ class Scheduler(SchedulerLoop):
         with self._holding:
             if holder not in self._holders:
                 self._holders = (*self._holders, holder)
-            if self._thread is None:
+            if self.thread is None:
                 if self.in_loop():  # the new thread would wait for this caller's lead to end
                     raise SchedulerReentryError(f"{holder.name}: the I/O loop's thread started from inside the loop")
                 self._held_thread = self.start()
-            return self._thread
+            return self.thread
 
     def unhold(self, holder: Holder) -> None:
         """``holder`` lets go; the last one stops the thread a holder started (and waits for its end, unless it is
@@ -247,19 +247,19 @@ class Scheduler(SchedulerLoop):
         already (``thread`` is not started). A thread started here is not held: its starter stops it
         (:meth:`hold` is how the owners of a shared loop share its thread)."""
         with self._lock:
-            if self._thread is not None:
+            if self.thread is not None:
                 return False
             self._stopping = False
-            self._thread = thread or threading.Thread(target=self._serve_own, name=THREAD_NAME, daemon=True)
+            self.thread = thread or threading.Thread(target=self._serve_own, name=THREAD_NAME, daemon=True)
             self._serving.clear()
-        self._thread.start()
+        self.thread.start()
         self.wake()  # a caller leading now hands over at its next turn
         self._serving.wait()
         return True
 
     def stop(self) -> None:
         """End the loop's own thread (the drivers stay; waiters lead again)."""
-        thread = self._thread
+        thread = self.thread
         if thread is None:
             return
         self._stopping = True
@@ -270,12 +270,7 @@ class Scheduler(SchedulerLoop):
     @property
     def running(self) -> bool:
         """The loop's own thread runs."""
-        return self._thread is not None and self._thread.is_alive()
-
-    @property
-    def thread(self) -> threading.Thread | None:
-        """The loop's own thread while it runs (None: callers lead)."""
-        return self._thread
+        return self.thread is not None and self.thread.is_alive()
 
     def serve(self) -> None:
         """The loop, in the calling thread, until :meth:`stop` (the target of the thread :meth:`start` runs); an
@@ -299,7 +294,7 @@ class Scheduler(SchedulerLoop):
             with self._lock:
                 self._leader = None
                 self._held_thread = False  # (before the thread is gone: a holder starting one anew sets it)
-                self._thread = None
+                self.thread = None
                 self._stopping = False
                 self._wake_waiters()
             if failure is not None:

@@ -111,7 +111,9 @@ class SchedulerLoop:
         self._waiting = 0  # threads waiting on _changed: only then is it notified (notify_all is Python code)
         self._inbox: list[Callable[[float], None]] = []
         self._leader: int | None = None  # the thread running the loop
-        self._thread: threading.Thread | None = None
+        #: the loop's own thread while it runs (None: callers lead); read-only outside the scheduler (a plain
+        #: attribute: a blocking RTU call reads it on every transaction)
+        self.thread: threading.Thread | None = None
         self.drivers: list[Served] = []
         self._due: list[Served] = []  # to step at the next turn (a submission)
         self._watched: dict[Served, tuple[int, bool]] = {}
@@ -148,7 +150,7 @@ class SchedulerLoop:
         inbox is empty. True: the caller is the leader and may step its own driver until :meth:`release` (a
         sync call's fast path: no lock beyond this one, no future)."""
         with self._lock:
-            if self._leader is not None or self._thread is not None or self._inbox:
+            if self._leader is not None or self.thread is not None or self._inbox:
                 return False
             self._leader = threading.get_ident()
         return True
@@ -195,7 +197,7 @@ class SchedulerLoop:
         drivers' descriptors itself (``fleet/mux.py``). False: another thread leads and serves the inbox."""
         me = threading.get_ident()
         with self._lock:
-            if self._leader is not None or self._thread is not None:
+            if self._leader is not None or self.thread is not None:
                 return False
             self._leader = me
         try:
@@ -221,7 +223,7 @@ class SchedulerLoop:
         self._due = [d for d in self._due if d is not driver]
 
     def _lead(self, done: Callable[[], bool], give_up: float) -> None:
-        while not done() and self._thread is None:
+        while not done() and self.thread is None:
             now = self.clock()
             if now >= give_up:
                 return

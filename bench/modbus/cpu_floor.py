@@ -131,7 +131,7 @@ def main() -> None:
     try:
         throughput.wait_ready(emulator.client, BAUD)
         ops, closers = open_clients(emulator.client, args.watch_floor, args.before)
-        turns = {name: partial(cpu_per_tx, op) for name, op in ops.items()}
+        turns: dict[str, Callable[[int, int], float]] = {name: partial(cpu_per_tx, op) for name, op in ops.items()}
         if args.served:
             turns["served"] = served_turn(ops["raw"])
         names = list(turns)

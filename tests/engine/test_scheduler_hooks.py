@@ -148,7 +148,12 @@ def test_a_descriptor_taken_over_in_the_turn_before_its_watcher_lets_go_stays_wa
     r, w = os.pipe()
     try:
         later, first = Watching(loop, "later"), Watching(loop, "first")
-        loop.call(lambda now: (loop.add(later), loop.add(first)))  # read in this order at every turn
+
+        def add_both(now: float) -> None:  # read in this order at every turn
+            loop.add(later)
+            loop.add(first)
+
+        loop.call(add_both)
         first.fd = r
         assert loop.try_turn()
         later.fd, first.fd = r, -1  # the one read first takes it before the other lets go
