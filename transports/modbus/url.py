@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from starterbus.core import ConfigurationError, DeviceUrl, Profile
 from starterbus.transports.modbus.codec.messages import BROADCAST, MAX_UNIT
 from starterbus.transports.modbus.codec.timing import silent_interval
-from starterbus.transports.modbus.driver.link import Link, PySerialLink, SerialSettings, com_port
+from starterbus.transports.modbus.driver.link import Link, PySerialLink, SerialSettings, TcpConnect, com_port
 from starterbus.transports.modbus.master.exchange import TransactionPolicy
 from starterbus.transports.modbus.settings import modbus_settings
 
@@ -69,6 +69,10 @@ class ModbusRtuConfig:
         if self.io == "pyserial":
             return PySerialLink.open(self.path, self.serial)
         return Link.open_serial(self.path, self.serial)
+
+    def start_connect(self) -> TcpConnect:
+        """A connection to a serial device server (``+tcp``), made without blocking (the I/O loop's reconnect)."""
+        return TcpConnect(self.host, self.port, max(self.policy.timeout, 1.0))
 
     @property
     def broadcast(self) -> bool:

@@ -29,7 +29,7 @@ from starterbus.core import (
 from starterbus.transports.modbus.codec.messages import Request, Response
 from starterbus.transports.modbus.codec.receiver import NEED_DATA, ResponseReceiver
 from starterbus.transports.modbus.codec.timing import char_time
-from starterbus.transports.modbus.driver.link import Link, SerialSettings
+from starterbus.transports.modbus.driver.link import Link, SerialSettings, TcpConnect
 from starterbus.transports.modbus.driver.rtu_driver import RtuJobDriver
 from starterbus.transports.modbus.master.exchange import Exchange, TransactionPolicy
 from starterbus.transports.modbus.master.guard import LineGuard, hex_bytes
@@ -48,9 +48,15 @@ class RtuLine:
     """One line, shared by every device on it in this process. Thread-safe; one transaction at a time."""
 
     def __init__(
-        self, connect: Callable[[], Link], settings: SerialSettings, clock: Callable[[], float] = time.monotonic
+        self,
+        connect: Callable[[], Link],
+        settings: SerialSettings,
+        clock: Callable[[], float] = time.monotonic,
+        start_connect: Callable[[], TcpConnect] | None = None,
     ) -> None:
         self._connect = connect
+        self._start_connect = start_connect  # a TCP line: reconnected by the loop without blocking (reopen)
+        self._connecting: TcpConnect | None = None
         self._clock = clock
         self.link = connect()
         self._name = self.link.name
@@ -97,6 +103,7 @@ class RtuLine:
     def close(self) -> None:
         with self.lock:
             self._closed = True
+            self._stop_connecting()
             self.link.close()
 
     def usable_link(self) -> Link:
@@ -104,10 +111,39 @@ class RtuLine:
         if self._closed:
             raise TransportError(f"{self.name} is closed")
         if self._broken:
+            self._stop_connecting()
             self.link.close()
             self.link = self._connect()
             self._broken = False
         return self.link
+
+    def reopen(self) -> bool:
+        """:meth:`usable_link` for the I/O loop, which must not block: a TCP line's connection is made without
+        waiting (True once the link is usable, False while it is being made: ask again soon; a
+        :class:`TransportError` if it cannot be). A serial port opens at once. Called by the line's holder."""
+        if self._closed or not self._broken or self._start_connect is None:
+            self.usable_link()
+            return True
+        connecting = self._connecting
+        if connecting is None:
+            self.link.close()
+            connecting = self._connecting = self._start_connect()
+        try:
+            link = connecting.link()
+        except TransportError:
+            self._connecting = None
+            raise
+        if link is None:
+            return False
+        self._connecting = None
+        self.link = link
+        self._broken = False
+        return True
+
+    def _stop_connecting(self) -> None:
+        connecting, self._connecting = self._connecting, None
+        if connecting is not None:
+            connecting.close()
 
     def _wait_quiet(self, exchange: Exchange) -> float:
         """Wait until the guard lets the next request start, then discard the input. Bytes seen meanwhile (a

@@ -24,7 +24,7 @@ from typing import cast
 from starterbus.core import PollResult, PollTask, StarterbusError, TicketState, TransportCounters, TransportError
 from starterbus.transports.modbus.codec.messages import Response
 from starterbus.transports.modbus.driver.line import RtuLine
-from starterbus.transports.modbus.driver.rtu_driver import LOCK_RETRY, RtuDriver
+from starterbus.transports.modbus.driver.rtu_driver import CONNECT_LOOK, LOCK_RETRY, RtuDriver
 from starterbus.transports.modbus.master.exchange import Exchange
 from starterbus.transports.modbus.master.rtu_engine import RtuEngine, RtuTicket
 
@@ -116,9 +116,11 @@ class LineTask(PollTask):
                         self.wake_at = now + LOCK_RETRY
                         return
                     self._locked = True
+                if line.broken and not line.reopen():
+                    self.fd = -1  # a connection being made, without blocking the loop: looked at again soon
+                    self.wake_at = now + CONNECT_LOOK
+                    return
                 line.transactions += 1
-                if line.broken:
-                    line.usable_link()
                 exchange = self._exchanges[len(self._responses)]
                 (submitted,) = driver.submit((exchange,), now, (None,))
                 self._ticket = cast(RtuTicket, submitted)

@@ -9,6 +9,7 @@ are asked for, so bytes after an answer stay in the input for the silence check.
 
 from __future__ import annotations
 
+import errno
 import functools
 import os
 import re
@@ -136,6 +137,11 @@ class Link:
             sock = socket.create_connection((host, port), timeout=timeout)
         except OSError as exc:
             raise TransportError(f"cannot connect to {host}:{port}: {exc}") from exc
+        return cls.on_socket(sock, host, port)
+
+    @classmethod
+    def on_socket(cls, sock: socket.socket, host: str, port: int) -> Link:
+        """The link on a connected TCP socket."""
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         sock.setblocking(False)
         return cls(sock.fileno(), f"{host}:{port}", sock.recv, sock.send, sock.close)
@@ -250,6 +256,49 @@ if sys.platform != "win32":
     import termios
 
     _TERMIOS_ERRORS = (termios.error,)
+
+
+class TcpConnect:
+    """A TCP connection to a serial device server being made without blocking (the I/O loop's reconnect, as
+    :class:`~starterbus.core.media.TcpDriver` connects): :meth:`link` looks whether it is made. Errors as
+    :meth:`Link.connect_tcp`'s."""
+
+    def __init__(self, host: str, port: int, timeout: float, clock: Callable[[], float] = time.monotonic) -> None:
+        self.host, self.port = host, port
+        self._clock = clock
+        self._give_up = clock() + timeout
+        try:
+            family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+            sock = socket.socket(family, kind, proto)
+        except OSError as exc:
+            raise self._error(str(exc)) from exc
+        sock.setblocking(False)
+        code = sock.connect_ex(address)
+        if code not in (0, errno.EINPROGRESS):
+            sock.close()
+            raise self._error(f"[Errno {code}] {os.strerror(code)}")
+        self._sock = sock
+
+    def _error(self, why: str) -> TransportError:
+        return TransportError(f"cannot connect to {self.host}:{self.port}: {why}")
+
+    def link(self) -> Link | None:
+        """The link once connected; None while the connection is being made; a TransportError if it failed or
+        the timeout passed (the socket closed)."""
+        sock = self._sock
+        if not select.select(_NOTHING, [sock], _NOTHING, 0)[1]:
+            if self._clock() < self._give_up:
+                return None
+            self.close()
+            raise self._error("timed out")
+        code = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+        if code:
+            self.close()
+            raise self._error(f"[Errno {code}] {os.strerror(code)}")
+        return Link.on_socket(sock, self.host, self.port)
+
+    def close(self) -> None:
+        self._sock.close()
 
 
 def open_pyserial(target: str, settings: SerialSettings, *, url: bool = False) -> serial.SerialBase:

@@ -30,12 +30,14 @@ from starterbus.transports.modbus.driver.link import Link
 from starterbus.transports.modbus.master.guard import LineGuard
 from starterbus.transports.modbus.master.rtu_engine import RtuEngine
 
-__all__ = ["LOCK_RETRY", "Line", "RtuDriver", "RtuJobDriver"]
+__all__ = ["CONNECT_LOOK", "LOCK_RETRY", "Line", "RtuDriver", "RtuJobDriver"]
 
 _DONE, _FAILED = TicketState.DONE, TicketState.FAILED  # (an Enum class's attributes are slow to read)
 
 #: how soon a driver or task looks again at a line that another user holds
 LOCK_RETRY = 0.001
+#: how soon a driver or task looks again at a TCP line's connection being made (the loop does not wait for it)
+CONNECT_LOOK = 0.005
 
 
 class Line(Protocol):
@@ -62,6 +64,8 @@ class Line(Protocol):
     def broke(self, exc: StarterbusError) -> None: ...
 
     def usable_link(self) -> Link: ...
+
+    def reopen(self) -> bool: ...
 
 
 class RtuDriver(StreamDriver[RtuEngine]):
@@ -146,6 +150,7 @@ class RtuJobDriver(RtuDriver):
         self._served = False  # in the loop's drivers (only while tickets are out)
         self._locked = False
         self._retry_at = 0.0
+        self._connecting = False  # the line's TCP connection is being made (looked at again at _retry_at)
         #: tickets are out (read by the fleet's poll, in the loop, before it takes the line: they go first)
         self.waiting = False
 
@@ -156,7 +161,7 @@ class RtuJobDriver(RtuDriver):
 
     @property
     def deadline(self) -> float:
-        if self._locked:
+        if self._locked and not self._connecting:
             return float(self.engine.deadline)
         return self._retry_at if self.engine.pending else FOREVER
 
@@ -179,8 +184,12 @@ class RtuJobDriver(RtuDriver):
                 self._retry_at = line.clock() + LOCK_RETRY
                 return
             self._locked = True
-            if line.broken:
-                line.usable_link()  # (a TransportError: the loop crashes the driver, every ticket fails with it)
+        if line.broken and engine.wants_to_send:  # (broken under an answer: its silence is waited for first)
+            # (a TransportError: the loop crashes the driver, every ticket fails with it)
+            self._connecting = not line.reopen()
+            if self._connecting:
+                self._retry_at = line.clock() + CONNECT_LOOK
+                return
         before = engine.requests, engine.retries
         try:
             super().step(now, ready)
@@ -217,6 +226,7 @@ class RtuJobDriver(RtuDriver):
     def _idle(self) -> None:
         """No ticket left: the line's lock given back, the driver no longer served."""
         self.waiting = False
+        self._connecting = False
         if self._locked:
             self._locked = False
             self.line.lock.release()

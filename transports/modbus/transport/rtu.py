@@ -139,7 +139,10 @@ class ModbusRtuTransport(Transport):
         return self.config.connect()
 
     def _make_line(self) -> RtuLine:
-        return RtuLine(self._connect, self.config.serial)
+        config = self.config
+        return RtuLine(
+            self._connect, config.serial, start_connect=config.start_connect if config.variant == "tcp" else None
+        )
 
     def _open(self) -> None:
         line = LINES.acquire(self.config.line_key, self._make_line)
