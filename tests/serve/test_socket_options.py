@@ -5,18 +5,12 @@ from __future__ import annotations
 
 import asyncio
 import socket
-import time
-from collections.abc import AsyncIterator
 from typing import cast
 
 import pytest
 
 from starterbus.aio import AsyncFleet
-from starterbus.core.model import Value
-from starterbus.core.registry import get_profile
-from starterbus.core.status import decode_status_word
 from starterbus.fleet.config import DeviceConfig
-from starterbus.fleet.sample import Sample
 from starterbus.serve.actions import SessionOptions
 from starterbus.serve.broker import BrokerOptions
 from starterbus.serve.driver import EdgeNodeDriver
@@ -24,35 +18,7 @@ from starterbus.serve.embedded import Mosquitto
 from starterbus.serve.metrics import Aliases, device_metrics, node_metrics
 from starterbus.serve.session import EdgeSession
 from starterbus.testing import wait_until
-
-PROFILE = get_profile("jjr5000")
-
-
-class OneRound:
-    """A stand-in for the fleet: one sample of every device, then nothing until the stop."""
-
-    def __init__(self, configs: list[DeviceConfig]) -> None:
-        self.configs = configs
-
-    def subscribe(self) -> OneRound:
-        return self
-
-    def __aiter__(self) -> AsyncIterator[Sample]:
-        return self._samples()
-
-    async def _samples(self) -> AsyncIterator[Sample]:
-        status = decode_status_word(0x2200, PROFILE.faults)
-        point = PROFILE.point("phase_a_current")
-        for c in self.configs:
-            values = {point.key: Value.from_raw(point, 5)}
-            yield Sample(c.name, "l1", "jjr5000", time.time(), True, status, values, None, 0)
-        await asyncio.Event().wait()
-
-    def drain(self) -> list[Sample]:
-        return []
-
-    def close(self) -> None:
-        pass
+from starterbus.tests.serve.one_round import PROFILE, OneRound
 
 
 @pytest.mark.skipif(not hasattr(socket, "TCP_CORK"), reason="TCP_CORK is Linux's")
