@@ -50,7 +50,7 @@ if TYPE_CHECKING:
         ReadBackMismatch,
         UncertainValueError,
     )
-    from starterbus.core.media import Driver, StreamDriver, TcpDriver
+    from starterbus.core.media import Driver, StreamDriver, TcpDriver, connect_failure, start_connect
     from starterbus.core.media.can import CanDriver, CanEngine, Periodic, ToEngine
     from starterbus.core.media.keeper import keep_running, let_go
     from starterbus.core.media.local import LocalDriver, LocalEngine
@@ -200,6 +200,8 @@ _LAZY = {
     "Driver": "starterbus.core.media",
     "StreamDriver": "starterbus.core.media",
     "TcpDriver": "starterbus.core.media",
+    "connect_failure": "starterbus.core.media",
+    "start_connect": "starterbus.core.media",
     "CanDriver": "starterbus.core.media.can",
     "CanEngine": "starterbus.core.media.can",
     "Periodic": "starterbus.core.media.can",
@@ -324,6 +326,7 @@ __all__ = [
     "annotate_candump",
     "check_loopback",
     "check_peer",
+    "connect_failure",
     "decode_status_word",
     "describe_control_word",
     "encode_status_word",
@@ -346,6 +349,7 @@ __all__ = [
     "run_steps",
     "run_task",
     "shutdown_bus",
+    "start_connect",
     "status_with_currents",
     "wait_ticket",
 ]

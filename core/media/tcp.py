@@ -21,12 +21,35 @@ from starterbus.core.engine import StreamEngine
 from starterbus.core.errors import StarterbusError, TransportError
 from starterbus.core.media.driver import StreamDriver
 
-__all__ = ["BACKOFF_FIRST", "BACKOFF_MAX", "TcpDriver"]
+__all__ = ["BACKOFF_FIRST", "BACKOFF_MAX", "TcpDriver", "connect_failure", "start_connect"]
 
 BACKOFF_FIRST = 0.1  # s: the wait after a first failed connection attempt, doubled after each failure
 BACKOFF_MAX = 5.0
 
 E = TypeVar("E", bound=StreamEngine[Any, Any])
+
+
+def start_connect(host: str, port: int) -> tuple[socket.socket, bool]:
+    """A TCP connection to ``host:port`` begun without waiting: its non-blocking socket, and whether it is made
+    already (else: once the socket is writable, :func:`connect_failure` says how it ended). An :class:`OSError` if
+    it cannot begin (the name not resolved, refused at once); the socket is closed then. (The name is resolved in
+    the calling thread.)"""
+    family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    sock = socket.socket(family, kind, proto)
+    sock.setblocking(False)
+    code = sock.connect_ex(address)
+    if code == 0:
+        return sock, True
+    if code in (errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EAGAIN):
+        return sock, False
+    sock.close()
+    raise OSError(code, os.strerror(code))
+
+
+def connect_failure(sock: socket.socket) -> OSError | None:
+    """Why a connection begun by :func:`start_connect` failed, once its socket is writable (None: it is made)."""
+    code = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
+    return OSError(code, os.strerror(code)) if code else None
 
 
 class TcpDriver(StreamDriver[E]):
@@ -126,9 +149,9 @@ class TcpDriver(StreamDriver[E]):
             if broken is not None and self.stream is not None:
                 self.lost(broken, now)
             return
-        code = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
-        if code:
-            self._connect_failed(OSError(code, os.strerror(code)), now)
+        failure = connect_failure(sock)
+        if failure is not None:
+            self._connect_failed(failure, now)
             return
         self._connected(sock)
 
@@ -150,21 +173,15 @@ class TcpDriver(StreamDriver[E]):
 
     def _connect(self, now: float) -> None:
         try:
-            family, kind, proto, _, address = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM)[0]
-            sock = socket.socket(family, kind, proto)
+            sock, made = start_connect(self.host, self.port)
         except OSError as exc:
             self._connect_failed(exc, now)
             return
-        sock.setblocking(False)
-        code = sock.connect_ex(address)
-        if code == 0:
+        if made:
             self._connected(sock)
-        elif code in (errno.EINPROGRESS, errno.EWOULDBLOCK, errno.EAGAIN):
+        else:
             self._connecting = sock
             self._connect_by = now + self.connect_timeout
-        else:
-            sock.close()
-            self._connect_failed(OSError(code, os.strerror(code)), now)
 
     def _connected(self, sock: socket.socket) -> None:
         self._connecting = None

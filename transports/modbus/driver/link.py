@@ -9,7 +9,6 @@ are asked for, so bytes after an answer stay in the input for the silence check.
 
 from __future__ import annotations
 
-import errno
 import functools
 import os
 import re
@@ -22,7 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from starterbus.core import TransportError
+from starterbus.core import TransportError, connect_failure, start_connect
 
 if TYPE_CHECKING:
     import serial
@@ -268,16 +267,9 @@ class TcpConnect:
         self._clock = clock
         self._give_up = clock() + timeout
         try:
-            family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
-            sock = socket.socket(family, kind, proto)
+            self._sock, self._made = start_connect(host, port)
         except OSError as exc:
             raise self._error(str(exc)) from exc
-        sock.setblocking(False)
-        code = sock.connect_ex(address)
-        if code not in (0, errno.EINPROGRESS):
-            sock.close()
-            raise self._error(f"[Errno {code}] {os.strerror(code)}")
-        self._sock = sock
 
     def _error(self, why: str) -> TransportError:
         return TransportError(f"cannot connect to {self.host}:{self.port}: {why}")
@@ -286,15 +278,16 @@ class TcpConnect:
         """The link once connected; None while the connection is being made; a TransportError if it failed or
         the timeout passed (the socket closed)."""
         sock = self._sock
-        if not select.select(_NOTHING, [sock], _NOTHING, 0)[1]:
-            if self._clock() < self._give_up:
-                return None
-            self.close()
-            raise self._error("timed out")
-        code = sock.getsockopt(socket.SOL_SOCKET, socket.SO_ERROR)
-        if code:
-            self.close()
-            raise self._error(f"[Errno {code}] {os.strerror(code)}")
+        if not self._made:
+            if not select.select(_NOTHING, [sock], _NOTHING, 0)[1]:
+                if self._clock() < self._give_up:
+                    return None
+                self.close()
+                raise self._error("timed out")
+            failure = connect_failure(sock)
+            if failure is not None:
+                self.close()
+                raise self._error(str(failure))
         return Link.on_socket(sock, self.host, self.port)
 
     def close(self) -> None:
