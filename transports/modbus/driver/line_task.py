@@ -125,13 +125,9 @@ class LineTask(PollTask):
                 (submitted,) = driver.submit((exchange,), now, (None,))
                 self._ticket = cast(RtuTicket, submitted)
             ticket = self._ticket
-            engine = driver.engine
-            before = engine.requests, engine.retries
-            driver.step(now, True)
-            line.requests += engine.requests - before[0]
-            line.retries += engine.retries - before[1]
+            driver.counted_step(now, True)
             if not ticket.ended:
-                self._watch(engine, line.clock())
+                self._watch(driver.engine, line.clock())
                 return
             self._ended(ticket)
 

@@ -134,6 +134,15 @@ class RtuDriver(StreamDriver[RtuEngine]):
     def write(self, units: Sequence[Any], now: float) -> None:
         self.line.link.write(units[0])
 
+    def counted_step(self, now: float, ready: bool) -> None:
+        """This class's :meth:`step`, with the frames it wrote and the retries it began added to the line's counts
+        (the fleet's poll and the job driver both step so)."""
+        engine, line = self.engine, self.line
+        requests, retries = engine.requests, engine.retries
+        RtuDriver.step(self, now, ready)
+        line.requests += engine.requests - requests
+        line.retries += engine.retries - retries
+
 
 class RtuJobDriver(RtuDriver):
     """The blocking callers' transactions on ``line`` as tickets of ``loop``, served by it only while it has some.
@@ -190,12 +199,7 @@ class RtuJobDriver(RtuDriver):
             if self._connecting:
                 self._retry_at = line.clock() + CONNECT_LOOK
                 return
-        before = engine.requests, engine.retries
-        try:
-            super().step(now, ready)
-        finally:
-            line.requests += engine.requests - before[0]
-            line.retries += engine.retries - before[1]
+        self.counted_step(now, ready)
 
     def complete(self, now: float, done: Sequence[Ticket[Any, Any]] | None = None) -> None:
         if done is None:
