@@ -63,7 +63,7 @@ class ModbusRtuConfig:
     def connect(self) -> Link:
         """Open the port or connection: the POSIX fast path where it applies, else pyserial."""
         if self.variant == "tcp":
-            return Link.connect_tcp(self.host, self.port, max(self.policy.timeout, 1.0))
+            return Link.connect_tcp(self.host, self.port, self.connect_timeout)
         if self.variant:
             return PySerialLink.open(self.target, self.serial, url=True)
         if self.io == "pyserial":
@@ -72,7 +72,12 @@ class ModbusRtuConfig:
 
     def start_connect(self) -> TcpConnect:
         """A connection to a serial device server (``+tcp``), made without blocking (the I/O loop's reconnect)."""
-        return TcpConnect(self.host, self.port, max(self.policy.timeout, 1.0))
+        return TcpConnect(self.host, self.port, self.connect_timeout)
+
+    @property
+    def connect_timeout(self) -> float:
+        """How long a connection to a serial device server may take: the device's timeout, at least 1 s."""
+        return max(self.policy.timeout, 1.0)
 
     @property
     def broadcast(self) -> bool:
