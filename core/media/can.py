@@ -25,16 +25,16 @@ An engine that must be served while no caller waits keeps the loop's own thread 
 Everything but :meth:`CanDriver.acquire` / :meth:`CanDriver.release` runs in the scheduler's loop (through
 ``Scheduler.call`` or ``run``): only the leader touches the driver, the bus's writes and its engines.
 
-This module is the bus; the engines' half (routing, loop-back, tickets) is ``can_engines.py``, the periodic
+This module is the bus; the engines' half (routing, loop-back, tickets) is ``can_engines.py``, what is written
+(the engines' frames, one-off frames, the periodic ones at their deadlines) ``can_writes.py``, the periodic
 frames ``can_periodic.py``, reading a bus without a descriptor ``can_reader.py``.
 """
 
 from __future__ import annotations
 
 import collections
-import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from concurrent.futures import Future
 from typing import Any, TypeVar
 
@@ -44,14 +44,16 @@ from starterbus.core.canbus import open_bus, shutdown
 from starterbus.core.canframe import CanFrame
 from starterbus.core.engine import Ticket
 from starterbus.core.errors import ConfigurationError, TransportError
-from starterbus.core.media.can_engines import CanEngine, EngineSet, Loop, ToEngine
-from starterbus.core.media.can_periodic import Periodic, kernel_periodic, to_message
+from starterbus.core.media.can_engines import CanEngine, Loop, ToEngine
+from starterbus.core.media.can_periodic import Periodic
 from starterbus.core.media.can_reader import CanReader, QueueWait
+from starterbus.core.media.can_writes import MESSAGE_CACHE, BusWrites
 from starterbus.core.sharing import SharedPool
 
 __all__ = [
     "BUG_BACKOFF",
     "CAN_BUSES",
+    "MESSAGE_CACHE",
     "CanDriver",
     "CanEngine",
     "Loop",
@@ -59,17 +61,14 @@ __all__ = [
     "ToEngine",
 ]
 
-log = logging.getLogger(__name__)
-
 BUG_BACKOFF = 0.01  # s an engine's advance is held back after it raised (no tight loop on a failing timer)
-MESSAGE_CACHE = 512  # python-can messages kept for frames sent again (poll commands, heartbeats)
 #: the longest wait of a call into the loop (adding an engine, closing): only a stalled loop gets there
 STALL = 30.0
 
 T = TypeVar("T")
 
 
-class CanDriver(EngineSet):
+class CanDriver(BusWrites):
     """The engines on one python-can bus, run by the scheduler (a :class:`~starterbus.core.scheduler.Served`)."""
 
     def __init__(self, bus: can.BusABC, name: str, loop: Loop, *, owns_bus: bool = True) -> None:
@@ -214,16 +213,6 @@ class CanDriver(EngineSet):
         except (can.CanError, NotImplementedError, AttributeError):  # pragma: no cover - software routing only
             pass
 
-    def periodic(self, frame: CanFrame, period: float, now: float) -> Periodic:
-        """Send ``frame`` every ``period`` s from now on (the interface's cyclic send where it has its own,
-        else at the driver's deadlines)."""
-        task = Periodic(self, frame, period, now)
-        if kernel_periodic(self.bus):
-            task.task = self.bus.send_periodic(to_message(frame), period, store_task=False)
-        else:
-            self._periodics.append(task)
-        return task
-
     # -- what the scheduler reads ---------------------------------------------------------------------------------
 
     @property
@@ -346,58 +335,6 @@ class CanDriver(EngineSet):
         else:
             messages = reader.take()
         return self._deliver(messages, now) if messages else set()
-
-    def write(self, frames: Sequence[CanFrame]) -> None:
-        """Write what the engines give (in the loop): a failed send is logged and counted in :attr:`errors`, the
-        engine's own timeout then tells its caller (:meth:`send` raises instead)."""
-        for frame in frames:
-            try:
-                self.bus.send(self._message(frame))
-                self.sent += 1
-            except can.CanError as exc:
-                log.warning("CAN send %s on %s failed: %s", frame.text(), self.name, exc)
-                self.errors.append(f"send {frame.text()} failed: {exc}")
-
-    def send(self, frames: Sequence[CanFrame], what: str) -> None:
-        """Write ``frames`` now, in this order, from outside the loop (a one-off frame that must not fail quietly:
-        NMT start, a command's output words): a frame the bus refuses is a :class:`TransportError` naming it and
-        ``what``, and the frames after it are not sent. The other engines on the bus that want them see them."""
-
-        def send(now: float) -> None:
-            for index, frame in enumerate(frames):
-                try:
-                    self.bus.send(self._message(frame))
-                except can.CanError as exc:
-                    self.errors.append(f"send {frame.text()} failed: {exc}")
-                    unsent = f" ({len(frames) - index - 1} more not sent)" if index + 1 < len(frames) else ""
-                    raise TransportError(
-                        f"{what}: CAN frame {frame.text()} not sent on {self.name}: {exc}{unsent}"
-                    ) from None
-                self.sent += 1
-                if self.engines:
-                    self._loop_back(None, (frame,), now)
-
-        self.call(send, what)
-
-    def _message(self, frame: CanFrame) -> can.Message:
-        messages = self._messages
-        message = messages.get(frame)
-        if message is None:
-            message = to_message(frame)
-            if self._queue is not None:  # python-can's virtual bus: bytes (see _queue in __init__)
-                setattr(message, "data", frame.data)  # noqa: B010 (bytes where python-can declares a bytearray)
-            if len(messages) >= MESSAGE_CACHE:
-                messages.clear()
-            messages[frame] = message
-        return message
-
-    def _send_periodics(self, now: float) -> None:
-        for periodic in self._periodics:
-            if now >= periodic.next_at:
-                self.write((periodic.frame,))
-                periodic.next_at += periodic.period
-                if periodic.next_at <= now:  # late (a stalled loop): on the grid again, no burst of catch-ups
-                    periodic.next_at = now + periodic.period
 
 
 #: one driver per (interface, channel) in this process

@@ -6,7 +6,8 @@ own interval (up to ``WINDOW`` poll commands in flight) and keeps the latest inp
 here reads a clock, locks or touches a bus: the driver calls :meth:`start`, :meth:`handle` for every frame
 that :meth:`wants`, :meth:`tick` when :attr:`deadline` is due, passing the time, and sends :meth:`take`.
 
-Rules (documented in ``docs/devicenet.md``):
+Rules (documented in ``docs/devicenet.md``; going on line, the communication fault and a lost slave are
+:mod:`~starterbus.transports.devicenet.master.online`'s):
 
 - On line, a duplicate MAC ID *request* for the master's MAC is answered with a response; a *response* (or,
   during the check, a request or a response) puts the master in the communication faulted state: nothing is
@@ -26,9 +27,8 @@ import math
 from collections import deque
 
 from starterbus.core import CanFrame, ConfigurationError, TimeoutError, TransportError
-from starterbus.transports.devicenet.codec.cip import DeviceNetDecodeError, ObjectClass, Service
+from starterbus.transports.devicenet.codec.cip import ObjectClass, Service
 from starterbus.transports.devicenet.codec.connection import AllocationChoice, inactivity_timeout
-from starterbus.transports.devicenet.codec.dupmac import DuplicateMacCheck, decode_duplicate_mac
 from starterbus.transports.devicenet.codec.ids import duplicate_mac_id, explicit_response_id
 from starterbus.transports.devicenet.codec.ids import poll_response_id as _poll_response_id
 from starterbus.transports.devicenet.master.link import (
@@ -41,10 +41,19 @@ from starterbus.transports.devicenet.master.link import (
     ScannerState,
     Transaction,
 )
-from starterbus.transports.devicenet.master.polling import PollScheduler
+from starterbus.transports.devicenet.master.online import MASTER_VENDOR_ID, RESET_BACKOFF, STABLE_ONLINE, OnLine
 
-RESET_BACKOFF = (1.0, 60.0)  # first and longest wait before leaving the communication fault
-STABLE_ONLINE = 600.0  # seconds on line after which the backoff starts over
+__all__ = [
+    "CONFIRM_SLACK",
+    "IDLE_TICK",
+    "KEEPALIVE_GRID",
+    "MASTER_VENDOR_ID",
+    "MONITOR_LOST_AFTER",
+    "RESET_BACKOFF",
+    "STABLE_ONLINE",
+    "MasterNode",
+]
+
 CONFIRM_SLACK = 0.0005  # answers confirmed together when their guards end within this (fewer wake-ups)
 IDLE_TICK = 1.0  # longest time between two passes over the links (every timer is also woken exactly)
 MONITOR_LOST_AFTER = 10.0  # s without explicit answer after which a monitored slave (explicit EPR 0) is lost
@@ -52,10 +61,9 @@ MONITOR_LOST_AFTER = 10.0  # s without explicit answer after which a monitored s
 #: explicit message, never later than the period), so that slaves whose keep-alives fall due close together
 #: (attached one after the other) share one pass over the links instead of each costing a pass over every link
 KEEPALIVE_GRID = 0.2
-MASTER_VENDOR_ID = 0  # the scanner is no registered product; vendor 0 in its duplicate MAC ID messages
 
 
-class MasterNode(PollScheduler):
+class MasterNode(OnLine):
     """One DeviceNet master (scanner) on one CAN bus, as a state machine."""
 
     def __init__(self, config: ScannerConfig, serial: int, where: str = "") -> None:
@@ -98,13 +106,6 @@ class MasterNode(PollScheduler):
         """Begin (or restart, after a fault) the duplicate MAC ID check."""
         self._begin_check(now)
         return self.take()
-
-    def _begin_check(self, now: float) -> None:
-        self.state = ScannerState.CHECKING
-        self._out.append(self._dup_mac_frame(False))
-        self._check_step = 1
-        self._check_deadline = now + self.config.dup_mac_wait
-        self._wake(self._check_deadline)
 
     def close(self) -> None:
         self.state = ScannerState.CLOSED
@@ -239,80 +240,6 @@ class MasterNode(PollScheduler):
         out, self._out = self._out, []
         return out
 
-    def _dup_mac_frame(self, response: bool) -> CanFrame:
-        return DuplicateMacCheck(self.config.master_mac, response, MASTER_VENDOR_ID, self.serial).frame()
-
-    def _on_duplicate_mac(self, frame: CanFrame, now: float) -> None:
-        try:
-            message = decode_duplicate_mac(frame)
-        except DeviceNetDecodeError:
-            self.ignored += 1
-            return
-        if message.mac == self.config.master_mac:
-            if self.state is ScannerState.CHECKING or (self.state is ScannerState.ONLINE and message.response):
-                kind = "response" if message.response else "request"
-                self._fault(
-                    now,
-                    f"duplicate MAC ID {message.mac} on {self.where}: another node (vendor {message.vendor_id}, "
-                    f"serial 0x{message.serial_number:08X}) uses the master's MAC (duplicate MAC ID check {kind} "
-                    f"{frame.text()})",
-                )
-            elif self.state is ScannerState.ONLINE:
-                self._out.append(self._dup_mac_frame(True))
-            return
-        link = self.links.get(message.mac)
-        if link is not None and not message.response and link.state is LinkState.ESTABLISHED:
-            self._lose(link, now, "the slave restarted (duplicate MAC ID check seen)")
-            link.retry_at = now + 2 * self.config.dup_mac_wait
-            self._wake(link.retry_at)
-
-    # -- the communication fault ------------------------------------------------------------------------------
-
-    def _fault(self, now: float, why: str) -> None:
-        if self.online_since and now - self.online_since >= STABLE_ONLINE:
-            self.faults = 0
-        self.faults += 1
-        self.online_since = 0.0
-        self.fault = CommunicationFaultError(why)
-        self.state = ScannerState.FAULT
-        first, longest = RESET_BACKOFF
-        self.reset_at = now + min(longest, first * 2 ** (self.faults - 1))
-        if self.config.auto_reset:
-            self._wake(self.reset_at)
-        self._ready.clear()
-        self._confirming.clear()
-        self._deadlines.clear()
-        self._due.clear()
-        self._in_flight = 0
-        for link in self.links.values():
-            link.awaiting = link.queued = False
-            link.pending = None
-            link.urgent = 0
-            if link.run:  # the slave's watchdog stops the motor: a start must be sent again
-                link.run = False
-                link.output_seq += 1
-            link.state = LinkState.FAULTED
-            link.io = IoPhase.NONE
-            link.last_error = self.fault
-            self._fail_transactions(link, self.fault, started_too=True)
-            link.note(now, f"master faulted: {why}")
-
-    def reset(self, now: float) -> list[CanFrame]:
-        """Leave the communication fault: run the whole duplicate MAC ID check again."""
-        if self.state is not ScannerState.FAULT:
-            return []
-        return self.start(now)
-
-    def _go_online(self, now: float) -> None:
-        self.state = ScannerState.ONLINE
-        self.fault = None
-        self.online_since = now
-        for link in self.links.values():
-            if link.state in (LinkState.WAITING, LinkState.FAULTED):
-                link.state = LinkState.ALLOCATING
-                link.retry_at = now
-        self._wake(now)
-
     # -- timers ---------------------------------------------------------------------------------------------
 
     def tick(self, now: float) -> list[CanFrame]:
@@ -390,20 +317,6 @@ class MasterNode(PollScheduler):
                 self._allocate(link, now)
             else:
                 self._wake(link.retry_at)
-
-    def _lose(self, link: MasterLink, now: float, why: str) -> None:
-        link.state = LinkState.LOST
-        link.io = IoPhase.NONE
-        self._stop_polling(link)
-        if link.run:
-            link.run = False
-            link.output_seq += 1
-            why += "; run command dropped (send start again)"
-        link.last_error = TimeoutError(f"{link.describe()}: {why}")
-        link.retry_at = now
-        link.failures += 1
-        self._wake(now)
-        link.note(now, f"lost: {why}")
 
 
 def _keepalive_due(link: MasterLink) -> float:
