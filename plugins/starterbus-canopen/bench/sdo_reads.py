@@ -1,24 +1,34 @@
 """CPU and wall time of one CANopen SDO read (``Device.read`` of one parameter), per thread, before and after.
 
-    python plugins/starterbus-canopen/bench/sdo_reads.py [--reads 2000] [--pairs 3] [--before DIR]
+    python plugins/starterbus-canopen/bench/sdo_reads.py [--reads 2000] [--pairs 3] [--before DIR | --before-tree DIR]
+    python plugins/starterbus-canopen/bench/sdo_reads.py --instructions [--before-tree DIR] [--counts 200 1200]
 
 Each run is a process of its own: the plugin's simulator in the same process on a fresh ``virtual`` channel,
 one device (``heartbeat=100``), 50 reads not counted, then ``--reads`` reads; it prints the wall time and the
 CPU of each thread per read (the process's threads: the caller, the scheduler's, the bus's reader, the
 simulator's). ``--before DIR``: every pair also runs the plugin found in ``DIR`` (a directory holding an older
 ``starterbus_canopen``, e.g. ``git archive 6515d89 plugins/starterbus-canopen | tar -x -C /tmp/old`` then
-``--before /tmp/old/plugins/starterbus-canopen``), alternating which runs first. Not run by the tests; on a
-shared machine, give the load average with the figures.
+``--before /tmp/old/plugins/starterbus-canopen``), alternating which runs first. ``--before-tree DIR``: the
+whole older tree instead (a directory holding ``starterbus/``, its plugin in ``starterbus/plugins/starterbus-canopen``:
+e.g. the tree before issue 29). Not run by the tests; on a shared machine, give the load average with the figures.
+
+``--instructions``: the instructions one read costs the process (every thread, the simulator's included),
+counted by valgrind's callgrind: each tree runs under callgrind twice (the two ``--counts``), and the difference
+over the difference in reads is one read's count, which a busy machine does not move (CPU times on two shared
+cores do). It does not see the kernel's share (system calls, thread switches). Needs ``valgrind``.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import subprocess
 import sys
+import tempfile
 import threading
 import time
+from pathlib import Path
 
 
 def measure(reads: int) -> str:
@@ -52,12 +62,43 @@ def measure(reads: int) -> str:
     return f"{(ended - started) / reads * 1e6:.0f} us wall, {total:.0f} us CPU per read ({parts})"
 
 
-def run(reads: int, plugin: str | None) -> str:
+def environment(plugin: str | None, tree: str | None) -> dict[str, str]:
+    """The measured process imports ``plugin`` (an older plugin on this tree) or ``tree`` (a whole older tree)."""
     env = dict(os.environ)
-    if plugin is not None:
-        env["PYTHONPATH"] = os.pathsep.join(p for p in (plugin, env.get("PYTHONPATH")) if p)
+    paths = [plugin] if plugin is not None else []
+    if tree is not None:
+        paths = [tree, str(Path(tree) / "starterbus" / "plugins" / "starterbus-canopen")]
+    if paths:
+        env["PYTHONPATH"] = os.pathsep.join(p for p in (*paths, env.get("PYTHONPATH")) if p)
+    return env
+
+
+def run(reads: int, plugin: str | None, tree: str | None = None) -> str:
     command = [sys.executable, __file__, "--measure", "--reads", str(reads)]
-    return subprocess.run(command, env=env, check=True, capture_output=True, text=True).stdout.strip()
+    return subprocess.run(
+        command, env=environment(plugin, tree), check=True, capture_output=True, text=True
+    ).stdout.strip()
+
+
+def instructions(reads: int, tree: str | None) -> int:
+    """Instructions of one measured process under callgrind."""
+    python = os.path.realpath(sys.executable)  # not a shim script: callgrind follows no child
+    with tempfile.TemporaryDirectory() as tmp:
+        out = subprocess.run(
+            ["valgrind", "--tool=callgrind", f"--callgrind-out-file={tmp}/cg.out", python,
+             str(Path(__file__).resolve()), "--measure", "--reads", str(reads)],
+            env=environment(None, tree), capture_output=True, text=True, check=True, cwd=tmp,
+        )  # fmt: skip
+    found = re.search(r"Collected : (\d+)", out.stderr)
+    if found is None:
+        raise RuntimeError(f"no count from callgrind: {out.stderr[-500:]}")
+    return int(found.group(1))
+
+
+def per_read(counts: tuple[int, int], tree: str | None) -> float:
+    run(5, None, tree)  # the .pyc files written first
+    low, high = (instructions(n, tree) for n in counts)
+    return (high - low) / (counts[1] - counts[0])
 
 
 def main() -> None:
@@ -65,15 +106,32 @@ def main() -> None:
     parser.add_argument("--reads", type=int, default=2000)
     parser.add_argument("--pairs", type=int, default=3)
     parser.add_argument("--before", metavar="DIR", help="a directory holding an older starterbus_canopen")
+    parser.add_argument(
+        "--before-tree", metavar="DIR", help="a directory holding an older starterbus/ (and its plugin)"
+    )
+    parser.add_argument("--instructions", action="store_true", help="count instructions per read under callgrind")
+    parser.add_argument("--counts", type=int, nargs=2, default=(200, 1200), metavar=("LOW", "HIGH"))
     parser.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.measure:
         print(measure(args.reads))
         return
+    if args.instructions:
+        counts = (args.counts[0], args.counts[1])
+        after = per_read(counts, None)
+        print(f"this tree: {after:,.0f} instructions a read", flush=True)
+        if args.before_tree is not None:
+            before = per_read(counts, args.before_tree)
+            print(f"{args.before_tree}: {before:,.0f} instructions a read")
+            print(f"this tree / before: {after / before:.3f}x")
+        return
+    before = [("before", args.before, None)] if args.before else []
+    if args.before_tree:
+        before = [("before", None, args.before_tree)]
     for pair in range(args.pairs):
-        runs = [("after", None)] + ([("before", args.before)] if args.before else [])
-        for label, plugin in runs if pair % 2 == 0 else runs[::-1]:
-            print(f"{label:6} {run(args.reads, plugin)}", flush=True)
+        runs = [("after", None, None), *before]
+        for label, plugin, tree in runs if pair % 2 == 0 else runs[::-1]:
+            print(f"{label:6} {run(args.reads, plugin, tree)}", flush=True)
         print(f"       load average {' '.join(f'{x:.2f}' for x in os.getloadavg())}", flush=True)
 
 
