@@ -50,7 +50,7 @@ if TYPE_CHECKING:
         ReadBackMismatch,
         UncertainValueError,
     )
-    from starterbus.core.media import Driver, StreamDriver, TcpDriver, connect_failure, start_connect
+    from starterbus.core.media import Driver, StreamDriver, TcpDriver, connect_failure, connect_timeout, start_connect
     from starterbus.core.media.can import CanDriver, CanEngine, Periodic, ToEngine
     from starterbus.core.media.keeper import keep_running, let_go
     from starterbus.core.media.local import LocalDriver, LocalEngine
@@ -201,6 +201,7 @@ _LAZY = {
     "StreamDriver": "starterbus.core.media",
     "TcpDriver": "starterbus.core.media",
     "connect_failure": "starterbus.core.media",
+    "connect_timeout": "starterbus.core.media",
     "start_connect": "starterbus.core.media",
     "CanDriver": "starterbus.core.media.can",
     "CanEngine": "starterbus.core.media.can",
@@ -327,6 +328,7 @@ __all__ = [
     "check_loopback",
     "check_peer",
     "connect_failure",
+    "connect_timeout",
     "decode_status_word",
     "describe_control_word",
     "encode_status_word",

@@ -3,6 +3,6 @@ with a descriptor (:class:`StreamDriver`), a TCP client connection (:class:`TcpD
 their descriptors. Protocol-neutral."""
 
 from starterbus.core.media.driver import Driver, Stream, StreamDriver
-from starterbus.core.media.tcp import TcpDriver, connect_failure, start_connect
+from starterbus.core.media.tcp import TcpDriver, connect_failure, connect_timeout, start_connect
 
-__all__ = ["Driver", "Stream", "StreamDriver", "TcpDriver", "connect_failure", "start_connect"]
+__all__ = ["Driver", "Stream", "StreamDriver", "TcpDriver", "connect_failure", "connect_timeout", "start_connect"]

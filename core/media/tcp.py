@@ -21,10 +21,25 @@ from starterbus.core.engine import StreamEngine
 from starterbus.core.errors import StarterbusError, TransportError
 from starterbus.core.media.driver import StreamDriver
 
-__all__ = ["BACKOFF_FIRST", "BACKOFF_MAX", "TcpDriver", "connect_failure", "start_connect"]
+__all__ = [
+    "BACKOFF_FIRST",
+    "BACKOFF_MAX",
+    "CONNECT_AT_LEAST",
+    "TcpDriver",
+    "connect_failure",
+    "connect_timeout",
+    "start_connect",
+]
 
 BACKOFF_FIRST = 0.1  # s: the wait after a first failed connection attempt, doubled after each failure
 BACKOFF_MAX = 5.0
+CONNECT_AT_LEAST = 1.0  # s: a connection is given this long at least, whatever a device's answers are given
+
+
+def connect_timeout(timeout: float) -> float:
+    """How long a connection to a device (or a server in front of devices) may take, for a device's ``timeout``."""
+    return max(timeout, CONNECT_AT_LEAST)
+
 
 E = TypeVar("E", bound=StreamEngine[Any, Any])
 

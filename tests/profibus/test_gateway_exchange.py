@@ -16,10 +16,11 @@ from starterbus.core.engine import TicketState
 from starterbus.core.errors import RemoteDeviceError, TimeoutError, TransportError
 from starterbus.core.scheduler import Scheduler
 from starterbus.testing import wait_until
+from starterbus.transports.modbus.driver.tcp_line import MbapConnection
 from starterbus.transports.modbus.master.mbap import HEADER, HEADER_LENGTH, encode_adu
 from starterbus.transports.profibus_pkw.codec.codes import Ppo, TaskCode
 from starterbus.transports.profibus_pkw.codec.telegram import pkw_request
-from starterbus.transports.profibus_pkw.driver.gateway import GatewayConnection, GatewayStation, StationDriver
+from starterbus.transports.profibus_pkw.driver.gateway import GatewayStation, StationDriver
 from starterbus.transports.profibus_pkw.master.handshake import Limits, PkwEngine
 from starterbus.transports.profibus_pkw.master.station import FreshInputs, PkwTask, StationEngine
 
@@ -107,9 +108,14 @@ def loop() -> Scheduler:
     return Scheduler()  # a loop of the test's own: no other driver, turned by the test
 
 
+def connect(port: int, loop: Scheduler) -> MbapConnection:
+    """The gateway's connection on the test's loop, made on the first exchange (as a gateway channel makes it)."""
+    return MbapConnection("127.0.0.1", port, 1, TIMEOUT, loop, connect=False)
+
+
 def station(
     loop: Scheduler,
-    connection: GatewayConnection,
+    connection: MbapConnection,
     ppo: Ppo = Ppo.PPO1,
     *,
     control: int | None = 0,
@@ -117,7 +123,9 @@ def station(
     inp: int = 20,
     input_function: int = 3,
 ) -> StationDriver:
-    gateway = GatewayStation(connection, ppo.words, out=out, inp=inp, unit=1, input_function=input_function)
+    gateway = GatewayStation(
+        connection, ppo.words, out=out, inp=inp, unit=1, input_function=input_function, timeout=TIMEOUT
+    )
     engine = StationEngine(ppo, PkwEngine(limits=Limits(timeout=2.0)), where="test station", reply_within=2.0)
     engine.control = control
     driver = StationDriver(f"station out={out}", lambda: engine, gateway)
@@ -134,7 +142,7 @@ def settle(loop: Scheduler, done: Callable[[], bool]) -> None:
 
 
 def test_an_exchange_writes_the_outputs_then_reads_the_inputs(gateway: ScriptedGateway, loop: Scheduler) -> None:
-    connection = GatewayConnection("127.0.0.1", gateway.port, TIMEOUT, loop)
+    connection = connect(gateway.port, loop)
     driver = station(loop, connection, control=0x0009)
     future = submit(loop, driver, FreshInputs(2.0))
     write = gateway.request(loop)
@@ -156,7 +164,7 @@ def test_a_passive_station_leaves_the_control_word_alone(
 ) -> None:
     """Passive on PZD (outputs not readable on open): only the PKW words are written (PPO3: nothing), then the
     inputs are read with FC04 when the map says so."""
-    connection = GatewayConnection("127.0.0.1", gateway.port, TIMEOUT, loop)
+    connection = connect(gateway.port, loop)
     driver = station(loop, connection, ppo, control=None, input_function=4)
     future = submit(loop, driver, FreshInputs(2.0))
     for pdu in pdus:
@@ -172,7 +180,7 @@ def test_a_passive_station_leaves_the_control_word_alone(
 
 
 def test_a_late_answer_is_stale_never_the_inputs_of_a_later_exchange(gateway: ScriptedGateway, loop: Scheduler) -> None:
-    connection = GatewayConnection("127.0.0.1", gateway.port, TIMEOUT, loop)
+    connection = connect(gateway.port, loop)
     driver = station(loop, connection, Ppo.PPO3, control=None)
     first = submit(loop, driver, FreshInputs(2.0))
     late = gateway.request(loop)
@@ -192,7 +200,7 @@ def test_a_late_answer_is_stale_never_the_inputs_of_a_later_exchange(gateway: Sc
 
 
 def test_an_exception_answer_is_a_typed_error_naming_the_gateway(gateway: ScriptedGateway, loop: Scheduler) -> None:
-    connection = GatewayConnection("127.0.0.1", gateway.port, TIMEOUT, loop)
+    connection = connect(gateway.port, loop)
     driver = station(loop, connection, control=0)
     future = submit(loop, driver, FreshInputs(2.0))
     write = gateway.request(loop)
@@ -209,7 +217,7 @@ def test_an_exception_answer_is_a_typed_error_naming_the_gateway(gateway: Script
 def test_stations_take_turns_on_one_connection(gateway: ScriptedGateway, loop: Scheduler) -> None:
     """Two stations' exchanges queued at once: one transaction on the wire at a time, each station's read right
     after its own write, and each gets its own inputs."""
-    connection = GatewayConnection("127.0.0.1", gateway.port, TIMEOUT, loop)
+    connection = connect(gateway.port, loop)
     a = station(loop, connection, control=1, out=0, inp=100)
     b = station(loop, connection, control=2, out=4, inp=104)
     task = PkwTask(pkw_request(TaskCode.READ_PARAMETER, 3))
@@ -237,7 +245,7 @@ def test_nobody_listening_fails_the_exchange_at_once(loop: Scheduler) -> None:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]  # closed again: nothing listens there
-    connection = GatewayConnection("127.0.0.1", port, TIMEOUT, loop)
+    connection = connect(port, loop)
     driver = station(loop, connection)
     future = submit(loop, driver, FreshInputs(2.0))
     settle(loop, future.done)
@@ -249,7 +257,7 @@ def test_nobody_listening_fails_the_exchange_at_once(loop: Scheduler) -> None:
 def test_a_write_not_answered_fails_the_exchange_and_its_read_never_goes(
     gateway: ScriptedGateway, loop: Scheduler
 ) -> None:
-    connection = GatewayConnection("127.0.0.1", gateway.port, TIMEOUT, loop)
+    connection = connect(gateway.port, loop)
     driver = station(loop, connection, control=0)
     future = submit(loop, driver, FreshInputs(2.0))
     write = gateway.request(loop)

@@ -17,6 +17,7 @@ from starterbus.core.errors import ConfigurationError, RemoteDeviceError, StateR
 from starterbus.core.profile import Profile
 from starterbus.core.simulator import ManualClock, Phase, SimulatedStarter
 from starterbus.core.status import Status
+from starterbus.transports.modbus.driver.tcp_line import connection_key
 from starterbus.transports.profibus_pkw.codec.codes import Ppo
 from starterbus.transports.profibus_pkw.driver.channels import GATEWAYS, GatewayChannel
 from starterbus.transports.profibus_pkw.master.handshake import PkwError
@@ -162,13 +163,13 @@ def test_stations_share_one_connection(gateway_factory: Factory, jjr8000: Profil
     urls = sim.client_urls()
     assert urls[5].endswith("out=4&in=104&unit=1&stale_time=0.004")
     with open_device(urls[4] + "&cycle=0", jjr8000) as d4, open_device(urls[5] + "&cycle=0", jjr8000) as d5:
-        assert GATEWAYS.users(("127.0.0.1", sim.port)) == 2
+        assert GATEWAYS.users(connection_key("127.0.0.1", sim.port)) == 2
         d5.write("ramp_time", 30)
         d4.write("ramp_time", 40)
         assert (a.params["ramp_time"], b.params["ramp_time"]) == (40, 30)
         d5.start()
         assert b.phase is Phase.STARTING and a.phase is Phase.STOPPED
-    assert GATEWAYS.users(("127.0.0.1", sim.port)) == 0
+    assert GATEWAYS.users(connection_key("127.0.0.1", sim.port)) == 0
 
 
 @pytest.mark.parametrize("model", ["jjr5000", "jjr8000"])

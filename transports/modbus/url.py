@@ -12,7 +12,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-from starterbus.core import ConfigurationError, DeviceUrl, Profile
+from starterbus.core import ConfigurationError, DeviceUrl, Profile, connect_timeout
 from starterbus.transports.modbus.codec.messages import BROADCAST, MAX_UNIT
 from starterbus.transports.modbus.codec.timing import silent_interval
 from starterbus.transports.modbus.driver.link import Link, PySerialLink, SerialSettings, TcpConnect, com_port
@@ -77,7 +77,7 @@ class ModbusRtuConfig:
     @property
     def connect_timeout(self) -> float:
         """How long a connection to a serial device server may take: the device's timeout, at least 1 s."""
-        return max(self.policy.timeout, 1.0)
+        return connect_timeout(self.policy.timeout)
 
     @property
     def broadcast(self) -> bool:

@@ -1,13 +1,15 @@
-"""One Modbus TCP connection to a gateway (or a TCP device), shared by every unit behind it in this process.
+"""One Modbus TCP connection to a gateway (or a TCP device), shared by everything this process reaches at that
+``HOST:PORT`` (:data:`CONNECTIONS`): the units of ``modbus-tcp`` devices behind it and Profibus PKW gateway
+stations mapped on it.
 
-The connection is :class:`~starterbus.transports.modbus.master.mbap.MbapEngine` on a
-:class:`~starterbus.core.media.TcpDriver`, run by the process's scheduler (docs/engine.md): no thread of its
-own. A caller submits its transactions and waits for their tickets; while no other thread runs the loop, the
-caller runs it (one ``select`` for the answer, in its own thread). At most ``outstanding`` transactions are on the
-wire at once (the engine queues the others). A transaction that times out is forgotten: its late answer is
-stale and dropped. A 0x0A / 0x0B exception is the gateway saying the device behind it is unreachable: a failed
-attempt like a timeout (retried within the policy), never a refusal. A broken connection fails every sent
-transaction; the next request reconnects, after a backoff if connecting failed.
+The connection is :class:`~starterbus.transports.modbus.master.mbap.MbapEngine` on an
+:class:`~starterbus.transports.modbus.driver.mbap_driver.MbapDriver`, run by the process's scheduler
+(docs/engine.md): no thread of its own. A caller submits its transactions and waits for their tickets; while no
+other thread runs the loop, the caller runs it (one ``select`` for the answer, in its own thread). At most
+``outstanding`` transactions are on the wire at once (the engine queues the others). A transaction that times out is
+forgotten: its late answer is stale and dropped. A 0x0A / 0x0B exception is the gateway saying the device behind it
+is unreachable: a failed attempt like a timeout (retried within the policy), never a refusal. A broken connection
+fails every sent transaction; the next request reconnects, after a backoff if connecting failed.
 """
 
 from __future__ import annotations
@@ -20,8 +22,8 @@ from starterbus.core import (
     PollResult,
     PollTask,
     Scheduler,
+    SharedPool,
     StarterbusError,
-    TcpDriver,
     TicketState,
     TimeoutError,
     TransportCounters,
@@ -29,8 +31,9 @@ from starterbus.core import (
     process_scheduler,
 )
 from starterbus.transports.modbus.codec.messages import Response
+from starterbus.transports.modbus.driver.mbap_driver import MbapDriver
 from starterbus.transports.modbus.master.exchange import Exchange
-from starterbus.transports.modbus.master.mbap import HEADER_LENGTH, MbapEngine, MbapTicket
+from starterbus.transports.modbus.master.mbap import HEADER_LENGTH, MbapTicket
 
 #: the outer bound of a wait beyond the transactions' own timeouts: only a stalled loop gets there
 STALL = 30.0
@@ -41,8 +44,20 @@ LOOK_AGAIN = 0.001
 LOOK_LATER = 1.0
 
 
+#: one connection per ``HOST:PORT`` in this process, shared by everything reached there: ``modbus-tcp`` devices and
+#: Profibus PKW gateway stations (:func:`connection_key`)
+CONNECTIONS: SharedPool[MbapConnection] = SharedPool("Modbus TCP connections")
+
+
+def connection_key(host: str, port: int) -> tuple[str, str, int]:
+    """The key of the connection to ``host:port`` in :data:`CONNECTIONS`."""
+    return ("modbus-tcp", host, port)
+
+
 class MbapConnection:
-    """A Modbus TCP client connection; thread-safe. ``run`` has the signature of ``RtuLine.run``."""
+    """A Modbus TCP client connection; thread-safe. ``run`` has the signature of ``RtuLine.run``. ``connect``:
+    connect now and raise if that fails (else on the first transaction). ``outstanding`` and ``connect_timeout``
+    are the connection's own: whoever opens it first sets them."""
 
     def __init__(
         self,
@@ -51,35 +66,38 @@ class MbapConnection:
         outstanding: int,
         connect_timeout: float,
         loop: Scheduler | None = None,
+        *,
+        connect: bool = True,
     ) -> None:
         self.host, self.port = host, port
-        self.name = f"{host}:{port}"
         self.outstanding = outstanding
-        self._connect_timeout = connect_timeout
-        self._loop = loop or process_scheduler()
-        name = self.name
-        self._driver: TcpDriver[MbapEngine] = TcpDriver(
-            host, port, lambda: MbapEngine(outstanding=outstanding, name=name), connect_timeout
-        )
-        opened = self._call(self._open, "connect")
-        try:
-            self._loop.wait(opened, connect_timeout + STALL, f"{self.name}: connect")
-        except StarterbusError:
-            self.close()
-            raise
+        self.connect_timeout = connect_timeout
+        self.loop = loop or process_scheduler()
+        self.driver = MbapDriver(host, port, outstanding, connect_timeout, self.loop)
+        self.name = self.driver.name
+        opened = self._call(self._open if connect else self._add, "connect")
+        if connect:
+            try:
+                self.loop.wait(opened, connect_timeout + STALL, f"{self.name}: connect")
+            except StarterbusError:
+                self.close()
+                raise
+
+    def _add(self, now: float) -> None:
+        self.loop.add(self.driver)
 
     def _open(self, now: float) -> Future[None]:
-        self._loop.add(self._driver)
-        return self._driver.open(now)
+        self.loop.add(self.driver)
+        return self.driver.open(now)
 
     def _call(self, fn: Callable[[float], Any], what: str) -> Any:
-        return self._loop.wait(self._loop.call(fn), STALL, f"{self.name}: {what}")
+        return self.loop.wait(self.loop.call(fn), STALL, f"{self.name}: {what}")
 
     def close(self) -> None:
-        driver = self._driver
+        driver = self.driver
 
         def close(now: float) -> None:
-            self._loop.remove(driver)
+            self.loop.remove(driver)
             driver.close(now)
 
         self._call(close, "close")
@@ -87,16 +105,16 @@ class MbapConnection:
     @property
     def stale(self) -> int:
         """Answers dropped because no transaction waited for their id."""
-        return self._driver.engine.stale
+        return self.driver.engine.stale
 
     @property
     def connects(self) -> int:
         """Connections made so far."""
-        return self._driver.connects
+        return self.driver.connects
 
     def check(self) -> bool:
         """Whether the connection is up, after taking what waits on it (a close by the gateway is seen)."""
-        return bool(self._call(self._driver.check, "check"))
+        return bool(self._call(self.driver.check, "check"))
 
     # -- transactions ---------------------------------------------------------------------------------------------
 
@@ -105,27 +123,36 @@ class MbapConnection:
         return self.run_many([exchange], counters)[0]
 
     def run_many(self, exchanges: Sequence[Exchange], counters: TransportCounters | None = None) -> list[Response]:
-        """The transactions, up to ``outstanding`` on the wire at once; answers in the order of ``exchanges``.
-        A failed attempt is repeated on its own, within its policy; the first failure for good raises (the
-        transactions after it are withdrawn: those not sent never are)."""
+        """The transactions, up to ``outstanding`` on the wire at once; answers in the order of ``exchanges``, up to
+        the first refusal (an exception answer withdraws the transactions after it). A failed attempt is repeated on
+        its own, within its policy; the first failure for good raises (the transactions after it are withdrawn:
+        those not sent never are)."""
         if not exchanges:
             return []
-        bound = STALL + self._connect_timeout + sum(e.policy.timeout * e.attempts for e in exchanges)
-        what = f"{self.name}: unit {exchanges[0].request.unit}"
-        tickets: list[MbapTicket] = self._loop.run(self._driver, exchanges, bound, what)  # type: ignore[assignment]
+        tickets = self.tickets(exchanges, f"unit {exchanges[0].request.unit}")
         for exchange, ticket in zip(exchanges, tickets, strict=False):
-            if ticket.state is not TicketState.CANCELLED:  # withdrawn after another one's failure
+            if ticket.state is not TicketState.CANCELLED:  # withdrawn after another one's failure or refusal
                 self._count(counters, exchange, ticket)
         for ticket in tickets:
             if ticket.state is TicketState.FAILED:
                 ticket.outcome()  # raises its error
-        return [ticket.outcome() for ticket in tickets]
+        answers: list[Response] = []
+        for ticket in tickets:
+            if ticket.state is TicketState.CANCELLED:
+                break
+            answers.append(ticket.outcome())
+        return answers
+
+    def tickets(self, exchanges: Sequence[Exchange], what: str) -> list[MbapTicket]:
+        """The transactions as one batch, waited for (a blocking call: outside the loop): their ended tickets."""
+        bound = STALL + self.connect_timeout + sum(e.policy.timeout * e.attempts for e in exchanges)
+        return self.loop.run(self.driver, exchanges, bound, f"{self.name}: {what}")  # type: ignore[return-value]
 
     def _withdraw(self, futures: Sequence[Future[Any]]) -> None:
         """Cancel these futures' transactions (without waiting: the loop does it at its next turn)."""
         if futures:
-            driver = self._driver
-            self._loop.call(lambda now: driver.cancel(futures, now))
+            driver = self.driver
+            self.loop.call(lambda now: driver.cancel(futures, now))
 
     def _count(self, counters: TransportCounters | None, exchange: Exchange, ticket: MbapTicket) -> None:
         if counters is None:
@@ -173,7 +200,7 @@ class MbapPoll(PollTask):
         if self.done:
             return
         connection = self.connection
-        loop, driver = connection._loop, connection._driver
+        loop, driver = connection.loop, connection.driver
         progress = self.on_progress
         if self._futures is None:
             self._futures = loop.submit_all(driver, self.exchanges)
@@ -210,7 +237,7 @@ class MbapPoll(PollTask):
         self._error = error
         self.done = True
         self.connection._withdraw(rest)
-        self.connection._loop.try_turn()  # the withdrawal made now, unless another thread leads (it makes it)
+        self.connection.loop.try_turn()  # the withdrawal made now, unless another thread leads (it makes it)
 
     def result(self) -> PollResult:
         if self._error is not None:

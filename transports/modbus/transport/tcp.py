@@ -19,7 +19,6 @@ from starterbus.core import (
     PollTask,
     Profile,
     RemoteDeviceError,
-    SharedPool,
     StarterbusError,
     Status,
     status_with_currents,
@@ -29,7 +28,7 @@ from starterbus.transports.modbus.codec.messages import ExceptionResponse, ReadR
 from starterbus.transports.modbus.codec.timing import silent_interval
 from starterbus.transports.modbus.decoder import exception_meaning
 from starterbus.transports.modbus.driver.link import SerialSettings
-from starterbus.transports.modbus.driver.tcp_line import MbapConnection, MbapPoll
+from starterbus.transports.modbus.driver.tcp_line import CONNECTIONS, MbapConnection, MbapPoll, connection_key
 from starterbus.transports.modbus.master.exchange import TransactionPolicy
 from starterbus.transports.modbus.master.mbap import encode_adu
 from starterbus.transports.modbus.master.poll_plan import sort_out
@@ -41,8 +40,9 @@ DEFAULT_PORT = 502
 DEFAULT_TIMEOUT = 1.0  # a gateway adds its own serial timeout to the device's answer
 URL_PARAMETERS = ("unit", "timeout", "retries", "retry_writes", "outstanding", "baudrate")
 
-#: one connection per gateway (HOST:PORT) in this process, shared by every unit behind it
-GATEWAYS: SharedPool[MbapConnection] = SharedPool("modbus-tcp gateways")
+#: one connection per gateway (HOST:PORT) in this process, shared by every unit behind it (and by Profibus PKW
+#: gateway stations mapped on the same HOST:PORT)
+GATEWAYS = CONNECTIONS
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,7 +54,7 @@ class ModbusTcpConfig(ModbusRtuConfig):
 
     @property
     def line_key(self) -> tuple[str, str, int]:
-        return (NAME, self.host, self.port)
+        return connection_key(self.host, self.port)
 
     @property
     def target(self) -> str:
@@ -114,7 +114,7 @@ class ModbusTcpTransport(ModbusRtuTransport):
     def _open(self) -> None:
         tcp = self.tcp
         gateway = GATEWAYS.acquire(
-            tcp.line_key, lambda: MbapConnection(tcp.host, tcp.port, tcp.outstanding, max(tcp.policy.timeout, 1.0))
+            tcp.line_key, lambda: MbapConnection(tcp.host, tcp.port, tcp.outstanding, tcp.connect_timeout)
         )
         if gateway.outstanding != tcp.outstanding:
             GATEWAYS.release(tcp.line_key)
@@ -155,7 +155,8 @@ class ModbusTcpTransport(ModbusRtuTransport):
         plan = self.poll_plans.get(points, status)
         exchanges = [self._read_exchange(request) for request in plan.requests]
         values: tuple[int, ...] = ()
-        for exchange, response in zip(exchanges, self._gateway.run_many(exchanges, self._counters), strict=True):
+        # (answers up to the first refusal, which raises here: the transactions after it were withdrawn)
+        for exchange, response in zip(exchanges, self._gateway.run_many(exchanges, self._counters), strict=False):
             self._refuse_exceptions(exchange, response)
             assert isinstance(response, ReadResponse)
             values += response.values

@@ -9,7 +9,8 @@ returns the slave's input words. Two channels are built in:
 - :class:`GatewayChannel` (``profibus-pkw+gateway://HOST:PORT?out=0&in=0&unit=1``): a Profibus master gateway or
   PLC that shows the slave's output words as Modbus TCP holding registers (written with FC16) and its input
   words as holding registers (FC03) or input registers (FC04). One Modbus TCP connection per gateway is shared
-  by every station mapped on it (:data:`GATEWAYS`, a :class:`SharedPool`), on the process's scheduler: a
+  by every station mapped on it and by ``modbus-tcp`` devices at the same ``HOST:PORT`` (:data:`GATEWAYS`,
+  ``modbus``'s pool of connections), on the process's scheduler: a
   station's cycle is a driver there (:meth:`Channel.driver`, ``gateway.py``), no thread and no blocking call.
 
 A third channel (a DP master card, pyprofibus) implements the same three methods; see docs/profibus.md. Its
@@ -28,13 +29,14 @@ from starterbus.core import (
     Driver,
     LocalDriver,
     Scheduler,
-    SharedPool,
     SimulatedStarter,
     StarterbusError,
     TransportError,
+    connect_timeout,
 )
+from starterbus.transports.modbus.driver.tcp_line import CONNECTIONS, MbapConnection, connection_key
 from starterbus.transports.profibus_pkw.codec.codes import Ppo
-from starterbus.transports.profibus_pkw.driver.gateway import GatewayConnection, GatewayStation, StationDriver
+from starterbus.transports.profibus_pkw.driver.gateway import GatewayStation, StationDriver
 from starterbus.transports.profibus_pkw.driver.station_lock import hold_station, release_station
 from starterbus.transports.profibus_pkw.master.station import DpIn, DpOut, StationEngine
 from starterbus.transports.profibus_pkw.slave import SimulatedDpSlave
@@ -46,7 +48,6 @@ __all__ = [
     "GATEWAYS",
     "Channel",
     "GatewayChannel",
-    "GatewayConnection",
     "SimChannel",
     "Snapshot",
     "attach_slave",
@@ -201,8 +202,8 @@ class SimChannel(Channel):
 
 # -- Modbus TCP gateway --------------------------------------------------------------------------------------
 
-#: one connection per (host, port) in this process, on the process's scheduler (``gateway.py``)
-GATEWAYS: SharedPool[GatewayConnection] = SharedPool("profibus-pkw gateways")
+#: one connection per (host, port) in this process, on the process's scheduler, shared with ``modbus-tcp`` devices
+GATEWAYS = CONNECTIONS
 
 
 class GatewayChannel(Channel):
@@ -227,15 +228,27 @@ class GatewayChannel(Channel):
                 raise ConfigurationError(f"gateway register offset {name}={address} is not a register address")
         self.host, self.port, self.ppo = host, port, ppo
         self.out, self.inp, self.unit, self.input_function = out, inp, unit, input_function
-        self._key = (host, port)
+        self._key = connection_key(host, port)
         self.reply_within = 2 * timeout + 1.0  # an FC16 and a read, each with its timeout: the connection decides
         self._station = hold_station(host, port, unit, out, f"station at gateway {host}:{port} unit {unit} out={out}")
         try:
-            self._conn = GATEWAYS.acquire(self._key, lambda: GatewayConnection(host, port, timeout))
+            self._conn = GATEWAYS.acquire(
+                self._key, lambda: MbapConnection(host, port, 1, connect_timeout(timeout), connect=False)
+            )
         except BaseException:
             release_station(self._station)
             raise
-        self.gateway = GatewayStation(self._conn, ppo.words, out=out, inp=inp, unit=unit, input_function=input_function)
+        if self._conn.outstanding != 1:
+            GATEWAYS.release(self._key)
+            release_station(self._station)
+            raise ConfigurationError(
+                f"{self._conn.name} is already open in this process with outstanding={self._conn.outstanding} "
+                "(modbus-tcp): a gateway's stations need one transaction at a time (outstanding=1), and one "
+                "connection has one setting"
+            )
+        self.gateway = GatewayStation(
+            self._conn, ppo.words, out=out, inp=inp, unit=unit, input_function=input_function, timeout=timeout
+        )
         self._closed = False
 
     @property

@@ -1,11 +1,13 @@
 """A Profibus master gateway reached over Modbus TCP, on the one I/O engine (docs/engine.md, step 6).
 
-One connection per gateway ``HOST:PORT`` (:class:`GatewayConnection`: an :class:`MbapEngine` on a
-:class:`GatewayDriver`, a :class:`TcpDriver` of the process's scheduler; no thread, no pymodbus client), shared by
-every station mapped on the gateway. One DP exchange of a station is a batch of Modbus transactions: an FC16 per
-run of output words to write (a ``None`` word is left alone: passive PZD), then the FC03 or FC04 read of its input
-words. The engine sends one transaction at a time, in the order they were queued, so the stations take turns and
-a station's read always follows its own writes; the first transaction that fails withdraws the rest of its batch.
+One connection per gateway ``HOST:PORT`` in the process (``modbus``'s :class:`MbapConnection`, pooled in its
+``CONNECTIONS``: an :class:`MbapEngine` on an :class:`MbapDriver` of the process's scheduler; no thread, no pymodbus
+client), shared by every station mapped on the gateway and by ``modbus-tcp`` devices reached at the same
+``HOST:PORT``. The stations need one transaction on the wire at a time (``outstanding=1``). One DP exchange of a
+station is a batch of Modbus transactions: an FC16 per run of output words to write (a ``None`` word is left alone:
+passive PZD), then the FC03 or FC04 read of its input words. The engine sends one transaction at a time, in the
+order they were queued, so the stations take turns and a station's read always follows its own writes; the first
+transaction that fails or is refused withdraws the rest of its batch.
 
 A station's cycle runs as a :class:`StationDriver` on the same scheduler: it writes its exchange ``(n, words)`` to
 the connection and gets back ``(n, input words)`` or the error that ended it, at the next turn of the loop. The
@@ -22,20 +24,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from typing import Any
 
 from starterbus.core import (
     DecodeError,
     Driver,
     RemoteDeviceError,
-    Scheduler,
     StarterbusError,
-    TcpDriver,
     Ticket,
     TicketState,
     TransportError,
-    process_scheduler,
 )
 from starterbus.spaces.modbus import STANDARD_EXCEPTION_TEXTS
 from starterbus.transports.modbus.codec.frames import (
@@ -47,14 +44,12 @@ from starterbus.transports.modbus.codec.frames import (
     Response,
     WriteRegistersRequest,
 )
+from starterbus.transports.modbus.driver.mbap_driver import Ended
+from starterbus.transports.modbus.driver.tcp_line import MbapConnection
 from starterbus.transports.modbus.master.exchange import Exchange, TransactionPolicy
-from starterbus.transports.modbus.master.mbap import MbapEngine
 from starterbus.transports.profibus_pkw.master.station import DpOut, StationEngine
 
-__all__ = ["STALL", "GatewayConnection", "GatewayDriver", "GatewayStation", "StationDriver"]
-
-#: the outer bound of a blocking wait beyond the transactions' own timeouts: only a stalled loop gets there
-STALL = 30.0
+__all__ = ["GatewayStation", "StationDriver"]
 
 
 def describe(request: Request) -> str:
@@ -65,142 +60,26 @@ def describe(request: Request) -> str:
     return f"FC{request.function:02d} read {request.count} registers at {request.address}"
 
 
-@dataclass(slots=True)
-class _Pending:
-    """One DP exchange of a station on the wire: its transactions' tickets."""
-
-    station: StationDriver
-    unit: DpOut
-    tickets: list[Ticket[Exchange, Response]]
-
-
-class GatewayDriver(TcpDriver[MbapEngine]):
-    """The gateway's connection on a scheduler; it carries the stations' exchanges (:meth:`exchange`) and tells
-    each station how its exchange ended."""
-
-    def __init__(self, host: str, port: int, timeout: float, loop: Scheduler) -> None:
-        name = f"gateway {host}:{port}"
-        super().__init__(host, port, lambda: MbapEngine(outstanding=1, name=name), timeout)
-        self.name = name
-        self.loop = loop
-        self.added = False
-        self._pending: list[_Pending] = []
-
-    def exchange(self, station: StationDriver, unit: DpOut, now: float) -> None:
-        """Queue the transactions of one DP exchange of ``station`` and send what can go (in the loop)."""
-        exchanges = station.gateway.transactions(unit[1])
-        if not self.added and not self.closed:  # (closed: every transaction is refused at once, naming why)
-            self.added = True
-            self.loop.add(self)
-        tickets = self.submit(exchanges, now, [None] * len(exchanges))
-        self._pending.append(_Pending(station, unit, tickets))
-        try:  # as the scheduler steps a driver: a defect here is the connection's, not the station's
-            self.step(now, False)
-        except Exception as exc:
-            self.crash(exc if isinstance(exc, StarterbusError) else TransportError(f"{self.name}: {exc!r}"), now)
-
-    def complete(self, now: float, done: Sequence[Ticket[Any, Any]] | None = None) -> None:
-        """As :meth:`Driver.complete`, and a transaction the gateway refused (an exception answer: DONE for the
-        Modbus engine) withdraws the rest of its batch too: no read goes out for an exchange whose write was
-        refused. Then each exchange that ended goes back to its station."""
-        engine = self.engine
-        if done is None:
-            done = engine.take_completed()
-        ended = bool(done)
-        while done:
-            withdrawn = False
-            for ticket in done:
-                future = self._futures.pop(ticket, None)
-                batch = self._batches.pop(ticket, None)
-                refused = ticket.state is not TicketState.DONE or isinstance(ticket.result, ExceptionResponse)
-                if batch is not None and refused:
-                    for other in batch:
-                        if not other.ended:
-                            engine.cancel(other, now)
-                            withdrawn = True
-                if future is not None:
-                    future.set_result(ticket)
-            done = engine.take_completed() if withdrawn else []
-        if ended and self._pending:
-            self._tell(now)
-
-    def crash(self, error: StarterbusError, now: float) -> None:
-        super().crash(error, now)
-        self._tell(now)
-
-    def _tell(self, now: float) -> None:
-        """Each exchange whose transactions have all ended goes back to its station."""
-        left: list[_Pending] = []
-        for pending in self._pending:
-            tickets = pending.tickets
-            for ticket in tickets:
-                if not ticket.ended:
-                    left.append(pending)
-                    break
-            else:
-                try:
-                    words: tuple[int, ...] | StarterbusError = pending.station.gateway.inputs(tickets)
-                except StarterbusError as exc:
-                    words = exc
-                pending.station.answer(pending.unit, words)
-        self._pending = left
-
-
-class GatewayConnection:
-    """One gateway's connection, shared by its stations (:data:`GATEWAYS` in ``channels.py``); the pool closes it
-    when its last station lets go. Connected on demand (the first exchange), made again after a loss."""
-
-    def __init__(self, host: str, port: int, timeout: float, loop: Scheduler | None = None) -> None:
-        self.host, self.port, self.timeout = host, port, timeout
-        self.loop = loop or process_scheduler()
-        self.driver = GatewayDriver(host, port, timeout, self.loop)
-
-    def run(self, exchanges: Sequence[Exchange], what: str) -> list[Ticket[Exchange, Response]]:
-        """The transactions, waited for (a blocking call: outside the loop). The tickets, up to the first that
-        did not end DONE."""
-        loop, driver = self.loop, self.driver
-        if not driver.added:
-
-            def add(now: float) -> None:
-                if not driver.added and not driver.closed:
-                    driver.added = True
-                    loop.add(driver)
-
-            loop.wait(loop.call(add), STALL, f"{driver.name}: {what}")
-        bound = STALL + self.timeout * (len(exchanges) + 1)
-        return loop.run(driver, exchanges, bound, f"{driver.name}: {what}")
-
-    def close(self) -> None:
-        driver, loop = self.driver, self.loop
-
-        def close(now: float) -> None:
-            if driver.added:
-                driver.added = False
-                loop.remove(driver)
-            driver.close(now)
-
-        loop.wait(loop.call(close), STALL, f"{driver.name}: close")
-
-
 class GatewayStation:
     """One station's register map on a gateway: the transactions of an exchange and the inputs of their answers.
     ``words``: the PPO's words per direction."""
 
     def __init__(
         self,
-        connection: GatewayConnection,
+        connection: MbapConnection,
         words: int,
         *,
         out: int,
         inp: int,
         unit: int,
         input_function: int,
+        timeout: float,
     ) -> None:
         self.connection, self.words = connection, words
         self.out, self.inp, self.unit = out, inp, unit
         # one attempt each (the PKW engine repeats its task; a status read takes the next exchange); retry_writes
         # only keeps the Modbus engine's messages from pointing a failed write at a URL parameter PKW has not
-        self.policy = TransactionPolicy(timeout=connection.timeout, retries=0, retry_writes=True)
+        self.policy = TransactionPolicy(timeout=timeout, retries=0, retry_writes=True)
         read = ReadInputRequest if input_function == 4 else ReadRequest
         self.read = Exchange(read(unit, inp, words), self.policy, 0.0)
         self._writes: dict[tuple[int, tuple[int, ...]], Exchange] = {}  # the last few FC16s, made once each
@@ -257,18 +136,26 @@ class GatewayStation:
             raise DecodeError(f"{self.connection.driver.name} returned {len(response.values)} registers")
         return response.values
 
+    def answer(self, tickets: Sequence[Ticket[Exchange, Response]]) -> tuple[int, ...] | StarterbusError:
+        """:meth:`inputs`, or the error that ended the exchange."""
+        try:
+            return self.inputs(tickets)
+        except StarterbusError as exc:
+            return exc
+
     def exchange(self, out_words: Sequence[int | None], what: str) -> tuple[int, ...]:
         """One exchange, waited for (outside the loop)."""
-        return self.inputs(self.connection.run(self.transactions(out_words), what))
+        return self.inputs(self.connection.tickets(self.transactions(out_words), what))
 
     def read_now(self, exchange: Exchange, what: str) -> tuple[int, ...]:
         """One read, waited for (outside the loop)."""
-        return self.inputs(self.connection.run([exchange], what))
+        return self.inputs(self.connection.tickets([exchange], what))
 
 
 class StationDriver(Driver[StationEngine]):
     """A station's :class:`StationEngine` on its gateway's connection (no descriptor of its own): each exchange it
-    writes goes to :meth:`GatewayDriver.exchange`; its end comes back through :meth:`answer`."""
+    writes goes to the connection's driver as one batch (:meth:`MbapDriver.submit_then`); its end comes back through
+    :meth:`answer`."""
 
     def __init__(
         self,
@@ -300,6 +187,12 @@ class StationDriver(Driver[StationEngine]):
         super().step(now, False)
 
     def write(self, units: Sequence[DpOut], now: float) -> None:
-        connection = self.gateway.connection.driver
+        gateway = self.gateway
+        driver = gateway.connection.driver
         for unit in units:
-            connection.exchange(self, unit, now)
+            driver.submit_then(gateway.transactions(unit[1]), now, self._told(unit))
+
+    def _told(self, unit: DpOut) -> Ended:
+        """How the connection tells this station that its exchange ``unit`` ended."""
+        gateway = self.gateway
+        return lambda tickets: self.answer(unit, gateway.answer(tickets))
