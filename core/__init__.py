@@ -50,7 +50,15 @@ if TYPE_CHECKING:
         ReadBackMismatch,
         UncertainValueError,
     )
-    from starterbus.core.media import Driver, StreamDriver, TcpDriver, connect_failure, connect_timeout, start_connect
+    from starterbus.core.media import (
+        Driver,
+        StreamDriver,
+        TcpDriver,
+        address_of,
+        connect_failure,
+        connect_timeout,
+        start_connect,
+    )
     from starterbus.core.media.can import CanDriver, CanEngine, Periodic, ToEngine
     from starterbus.core.media.keeper import keep_running, let_go
     from starterbus.core.media.local import LocalDriver, LocalEngine
@@ -200,6 +208,7 @@ _LAZY = {
     "Driver": "starterbus.core.media",
     "StreamDriver": "starterbus.core.media",
     "TcpDriver": "starterbus.core.media",
+    "address_of": "starterbus.core.media",
     "connect_failure": "starterbus.core.media",
     "connect_timeout": "starterbus.core.media",
     "start_connect": "starterbus.core.media",
@@ -324,6 +333,7 @@ __all__ = [
     "UnsupportedOperationError",
     "ValidationError",
     "Value",
+    "address_of",
     "annotate_candump",
     "check_loopback",
     "check_peer",

@@ -3,6 +3,16 @@ with a descriptor (:class:`StreamDriver`), a TCP client connection (:class:`TcpD
 their descriptors. Protocol-neutral."""
 
 from starterbus.core.media.driver import Driver, Stream, StreamDriver
+from starterbus.core.media.resolve import address_of
 from starterbus.core.media.tcp import TcpDriver, connect_failure, connect_timeout, start_connect
 
-__all__ = ["Driver", "Stream", "StreamDriver", "TcpDriver", "connect_failure", "connect_timeout", "start_connect"]
+__all__ = [
+    "Driver",
+    "Stream",
+    "StreamDriver",
+    "TcpDriver",
+    "address_of",
+    "connect_failure",
+    "connect_timeout",
+    "start_connect",
+]

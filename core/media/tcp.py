@@ -1,5 +1,8 @@
 """A TCP client connection as a medium: connected without blocking the loop, made again after a loss.
 
+A host name is never looked up in the loop (``resolve.py``): the connection takes the address its opener looked up
+in its own thread, and after a failed connect the name is looked up again in a thread of its own.
+
 The connection is made when the engine has work and none is up. A connection lost (the peer closed it, a read
 or write failed, the engine found the stream out of step) fails the tickets that were sent; the queued ones
 go out on the next connection, made at once. A connection attempt that fails (refused, unreachable, not made
@@ -20,6 +23,7 @@ from typing import Any, TypeVar
 from starterbus.core.engine import StreamEngine
 from starterbus.core.errors import StarterbusError, TransportError
 from starterbus.core.media.driver import StreamDriver
+from starterbus.core.media.resolve import kept_address, look_up_later
 
 __all__ = [
     "BACKOFF_FIRST",
@@ -47,9 +51,9 @@ E = TypeVar("E", bound=StreamEngine[Any, Any])
 def start_connect(host: str, port: int) -> tuple[socket.socket, bool]:
     """A TCP connection to ``host:port`` begun without waiting: its non-blocking socket, and whether it is made
     already (else: once the socket is writable, :func:`connect_failure` says how it ended). An :class:`OSError` if
-    it cannot begin (the name not resolved, refused at once); the socket is closed then. (The name is resolved in
-    the calling thread.)"""
-    family, kind, proto, _, address = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)[0]
+    it cannot begin (no address known for the name yet: ``resolve.kept_address``, which never waits on a name
+    server; refused at once); the socket is closed then."""
+    family, kind, proto, address = kept_address(host, port)
     sock = socket.socket(family, kind, proto)
     sock.setblocking(False)
     code = sock.connect_ex(address)
@@ -216,6 +220,7 @@ class TcpDriver(StreamDriver[E]):
         self._backoff = min(max(2 * self._backoff, BACKOFF_FIRST), BACKOFF_MAX)
         self._retry_at = now + self._backoff
         self.last_error = f"cannot connect to {self.name}: {exc}"
+        look_up_later(self.host, self.port)  # (a name's address may have changed; a numeric one is not looked up)
         error = TransportError(self.last_error)
         self.engine.refuse(error, now)
         opened, self._opened = self._opened, []

@@ -28,6 +28,7 @@ from starterbus.core import (
     TimeoutError,
     TransportCounters,
     TransportError,
+    address_of,
     process_scheduler,
 )
 from starterbus.transports.modbus.codec.messages import Response
@@ -70,6 +71,10 @@ class MbapConnection:
         connect: bool = True,
     ) -> None:
         self.host, self.port = host, port
+        try:  # here, in the opener's thread: the loop never waits on a name server
+            address_of(host, port)
+        except OSError as exc:
+            raise TransportError(f"cannot connect to gateway {host}:{port}: cannot look up {host!r}: {exc}") from exc
         self.outstanding = outstanding
         self.connect_timeout = connect_timeout
         self.loop = loop or process_scheduler()
