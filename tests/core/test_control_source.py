@@ -51,7 +51,9 @@ class Line:
             self.functions.append(data[1])
 
     def url(self, unit: int) -> str:
-        return self.sim.client_urls()[unit]
+        # 2 s, not the default 0.5 s: a write is not retried, and an in-process simulator thread held for half a
+        # second on a loaded machine (-n 3 on two cores) once failed a forced stop with "no answer within 0.5 s"
+        return self.sim.url(unit, timeout=2)
 
 
 @pytest.fixture
