@@ -175,6 +175,33 @@ class CanDriver(BusWrites):
             if self._owns_bus:
                 shutdown(self.bus)
 
+    def submit_here(self, engine: CanEngine, request: object) -> Future[Ticket[Any, Any]] | None:
+        """Submit ``request`` to ``engine`` in the calling thread if the loop waits in this bus's own queue now
+        (:meth:`block`): the frame goes out at once, the loop left waiting (woken only if the request's deadline
+        comes before its wait ends), no thread hand-off. The future gets the ended ticket (set in the loop). None:
+        the loop does not wait there (another thread runs a turn, or waits in a ``select``, or the caller itself
+        leads): submit through the loop (``loop.submit(driver, ToEngine(engine, request))``)."""
+        direct = self._queue
+        if direct is None or not direct.gate.acquire(blocking=False):
+            return None
+        try:  # the loop waits in block() until the gate is given back: the driver is this thread's meanwhile
+            if self.closed or engine not in self.engines:
+                return None
+            future: Future[Ticket[Any, Any]] = Future()
+            future.set_running_or_notify_cancel()  # withdrawn from now on by cancel(), in the loop
+            was = engine.deadline  # the loop's wait ends at it or earlier (when it is the driver's first)
+            now = self.loop.clock()
+            ticket = engine.submit(request, now)
+            self._futures[ticket] = future
+            self._owner[ticket] = engine
+            self._flush(engine, now)
+            due = engine.deadline
+            if due < direct.until and due != was:  # sooner than the loop will look: wake it
+                direct.interrupt()
+            return future
+        finally:
+            direct.gate.release()
+
     # -- engines (in the loop) ------------------------------------------------------------------------------------
 
     def add(self, engine: CanEngine, filters: list[can.typechecking.CanFilter] | None = None) -> None:
@@ -235,9 +262,10 @@ class CanDriver(BusWrites):
 
     def block(self, timeout: float) -> bool:
         """The loop's wait when it has no descriptor to watch but this bus's: up to ``timeout`` s for frames or an
-        :meth:`interrupt`; True: frames were read (step with ``ready``)."""
+        :meth:`interrupt`; True: frames were read (step with ``ready``). Meanwhile :meth:`submit_here` may submit
+        in the caller's own thread."""
         assert self._queue is not None
-        return self._queue.block(timeout)
+        return self._queue.block(timeout, self.loop.clock() + timeout)
 
     def interrupt(self) -> None:
         """End the loop's :meth:`block` now, or the next one (any thread)."""

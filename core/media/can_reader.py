@@ -6,7 +6,9 @@ every other descriptor.
 
 :class:`QueueWait`: python-can's ``virtual`` bus delivers into a ``queue.Queue`` of the bus; while the CAN driver
 is the only driver of the loop with something to wait on, the loop waits on that queue itself (no thread, no pipe,
-no ``select``: one thread hand-off less per frame), and a wake-up of the loop puts :data:`WAKE` in it.
+no ``select``: one thread hand-off less per frame), and a wake-up of the loop puts :data:`WAKE` in it. While the
+loop waits there, another thread may use the driver itself (:attr:`QueueWait.gate`: a caller submitting its own
+request in its own thread, without waking the loop).
 """
 
 from __future__ import annotations
@@ -36,6 +38,13 @@ class QueueWait:
     def __init__(self, rx: queue.Queue[Any]) -> None:
         self._rx = rx
         self.pending: list[can.Message] = []
+        #: held by whoever runs the loop, except while it waits in :meth:`block`: whoever takes it then may use
+        #: the driver (the loop's wait ends only once it is given back)
+        self.gate = threading.Lock()
+        self.gate.acquire()
+        #: when the wait under way ends at the latest (the loop's clock): a request given to the driver meanwhile
+        #: whose deadline comes earlier must :meth:`interrupt` it
+        self.until = 0.0
 
     @classmethod
     def of(cls, bus: can.BusABC) -> QueueWait | None:
@@ -49,13 +58,18 @@ class QueueWait:
             return None
         return cls(rx)
 
-    def block(self, timeout: float) -> bool:
-        """Wait up to ``timeout`` s for frames (or a :meth:`interrupt`); True: frames are pending."""
-        rx, pending = self._rx, self.pending
+    def block(self, timeout: float, until: float = 0.0) -> bool:
+        """Wait up to ``timeout`` s (until ``until`` on the loop's clock) for frames (or a :meth:`interrupt`), the
+        :attr:`gate` open meanwhile; True: frames are pending."""
+        rx, pending, gate = self._rx, self.pending, self.gate
+        self.until = until
+        gate.release()
         try:
             item = rx.get(timeout=timeout) if timeout > 0 else rx.get_nowait()
         except queue.Empty:
             return bool(pending)
+        finally:
+            gate.acquire()  # after whoever took it meanwhile is done with the driver
         if item is not WAKE:
             pending.append(item)
         if rx.queue:  # the rest of the burst at once, under the queue's own lock (the loop is its only reader)

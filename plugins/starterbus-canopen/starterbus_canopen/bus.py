@@ -66,6 +66,7 @@ class CanBus:
         self._nodes: dict[int, tuple[SdoEngine, int]] = {}  # node id -> (engine, devices using it)
         self._heartbeats: dict[int, tuple[float, Periodic, int]] = {}  # master id -> (period, task, devices)
         self.closed = False
+        self.sdo_what = f"{self.name}: SDO"  #: a stalled SDO wait's error begins so
 
     @property
     def name(self) -> str:

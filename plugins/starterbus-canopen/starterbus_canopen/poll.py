@@ -3,7 +3,8 @@
 A poll is written once as a generator of SDO requests (:data:`Steps`): it yields an
 :class:`~starterbus_canopen.sdo.Upload` or :class:`~starterbus_canopen.sdo.Download`, is sent the transfer's
 bytes (or thrown its error) and returns its result. :func:`drive` runs it blocking (the sync API: each transfer a
-ticket on the scheduler, waited for as leader or follower, the core's ``run_steps``); :class:`SdoPoll` runs it
+ticket on the scheduler, waited for as leader or follower; given to the engine in the caller's own thread while
+the loop waits in the bus's own queue: ``CanDriver.submit_here``); :class:`SdoPoll` runs it
 without blocking as the core's :class:`~starterbus.core.TicketPoll` (``on_progress`` in the fleet's loop; else a
 turn of the scheduler, or a pipe of its own while another thread runs the loop: the loop's own thread, kept
 running while a CANopen device is open for its heartbeat and TPDO times).
@@ -13,9 +14,10 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Generator
+from concurrent.futures import TimeoutError as FutureTimeout
 from typing import TypeVar
 
-from starterbus.core import PollResult, TicketPoll, ToEngine, run_steps, wait_ticket
+from starterbus.core import PollResult, StarterbusError, TicketPoll, ToEngine
 from starterbus_canopen.bus import CanBus
 from starterbus_canopen.sdo import SdoEngine, SdoRequest
 
@@ -28,20 +30,51 @@ Steps = Generator[SdoRequest, bytes, T]
 
 #: the outer bound of a wait beyond the transfer's own timeout: only a stalled loop gets there
 STALL = 30.0
+#: a transfer given to the engine in the caller's thread is waited for on its future alone for twice its timeout
+#: and this (its answer, or its timeout after a quiet period), then through the scheduler (which the caller leads
+#: if the loop's own thread is gone)
+FOLLOW = 0.1
 
 
 def transfer(bus: CanBus, engine: SdoEngine, request: SdoRequest) -> bytes:
-    """One SDO transfer, waited for (leading the loop while no other thread does); its bytes, or its error."""
-    wrap = functools.partial(ToEngine, engine)
-    ticket = wait_ticket(bus.loop, bus.driver, request, f"{bus.name}: SDO", wrap=wrap, stall=STALL)
+    """One SDO transfer, waited for (leading the loop while no other thread does); its bytes, or its error. The
+    request is given to the engine in this thread while the loop waits in the bus's own queue
+    (``CanDriver.submit_here``: the frame goes out without a thread hand-off), else through the loop."""
+    loop, driver = bus.loop, bus.driver
+    future = driver.submit_here(engine, request)
+    try:
+        if future is None:
+            future = loop.submit(driver, ToEngine(engine, request))
+        elif loop.thread is not None:  # that thread ends it: wait on the future alone (no lead to take meanwhile)
+            try:
+                future.result(request.timeout * 2 + FOLLOW)
+            except FutureTimeout:
+                pass  # late (a queue of transfers, a busy loop) or the loop's thread gone: follow or lead below
+        ticket = future.result() if future.done() else loop.wait(future, request.timeout + STALL, bus.sdo_what)
+    except BaseException:  # a stalled loop, an interrupt: the ticket is withdrawn at the loop's next turn
+        if future is not None and not future.cancel():
+            withdrawn = future
+            loop.call(lambda now: driver.cancel([withdrawn], now))
+        raise
     data: bytes = ticket.outcome()
     return data
 
 
 def drive(bus: CanBus, engine: SdoEngine, steps: Steps[T]) -> T:
-    """Run ``steps`` to its end, each transfer waited for in turn."""
-    wrap = functools.partial(ToEngine, engine)
-    return run_steps(bus.loop, bus.driver, steps, f"{bus.name}: SDO", wrap=wrap, stall=STALL)
+    """Run ``steps`` to its end, each transfer waited for in turn (:func:`transfer`; the core's ``run_steps`` with
+    the request given to the engine in this thread where it can be)."""
+    try:
+        request = next(steps)
+        while True:
+            try:
+                value = transfer(bus, engine, request)
+            except StarterbusError as exc:
+                request = steps.throw(exc)
+            else:
+                request = steps.send(value)
+    except StopIteration as stop:
+        result: T = stop.value
+        return result
 
 
 class SdoPoll(TicketPoll[SdoRequest]):
