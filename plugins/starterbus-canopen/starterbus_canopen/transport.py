@@ -52,6 +52,7 @@ from starterbus_canopen.settings import PLUGIN_NAME
 from starterbus_canopen.url import CanopenUrl
 
 NMT_START = 0x01
+CAPABILITIES = frozenset(Capability)  # every one (made once: the template asks on every call)
 #: what a master whose virtual channel has no peer in this process should use instead
 VIRTUAL_HINT = (
     "across processes, use a bus every process can open, e.g. Linux virtual CAN (ip link add dev vcan0 type vcan; "
@@ -149,7 +150,7 @@ class CanopenTransport(Transport):
 
     @property
     def capabilities(self) -> frozenset[Capability]:
-        return frozenset(Capability)
+        return CAPABILITIES
 
     # -- SDO -------------------------------------------------------------------------------------------------
 
