@@ -10,7 +10,6 @@ import logging
 import socket
 import sys
 from contextlib import AsyncExitStack
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -18,13 +17,11 @@ from starterbus.cli import serve_web
 from starterbus.cli.arguments import record_args
 from starterbus.cli.lifetime import exit_code, until_signalled
 from starterbus.cli.output import emit_json_line
+from starterbus.cli.serve_edge import Edge, edge_node, print_banner
 from starterbus.core.errors import ConfigurationError
 
 if TYPE_CHECKING:
     from starterbus.fleet.config import FleetConfig
-    from starterbus.serve.broker import BrokerOptions
-    from starterbus.serve.history import Bounds
-    from starterbus.serve.session import EdgeSession, SessionOptions
 
 
 def add_parser(sub: argparse._SubParsersAction[argparse.ArgumentParser], wanted: str) -> None:
@@ -148,73 +145,6 @@ def _opcua_metrics(args: argparse.Namespace, box: list[object]) -> list[Any]:
     return [LoginCollector(lambda: getattr(box[0], "logins", None) if box else None)]
 
 
-@dataclass
-class _Edge:
-    """The Sparkplug edge node of ``--mqtt`` (or ``--demo``'s embedded broker): its brokers, session and buffer."""
-
-    session: EdgeSession
-    options: SessionOptions
-    brokers: list[BrokerOptions]
-    state_file: Path
-    buffer_file: Path
-    embedded: bool
-
-
-async def _edge_node(args: argparse.Namespace, config: FleetConfig, node: str, cleanup: AsyncExitStack) -> _Edge:
-    """The edge node's parts; what must be closed (the embedded broker, the buffer) goes on ``cleanup``."""
-    from starterbus.serve.broker import BrokerOptions, load_credentials, parse_broker_url
-    from starterbus.serve.session import EdgeSession, SessionOptions
-    from starterbus.serve.state import default_state_file, load_bdseq
-    from starterbus.serve.store import SqliteStore, default_buffer_file
-
-    if args.mqtt is None:
-        from starterbus.serve.embedded import start_mosquitto
-
-        broker_proc = await asyncio.to_thread(start_mosquitto)
-        cleanup.callback(broker_proc.close)
-        urls = [broker_proc.url]
-    else:
-        urls = args.mqtt
-    username, password = load_credentials(args.credentials)
-    brokers = [
-        BrokerOptions(
-            *parse_broker_url(url),
-            args.ca_file,
-            args.cert_file,
-            args.key_file,
-            username,
-            password,
-            client_id=args.client_id or f"starterbus-{args.group}-{node}",
-        )
-        for url in urls
-    ]
-    bounds = buffer_bounds(args)
-    options = SessionOptions(
-        group=args.group,
-        node=node,
-        refresh=args.refresh,
-        buffer_messages=bounds.messages,
-        buffer_size=bounds.size,
-        buffer_age=bounds.age,
-        command_max_age=args.command_max_age,
-        command_max_skew=args.command_max_skew,
-        command_max_bytes=args.command_max_bytes,
-        commands_allowed=all(b.tls for b in brokers) or args.allow_plaintext_commands,
-        primary_host=args.primary_host,
-        servers=len(brokers),
-    )
-    state_file = args.state_file or default_state_file(args.group, node)
-    bdseq = await asyncio.to_thread(load_bdseq, state_file)
-    steps, per_key = parse_deadbands(args.deadband)
-    buffer_file = args.buffer_file or default_buffer_file(state_file)
-    store = await asyncio.to_thread(SqliteStore.open, buffer_file, bounds)
-    cleanup.callback(store.close)
-    session = EdgeSession.for_fleet(
-        config, options, deadband_steps=steps, deadband_per_key=per_key, bdseq=bdseq, store=store
-    )
-    return _Edge(session, options, brokers, state_file, buffer_file, args.mqtt is None)
-
-
 async def _serve(args: argparse.Namespace) -> int:
     from starterbus.aio import AsyncFleet
     from starterbus.core.supervision import Supervisor
@@ -257,7 +187,7 @@ async def _serve(args: argparse.Namespace) -> int:
             )
             cleanup.push_async_callback(asyncio.to_thread, recorder.close)  # what waits is written
         # the Sparkplug edge node with --mqtt (--demo: an embedded broker); --http/--opcua alone serve without one
-        edge = await _edge_node(args, config, node, cleanup) if args.mqtt or args.demo else None
+        edge = await edge_node(args, config, node, cleanup) if args.mqtt or args.demo else None
         collector = FleetCollector(edge.session if edge is not None else None)
         running = AsyncFleet(config, supervisor=supervisor, sink=recorder)
         driver = (
@@ -304,7 +234,7 @@ async def _serve(args: argparse.Namespace) -> int:
 
 
 def _report(
-    args: argparse.Namespace, config: FleetConfig, edge: _Edge | None, node: str, listeners: dict[str, str | None]
+    args: argparse.Namespace, config: FleetConfig, edge: Edge | None, node: str, listeners: dict[str, str | None]
 ) -> None:
     """Once every listener is up: ``--json``'s one ready line, else the banner for a person."""
     if args.json:
@@ -325,60 +255,12 @@ def _report(
         emit_json_line(ready | listeners)
         return
     if edge is not None:
-        _print_banner(edge.session, node, edge.brokers, edge.embedded, edge.options.commands_allowed)
+        print_banner(edge.session, node, edge.brokers, edge.embedded, edge.options.commands_allowed)
     else:
         print(f"starterbus serve: {len(config.devices)} devices, no MQTT (no --mqtt)", flush=True)
     for label, key in (("Prometheus metrics", "metrics"), ("web dashboard", "http"), ("OPC UA", "opcua")):
         if listeners[key]:
             print(f"  {label}: {listeners[key]}", flush=True)
-
-
-def _print_banner(session: object, node: str, brokers: object, embedded: bool, commands_allowed: bool) -> None:
-    """What ``serve`` prints for a person once it runs (``--json``: one JSON line instead)."""
-    from starterbus.serve.broker import BrokerOptions
-    from starterbus.serve.session import EdgeSession
-
-    assert isinstance(session, EdgeSession) and isinstance(brokers, list)
-    broker = brokers[0]
-    assert isinstance(broker, BrokerOptions)
-    commands = "as the fleet file allows" if commands_allowed else "refused (plaintext)"
-    where = f"{session.topic_prefix}/+/{node} on {', '.join(b.describe() for b in brokers)}"
-    print(f"starterbus serve: {len(session.devices)} devices as {where}; commands {commands}", flush=True)
-    if embedded:
-        print(
-            "  embedded broker: a local mosquitto for trying it out, not for production\n"
-            f"  watch the traffic: mosquitto_sub -h 127.0.0.1 -p {broker.port} -t 'spBv1.0/#' -v"
-            "   (payloads are Sparkplug B protobuf)",
-            flush=True,
-        )
-
-
-def buffer_bounds(args: argparse.Namespace) -> Bounds:
-    """The store-and-forward buffer's bounds from ``--buffer-messages``, ``--buffer-size`` (MB), ``--buffer-age``."""
-    from starterbus.serve.history import Bounds
-
-    for option, value in (("messages", args.buffer_messages), ("size", args.buffer_size), ("age", args.buffer_age)):
-        if not value > 0:
-            raise ConfigurationError(f"--buffer-{option} {value:g}: must be greater than 0")
-    return Bounds(args.buffer_messages, int(args.buffer_size * 1_000_000), args.buffer_age)
-
-
-def parse_deadbands(items: list[str]) -> tuple[float, dict[str, float]]:
-    """``["2", "phase_a_current=5"]`` -> (2.0, {"phase_a_current": 5.0}); steps are >= 0."""
-    steps, per_key = 1.0, {}
-    for item in items:
-        key, _, text = item.rpartition("=")
-        try:
-            value = float(text)
-        except ValueError:
-            value = -1.0
-        if not value >= 0:
-            raise ConfigurationError(f"--deadband {item!r}: expected STEPS or KEY=STEPS with STEPS >= 0")
-        if key:
-            per_key[key] = value
-        else:
-            steps = value
-    return steps, per_key
 
 
 def _run_demo_scenario(poller: object, demo: object, stop: asyncio.Event, loop: asyncio.AbstractEventLoop) -> None:

@@ -83,7 +83,7 @@ def test_unreadable_tls_files_end_serve_with_one_line(
 
 
 def test_deadband_options() -> None:
-    from starterbus.cli.serve import parse_deadbands
+    from starterbus.cli.serve_edge import parse_deadbands
 
     assert parse_deadbands([]) == (1.0, {})
     assert parse_deadbands(["2", "phase_a_current=5", "ramp_time=0"]) == (
