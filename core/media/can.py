@@ -44,7 +44,7 @@ from starterbus.core.canbus import open_bus, shutdown
 from starterbus.core.canframe import CanFrame
 from starterbus.core.engine import Ticket
 from starterbus.core.errors import ConfigurationError, TransportError
-from starterbus.core.media.can_engines import CanEngine, Loop, ToEngine
+from starterbus.core.media.can_engines import CanEngine, Handoff, Loop, ToEngine
 from starterbus.core.media.can_periodic import Periodic
 from starterbus.core.media.can_reader import CanReader, QueueWait
 from starterbus.core.media.can_writes import MESSAGE_CACHE, BusWrites
@@ -56,6 +56,7 @@ __all__ = [
     "MESSAGE_CACHE",
     "CanDriver",
     "CanEngine",
+    "Handoff",
     "Loop",
     "Periodic",
     "ToEngine",
@@ -81,7 +82,7 @@ class CanDriver(BusWrites):
         self._seen: list[frozenset[int]] = []  # each engine's `wanted` as last routed
         self._routes: dict[int, tuple[CanEngine, ...]] = {}
         self._held: dict[CanEngine, float] = {}  # engine -> no advance before (it raised)
-        self._futures: dict[Ticket[Any, Any], Future[Any] | None] = {}
+        self._futures: dict[Ticket[Any, Any], Future[Any] | Handoff | None] = {}
         self._owner: dict[Ticket[Any, Any], CanEngine] = {}
         self._batches: dict[Ticket[Any, Any], list[Ticket[Any, Any]]] = {}
         self._periodics: list[Periodic] = []
@@ -175,30 +176,29 @@ class CanDriver(BusWrites):
             if self._owns_bus:
                 shutdown(self.bus)
 
-    def submit_here(self, engine: CanEngine, request: object) -> Future[Ticket[Any, Any]] | None:
+    def submit_here(self, engine: CanEngine, request: object) -> Handoff | None:
         """Submit ``request`` to ``engine`` in the calling thread if the loop waits in this bus's own queue now
         (:meth:`block`): the frame goes out at once, the loop left waiting (woken only if the request's deadline
-        comes before its wait ends), no thread hand-off. The future gets the ended ticket (set in the loop). None:
+        comes before its wait ends), no thread hand-off; the loop ends the :class:`Handoff` with the ticket. None:
         the loop does not wait there (another thread runs a turn, or waits in a ``select``, or the caller itself
-        leads): submit through the loop (``loop.submit(driver, ToEngine(engine, request))``)."""
+        leads): submit through the loop (``loop.submit(driver, ToEngine(engine, request))``). A ticket given here
+        is withdrawn with :meth:`withdraw` in the loop."""
         direct = self._queue
         if direct is None or not direct.gate.acquire(blocking=False):
             return None
         try:  # the loop waits in block() until the gate is given back: the driver is this thread's meanwhile
             if self.closed or engine not in self.engines:
                 return None
-            future: Future[Ticket[Any, Any]] = Future()
-            future.set_running_or_notify_cancel()  # withdrawn from now on by cancel(), in the loop
             was = engine.deadline  # the loop's wait ends at it or earlier (when it is the driver's first)
             now = self.loop.clock()
             ticket = engine.submit(request, now)
-            self._futures[ticket] = future
+            handoff = self._futures[ticket] = Handoff(ticket)
             self._owner[ticket] = engine
             self._flush(engine, now)
             due = engine.deadline
             if due < direct.until and due != was:  # sooner than the loop will look: wake it
                 direct.interrupt()
-            return future
+            return handoff
         finally:
             direct.gate.release()
 

@@ -7,8 +7,9 @@ from __future__ import annotations
 
 import collections
 import logging
+import threading
 from collections.abc import Callable, Sequence
-from concurrent.futures import Future
+from concurrent.futures import Future, InvalidStateError
 from dataclasses import dataclass
 from typing import Any, Protocol, TypeVar
 
@@ -19,7 +20,7 @@ from starterbus.core.engine import Engine, Ticket, TicketState
 from starterbus.core.errors import StarterbusError, TransportError
 from starterbus.core.media.can_reader import CanReader
 
-__all__ = ["CanEngine", "EngineSet", "Loop", "ToEngine"]
+__all__ = ["CanEngine", "EngineSet", "Handoff", "Loop", "ToEngine"]
 
 log = logging.getLogger("starterbus.core.media.can")  # the driver's logger: its engines' failures are its
 
@@ -58,6 +59,55 @@ class ToEngine:
     request: object
 
 
+class Handoff:
+    """A ticket submitted in its caller's own thread (``CanDriver.submit_here``) and ended in the loop: one lock,
+    released by the loop when the ticket ends (what a ``Future`` costs twice over: a condition, a reentrant lock,
+    a lock per wait). :meth:`wait` for it where the loop's own thread ends it; :meth:`follow` gives a future to
+    wait on through the scheduler (which the caller leads when no thread does)."""
+
+    __slots__ = ("_ended", "future", "ticket")
+
+    def __init__(self, ticket: Ticket[Any, Any]) -> None:
+        self.ticket = ticket
+        self._ended = threading.Lock()
+        self._ended.acquire()
+        self.future: Future[Ticket[Any, Any]] | None = None
+
+    def set_result(self, ticket: Ticket[Any, Any]) -> None:
+        """The ticket ended (the loop's: ``EngineSet._end``)."""
+        self._ended.release()
+        future = self.future  # read after the release: a future made before it is set here, one made after sees it
+        if future is not None:
+            _settle(future, ticket)
+
+    @property
+    def ended(self) -> bool:
+        return self.wait(0.0)
+
+    def wait(self, timeout: float) -> bool:
+        """Up to ``timeout`` s for the ticket's end; whether it ended."""
+        ended = self._ended
+        if ended.acquire(timeout=timeout) if timeout > 0 else ended.acquire(blocking=False):
+            ended.release()
+            return True
+        return False
+
+    def follow(self) -> Future[Ticket[Any, Any]]:
+        """A future that gets the ticket when it ends (now, if it has)."""
+        future: Future[Ticket[Any, Any]] = Future()
+        self.future = future
+        if self.ended:  # (perhaps before the future was there)
+            _settle(future, self.ticket)
+        return future
+
+
+def _settle(future: Future[Ticket[Any, Any]], ticket: Ticket[Any, Any]) -> None:
+    try:
+        future.set_result(ticket)
+    except InvalidStateError:  # set by the other side of a Handoff meanwhile
+        pass
+
+
 class EngineSet:
     """The engines of a :class:`~starterbus.core.media.can.CanDriver` and their tickets (its attributes, set by
     its ``__init__``; in the loop only)."""
@@ -68,7 +118,7 @@ class EngineSet:
     crashes: int
     _seen: list[frozenset[int]]
     _routes: dict[int, tuple[CanEngine, ...]]
-    _futures: dict[Ticket[Any, Any], Future[Any] | None]
+    _futures: dict[Ticket[Any, Any], Future[Any] | Handoff | None]
     _owner: dict[Ticket[Any, Any], CanEngine]
     _batches: dict[Ticket[Any, Any], list[Ticket[Any, Any]]]
     _reader: CanReader | None

@@ -101,9 +101,10 @@ def test_while_the_loop_waits_the_caller_sends_in_its_own_thread(loop: Scheduler
             for n in range(5):
                 assert wait_until(lambda: waiting(driver), timeout=WAIT)
                 interrupts.count = 0  # (starting the loop's thread woke it)
-                future = driver.submit_here(engine, bytes((n,)))
-                assert future is not None
-                ticket = future.result(WAIT)  # ended in the loop's thread, which read the answer
+                handoff = driver.submit_here(engine, bytes((n,)))
+                assert handoff is not None
+                assert handoff.wait(WAIT)  # ended in the loop's thread, which read the answer
+                ticket = handoff.ticket
                 assert ticket.state is TicketState.DONE and ticket.result == bytes((n + 1,))
                 assert interrupts.count == 0  # the loop was not woken for the request: only by the answer
             assert engine.threads == [threading.get_ident()] * 5
@@ -125,9 +126,10 @@ def test_a_request_due_before_the_loops_wait_ends_wakes_it(loop: Scheduler) -> N
         try:
             assert wait_until(lambda: waiting(driver), timeout=WAIT)
             interrupts.count = 0  # (starting the loop's thread woke it)
-            future = driver.submit_here(engine, b"\x01")
-            assert future is not None and interrupts.count == 1
-            ticket = future.result(WAIT)
+            handoff = driver.submit_here(engine, b"\x01")
+            assert handoff is not None and interrupts.count == 1
+            assert handoff.wait(WAIT)
+            ticket = handoff.ticket
             assert ticket.state is TicketState.FAILED and str(ticket.error) == "no answer"
         finally:
             let_go(loop)
@@ -144,10 +146,31 @@ def test_a_request_given_here_is_withdrawn_in_the_loop(loop: Scheduler) -> None:
         keep_running(loop)
         try:
             assert wait_until(lambda: waiting(driver), timeout=WAIT)
-            future = driver.submit_here(engine, b"\x01")
-            assert future is not None and not future.cancel()  # running: only the loop withdraws it
-            loop.wait(loop.call(lambda now: driver.cancel([future], now)), WAIT, "cancel")
-            assert future.result(WAIT).state is TicketState.CANCELLED and driver.pending == 0
+            handoff = driver.submit_here(engine, b"\x01")
+            assert handoff is not None and not handoff.ended
+            given = handoff.ticket
+            loop.wait(loop.call(lambda now: driver.withdraw([given], now)), WAIT, "withdraw")
+            assert handoff.wait(WAIT) and given.state is TicketState.CANCELLED and driver.pending == 0
+        finally:
+            let_go(loop)
+    finally:
+        driver.release()
+
+
+def test_a_handoff_followed_through_the_scheduler(loop: Scheduler, channel: str) -> None:
+    driver = CanDriver.acquire("virtual", channel, loop)
+    engine = ThreadEngine()
+    try:
+        driver.call(lambda now: driver.add(engine), "add")
+        keep_running(loop)
+        try:
+            assert wait_until(lambda: waiting(driver), timeout=WAIT)
+            handoff = driver.submit_here(engine, b"\x01")
+            assert handoff is not None
+            early = handoff.follow()  # (likely before its end: the loop sets it)
+            assert loop.wait(early, WAIT, "follow").result == b"\x02"
+            late = handoff.follow()  # after its end: set at once
+            assert late.done() and late.result() is handoff.ticket
         finally:
             let_go(loop)
     finally:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Generator
-from concurrent.futures import TimeoutError as FutureTimeout
 from typing import TypeVar
 
 from starterbus.core import PollResult, StarterbusError, TicketPoll, ToEngine
@@ -41,20 +40,25 @@ def transfer(bus: CanBus, engine: SdoEngine, request: SdoRequest) -> bytes:
     request is given to the engine in this thread while the loop waits in the bus's own queue
     (``CanDriver.submit_here``: the frame goes out without a thread hand-off), else through the loop."""
     loop, driver = bus.loop, bus.driver
-    future = driver.submit_here(engine, request)
+    handoff = driver.submit_here(engine, request)
     try:
-        if future is None:
-            future = loop.submit(driver, ToEngine(engine, request))
-        elif loop.thread is not None:  # that thread ends it: wait on the future alone (no lead to take meanwhile)
+        # the loop's own thread ends it: wait for that alone (no lead to take meanwhile), up to twice the timeout
+        # and a margin (its answer, or its timeout after a quiet period); else through the scheduler, which the
+        # caller leads if no thread does
+        if handoff is not None and loop.thread is not None and handoff.wait(request.timeout * 2 + FOLLOW):
+            ticket = handoff.ticket
+        else:
+            future = handoff.follow() if handoff is not None else loop.submit(driver, ToEngine(engine, request))
             try:
-                future.result(request.timeout * 2 + FOLLOW)
-            except FutureTimeout:
-                pass  # late (a queue of transfers, a busy loop) or the loop's thread gone: follow or lead below
-        ticket = future.result() if future.done() else loop.wait(future, request.timeout + STALL, bus.sdo_what)
+                ticket = loop.wait(future, request.timeout + STALL, bus.sdo_what)
+            except BaseException:
+                if handoff is None and not future.cancel():
+                    loop.call(lambda now: driver.cancel([future], now))
+                raise
     except BaseException:  # a stalled loop, an interrupt: the ticket is withdrawn at the loop's next turn
-        if future is not None and not future.cancel():
-            withdrawn = future
-            loop.call(lambda now: driver.cancel([withdrawn], now))
+        if handoff is not None:
+            given = handoff.ticket
+            loop.call(lambda now: driver.withdraw([given], now))
         raise
     data: bytes = ticket.outcome()
     return data
