@@ -79,6 +79,7 @@ class CanopenTransport(Transport):
         self._rpdo: Any = None  # the RPDO1 cycle (a periodic output of the bus's driver), once a command was sent
         self._control = ControlWordState()
         self._tpdo_valid_after = 0.0
+        self._uploads: dict[tuple[int, int, str], Upload] = {}  # the requests made so far (immutable: sent again)
 
     # -- lifecycle -------------------------------------------------------------------------------------------
 
@@ -161,9 +162,13 @@ class CanopenTransport(Transport):
         return int(where[0]), int(where[1])
 
     def _upload_u(self, index: int, subindex: int, size: int, what: str) -> Generator[SdoRequest, bytes, int]:
-        where = f"0x{index:04X}:{subindex:02X}"
-        data = yield Upload(index, subindex, self.options.timeout, f"{self.describe()}: read {what} at {where}")
+        request = self._uploads.get((index, subindex, what))
+        if request is None:
+            text = f"{self.describe()}: read {what} at 0x{index:04X}:{subindex:02X}"
+            request = self._uploads[(index, subindex, what)] = Upload(index, subindex, self.options.timeout, text)
+        data = yield request
         if len(data) != size:
+            where = f"0x{index:04X}:{subindex:02X}"
             raise DecodeError(f"{what}: {len(data)} bytes, expected {size}", bytes(data), where)
         return int.from_bytes(data, "little")
 
