@@ -9,9 +9,10 @@ device's last sample, so every sample is a DDATA of 10 metrics; 5 samples a turn
 of that bench). ``EdgeNodeDriver.run`` connects to mosquitto, the first round of samples makes the births (and
 the history of what was polled before them), then the measured samples follow. The process runs under
 callgrind twice (the two ``--samples`` counts, every sample built before either is fed in); instructions a
-sample = the difference / the difference in samples (start-up, imports, the births and the stop cancel out). mosquitto is not counted. Each tree runs once natively first (its
-``.pyc`` files written). Needs ``valgrind`` and ``mosquitto``. ``--before DIR``: also the tree in DIR (a
-directory holding ``starterbus/``), and the ratio; ``--after DIR``: that tree instead of the one installed.
+sample = the difference / the difference in samples (start-up, imports, the births and the stop cancel out).
+mosquitto is not counted. Each tree runs once natively first (its ``.pyc`` files written). Needs ``valgrind``
+and ``mosquitto``. ``--before DIR``: also the tree in DIR (a directory holding ``starterbus/``), and the ratio;
+``--after DIR``: that tree instead of the one installed.
 
 What it does not see: the kernel's share (the ``send`` system calls, wake-ups) and cache misses.
 """
