@@ -30,7 +30,7 @@ from starterbus.transports.modbus.codec.messages import Request, Response
 from starterbus.transports.modbus.codec.receiver import NEED_DATA, ResponseReceiver
 from starterbus.transports.modbus.codec.timing import char_time
 from starterbus.transports.modbus.driver.link import Link, SerialSettings, TcpConnect
-from starterbus.transports.modbus.driver.rtu_driver import RtuJobDriver
+from starterbus.transports.modbus.driver.rtu_driver import RtuDriver, RtuJobDriver
 from starterbus.transports.modbus.master.exchange import Exchange, TransactionPolicy
 from starterbus.transports.modbus.master.guard import LineGuard, hex_bytes
 from starterbus.transports.modbus.master.rtu_engine import RtuTicket
@@ -60,7 +60,9 @@ class RtuLine:
         self._clock = clock
         self.link = connect()
         self._name = self.link.name
-        self._broken = False  # a transport error: reopen the port / reconnect before the next transaction
+        #: a transport error broke the link, or it is closed: the next transaction reopens / reconnects it (a plain
+        #: attribute: the fleet's poll reads it at every step)
+        self.broken = False
         self._closed = False
         self.settings = settings
         self.lock = threading.Lock()
@@ -75,6 +77,9 @@ class RtuLine:
         self._loop = process_scheduler()
         #: the blocking callers' transactions as tickets of the scheduler, while its own thread runs the loop
         self.jobs = RtuJobDriver(self, self._loop)
+        #: the fleet's polls' driver (``LineTask``): its engine shares the guard; the lock makes its user one task
+        #: at a time
+        self.polls = RtuDriver(self)
 
     @property
     def name(self) -> str:
@@ -84,13 +89,8 @@ class RtuLine:
     def clock(self) -> Callable[[], float]:
         return self._clock
 
-    @property
-    def broken(self) -> bool:
-        """A transport error broke the link: the next transaction reopens / reconnects it."""
-        return self._broken or self._closed
-
     def mark_broken(self) -> None:
-        self._broken = True
+        self.broken = True
 
     def check_settings(self, settings: SerialSettings) -> None:
         if settings != self.settings:
@@ -102,7 +102,7 @@ class RtuLine:
 
     def close(self) -> None:
         with self.lock:
-            self._closed = True
+            self._closed = self.broken = True
             self._stop_connecting()
             self.link.close()
 
@@ -110,18 +110,18 @@ class RtuLine:
         """The link, reopened (serial) or reconnected (TCP) if a transport error broke it."""
         if self._closed:
             raise TransportError(f"{self.name} is closed")
-        if self._broken:
+        if self.broken:
             self._stop_connecting()
             self.link.close()
             self.link = self._connect()
-            self._broken = False
+            self.broken = False
         return self.link
 
     def reopen(self) -> bool:
         """:meth:`usable_link` for the I/O loop, which must not block: a TCP line's connection is made without
         waiting (True once the link is usable, False while it is being made: ask again soon; a
         :class:`TransportError` if it cannot be). A serial port opens at once. Called by the line's holder."""
-        if self._closed or not self._broken or self._start_connect is None:
+        if self._closed or not self.broken or self._start_connect is None:
             self.usable_link()
             return True
         connecting = self._connecting
@@ -137,7 +137,7 @@ class RtuLine:
             return False
         self._connecting = None
         self.link = link
-        self._broken = False
+        self.broken = False
         return True
 
     def _stop_connecting(self) -> None:
@@ -209,7 +209,7 @@ class RtuLine:
             self.transactions += 1
             attempt = 0
             try:
-                if self._broken or self._closed:
+                if self.broken:
                     self.usable_link()
                 guard, link, clock = self.guard, self.link, self._clock
                 while True:
@@ -238,7 +238,7 @@ class RtuLine:
                         try:
                             extra = link.take_input() if link.wait_readable(guard.trail_until - at) else b""
                         except TransportError:  # the connection closed after the answer: no byte followed it
-                            self._broken = True
+                            self.broken = True
                             extra = b""
                         if extra:
                             raise guard.trailing(data, extra)
@@ -273,7 +273,16 @@ class RtuLine:
         """What an ended (or cancelled) ticket's transaction put on the wire, into ``counters``."""
         exchange, state = ticket.request, ticket.state
         if state is _DONE:
-            self.count(counters, exchange, ticket.attempts, ticket.received, None)
+            received = ticket.received
+            if ticket.attempts == 1 and received:  # count() for the usual case, written out (as in run)
+                sent = exchange.frame_length
+                counters.transactions += 1
+                counters.requests += 1
+                counters.bytes_sent += sent
+                counters.bytes_received += received
+                counters.wire_time += (sent + received) * self.char_time + self._silences
+                return
+            self.count(counters, exchange, ticket.attempts, received, None)
         elif state is _FAILED:
             self.count(counters, exchange, max(1, ticket.attempts), 0, ticket.error)
         elif ticket.attempts:
@@ -283,7 +292,7 @@ class RtuLine:
         """A transaction failed for good with ``exc``: a transport error breaks the link (reopened / reconnected
         before the next transaction)."""
         if isinstance(exc, TransportError) and not isinstance(exc, TimeoutError):
-            self._broken = True
+            self.broken = True
 
     def given_up(
         self, counters: TransportCounters | None, exchange: Exchange, attempt: int, exc: StarterbusError

@@ -17,7 +17,6 @@ checked on input found empty just before it.
 
 from __future__ import annotations
 
-import weakref
 from collections.abc import Callable, Sequence
 from typing import cast
 
@@ -26,16 +25,14 @@ from starterbus.transports.modbus.codec.messages import Response
 from starterbus.transports.modbus.driver.line import RtuLine
 from starterbus.transports.modbus.driver.rtu_driver import CONNECT_LOOK, LOCK_RETRY, RtuDriver
 from starterbus.transports.modbus.master.exchange import Exchange
-from starterbus.transports.modbus.master.rtu_engine import RtuEngine, RtuTicket
+from starterbus.transports.modbus.master.rtu_engine import ANSWER, RtuTicket
 
-_DONE, _FAILED = TicketState.DONE, TicketState.FAILED  # (an Enum class's attributes are slow to read)
+# (an Enum class's attributes are slow to read)
+_QUEUED, _SENT, _DONE, _FAILED = TicketState.QUEUED, TicketState.SENT, TicketState.DONE, TicketState.FAILED
+_ANSWER = ANSWER
+_LEADS = (None,)  # a ticket's future: none, the task watches the ticket itself
 
 __all__ = ["LOCK_RETRY", "LineTask", "RtuDriver"]
-
-
-#: one driver per line (its engine shares the line's guard with the blocking driver); the line's lock makes its
-#: user one task at a time
-_DRIVERS: weakref.WeakKeyDictionary[RtuLine, RtuDriver] = weakref.WeakKeyDictionary()
 
 
 class LineTask(PollTask):
@@ -50,17 +47,15 @@ class LineTask(PollTask):
         check: Callable[[Exchange, Response], None],
         finish: Callable[[list[Response]], PollResult],
     ) -> None:
-        if any(e.broadcast for e in exchanges):
-            raise ValueError("a broadcast gets no answer: it is not a poll")
+        for exchange in exchanges:
+            if exchange.broadcast:
+                raise ValueError("a broadcast gets no answer: it is not a poll")
         self.line = line
         self._exchanges = exchanges
         self._counters = counters
         self._check = check
         self._finish = finish
-        driver = _DRIVERS.get(line)
-        if driver is None:
-            driver = _DRIVERS[line] = RtuDriver(line)
-        self._driver = driver
+        self._driver = line.polls
         self._responses: list[Response] = []
         self._ticket: RtuTicket | None = None
         self._locked = False
@@ -76,8 +71,32 @@ class LineTask(PollTask):
     def advance(self, now: float) -> None:
         if self.done:
             return
+        driver, line = self._driver, self.line
         try:
-            self._advance(now)
+            while True:
+                ticket = self._ticket
+                if ticket is None:
+                    if not self._locked:
+                        # (blocking callers' transactions waiting for the line go first: see RtuJobDriver)
+                        if line.jobs.waiting or not line.lock.acquire(blocking=False):
+                            self.fd = -1  # the line's input is its holder's until it is free: look again soon
+                            self.wake_at = now + LOCK_RETRY
+                            return
+                        self._locked = True
+                    if line.broken and not line.reopen():
+                        self.fd = -1  # a connection being made, without blocking the loop: looked at again soon
+                        self.wake_at = now + CONNECT_LOOK
+                        return
+                    line.transactions += 1
+                    (submitted,) = driver.submit((self._exchanges[len(self._responses)],), now, _LEADS)
+                    ticket = self._ticket = cast(RtuTicket, submitted)
+                driver.step(now, True)
+                state = ticket.state
+                if state is _SENT or state is _QUEUED:
+                    self._watch(driver)
+                    return
+                if self._ended(ticket):
+                    return
         except StarterbusError as exc:
             self._failed(exc)
         except BaseException:
@@ -105,55 +124,31 @@ class LineTask(PollTask):
 
     # -- the steps -------------------------------------------------------------------------------------------
 
-    def _advance(self, now: float) -> None:
-        driver, line = self._driver, self.line
-        while not self.done:
-            if self._ticket is None:
-                if not self._locked:
-                    # (blocking callers' transactions waiting for the line go first: see RtuJobDriver)
-                    if line.jobs.waiting or not line.lock.acquire(blocking=False):
-                        self.fd = -1  # the line's input is its holder's until it is free: look again soon
-                        self.wake_at = now + LOCK_RETRY
-                        return
-                    self._locked = True
-                if line.broken and not line.reopen():
-                    self.fd = -1  # a connection being made, without blocking the loop: looked at again soon
-                    self.wake_at = now + CONNECT_LOOK
-                    return
-                line.transactions += 1
-                exchange = self._exchanges[len(self._responses)]
-                (submitted,) = driver.submit((exchange,), now, (None,))
-                self._ticket = cast(RtuTicket, submitted)
-            ticket = self._ticket
-            driver.counted_step(now, True)
-            if not ticket.ended:
-                self._watch(driver.engine, line.clock())
-                return
-            self._ended(ticket)
-
-    def _watch(self, engine: RtuEngine, now: float) -> None:
-        line = self.line
+    def _watch(self, driver: RtuDriver) -> None:
+        line, engine = self.line, driver.engine
         self.fd, self.wake_at = -1 if line.broken else line.link.fd, engine.deadline
-        exchange = engine.answering
-        if exchange is not None and not line.guard.min_char_time:
+        if engine.phase is _ANSWER and not line.guard.min_char_time:
             # the rest of a normal answer cannot be here sooner than the baud rate brings it: look again when
             # all of it can have come, instead of at every byte (only where no wire timing is checked: pty,
             # TCP). ``at`` is after the first bytes arrived, so the rest is usually all there then (one wake
             # for it, not two); what is not is waited for on the descriptor
             got, at = engine.answer_so_far
-            rest = at + (exchange.answer_length - got) * line.char_time
-            if got > 0 and exchange.answer_length > got and rest > now:
-                self.fd = -1
-                self.wake_at = min(self.wake_at, rest)
+            exchange = engine.answering
+            if got > 0 and exchange is not None and exchange.answer_length > got:
+                rest = at + (exchange.answer_length - got) * line.char_time
+                if rest > driver.at:
+                    self.fd = -1
+                    self.wake_at = min(self.wake_at, rest)
 
-    def _ended(self, ticket: RtuTicket) -> None:
+    def _ended(self, ticket: RtuTicket) -> bool:
+        """The transaction of ``ticket`` ended; whether the task is done."""
         self._ticket = None
         self._release()
         self._counted(ticket)
         if ticket.state is not _DONE:
             assert ticket.error is not None
             self._end(ticket.error)
-            return
+            return True
         response = ticket.result
         assert response is not None  # a poll has no broadcast
         self._responses.append(response)
@@ -161,9 +156,10 @@ class LineTask(PollTask):
             self._check(ticket.request, response)
         except StarterbusError as exc:  # an exception answer ends the poll (the line is healthy)
             self._end(exc)
-            return
+            return True
         if len(self._responses) == len(self._exchanges):
             self._finish_all()
+        return self.done
 
     def _counted(self, ticket: RtuTicket) -> None:
         """What the ended (or cancelled) transaction put on the wire, into the counters; a transport error

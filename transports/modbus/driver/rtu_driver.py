@@ -28,11 +28,12 @@ from starterbus.core import (
 )
 from starterbus.transports.modbus.driver.link import Link
 from starterbus.transports.modbus.master.guard import LineGuard
-from starterbus.transports.modbus.master.rtu_engine import RtuEngine
+from starterbus.transports.modbus.master.rtu_engine import ANSWER, QUIET, READ_CHUNK, START, TRAIL, RtuEngine
 
 __all__ = ["CONNECT_LOOK", "LOCK_RETRY", "Line", "RtuDriver", "RtuJobDriver"]
 
 _DONE, _FAILED = TicketState.DONE, TicketState.FAILED  # (an Enum class's attributes are slow to read)
+_START, _QUIET, _ANSWER, _TRAIL = START, QUIET, ANSWER, TRAIL
 
 #: how soon a driver or task looks again at a line that another user holds
 LOCK_RETRY = 0.001
@@ -49,15 +50,13 @@ class Line(Protocol):
     transactions: int
     requests: int
     retries: int
+    broken: bool  # a transport error broke the link (or it is closed): reopened before the next transaction
 
     @property
     def name(self) -> str: ...
 
     @property
     def clock(self) -> Callable[[], float]: ...
-
-    @property
-    def broken(self) -> bool: ...
 
     def mark_broken(self) -> None: ...
 
@@ -75,6 +74,9 @@ class RtuDriver(StreamDriver[RtuEngine]):
     def __init__(self, line: Line) -> None:
         super().__init__(line.name, lambda: RtuEngine(line.guard, line.name))
         self.line = line
+        self._clock = line.clock
+        #: the last reading of the line's clock in a step (the fleet's poll times its next look with it)
+        self.at = 0.0
 
     @property
     def fd(self) -> int:
@@ -90,58 +92,60 @@ class RtuDriver(StreamDriver[RtuEngine]):
         """Read what is there (at most what the engine wants) and give it to the engine; the time after."""
         engine, line = self.engine, self.line
         if line.broken:  # closed after an answer: the rest of its silence is waited for by time alone
-            at = line.clock()
+            at = self._clock()
             engine.receive(None, at)
             return at
-        want = engine.want
-        if engine.answering is not None:
-            data = line.link.read_ready(want)
+        if engine.phase is _ANSWER:
+            data = line.link.read_ready(engine.want)
         else:
             try:
-                data = line.link.take_input(want)
+                data = line.link.take_input(READ_CHUNK)
             except TransportError:
-                if not engine.trailing:
+                if engine.phase is not _TRAIL:
                     raise
                 line.mark_broken()  # the connection closed after the answer: no byte followed it
                 data = b""
-        at = line.clock()
+        at = self._clock()
         engine.receive(data or None, at)
         return at
 
     def step(self, now: float, ready: bool) -> None:
         """The loop body for a line: the input is looked at first, unless a request is due and the input was
-        found empty a moment ago (the silence after the last answer), as the blocking driver does."""
-        engine, clock = self.engine, self.line.clock
-        if engine.wants_to_send:
+        found empty a moment ago (the silence after the last answer), as the blocking driver does. The frames
+        written and the retries begun are added to the line's counts (a step that raises is the crash's)."""
+        engine, clock = self.engine, self._clock
+        requests, retries = engine.requests, engine.retries
+        phase = engine.phase
+        if phase is _START or phase is _QUIET:
             now = clock()
-            if engine.must_look(now):
+            if phase is _QUIET or engine.guard.must_discard(now):
                 now = self.look()
         else:
             # (an answer complete in this look is followed by the watch of its silence: bytes after it wake the
             # loop, the silence's end looks again)
             now = self.look()
-        if now >= engine.deadline:
+            phase = engine.phase
+        if phase is not _START and now >= engine.deadline:  # (START is due at once: take_output decides)
             engine.advance(now)
-        if engine.wants_to_send:
+            phase = engine.phase
+        if phase is _START or phase is _QUIET:
+            # the clock was read no earlier than the request's first byte: by the look, or just above
             if engine.guard.must_discard(now):  # not looked at a moment ago (a retry after a timeout)
-                self.look()
-            now = clock()  # no later than the request's first byte
+                now = self.look()
             out = engine.take_output(now)
             if out:
                 self.line.link.write(out[0])
-        self.complete(now)
+        self.at = now
+        done = engine.take_completed()
+        if done:  # (nothing ended: nothing to complete, and the tickets left are as they were)
+            self.complete(now, done)
+        if engine.requests != requests or engine.retries != retries:
+            line = self.line
+            line.requests += engine.requests - requests
+            line.retries += engine.retries - retries
 
     def write(self, units: Sequence[Any], now: float) -> None:
         self.line.link.write(units[0])
-
-    def counted_step(self, now: float, ready: bool) -> None:
-        """This class's :meth:`step`, with the frames it wrote and the retries it began added to the line's counts
-        (the fleet's poll and the job driver both step so)."""
-        engine, line = self.engine, self.line
-        requests, retries = engine.requests, engine.retries
-        RtuDriver.step(self, now, ready)
-        line.requests += engine.requests - requests
-        line.retries += engine.retries - retries
 
 
 class RtuJobDriver(RtuDriver):
@@ -193,13 +197,14 @@ class RtuJobDriver(RtuDriver):
                 self._retry_at = line.clock() + LOCK_RETRY
                 return
             self._locked = True
-        if line.broken and engine.wants_to_send:  # (broken under an answer: its silence is waited for first)
+        phase = engine.phase
+        if line.broken and (phase is _START or phase is _QUIET):  # (broken under an answer: its silence first)
             # (a TransportError: the loop crashes the driver, every ticket fails with it)
             self._connecting = not line.reopen()
             if self._connecting:
                 self._retry_at = line.clock() + CONNECT_LOOK
                 return
-        self.counted_step(now, ready)
+        RtuDriver.step(self, now, ready)
 
     def complete(self, now: float, done: Sequence[Ticket[Any, Any]] | None = None) -> None:
         if done is None:

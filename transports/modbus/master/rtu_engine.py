@@ -26,7 +26,7 @@ from starterbus.transports.modbus.codec.receiver import NEED_DATA, ResponseRecei
 from starterbus.transports.modbus.master.exchange import Exchange
 from starterbus.transports.modbus.master.guard import LineGuard, hex_bytes
 
-__all__ = ["RtuEngine", "RtuTicket"]
+__all__ = ["ANSWER", "IDLE", "QUIET", "START", "TRAIL", "Phase", "RtuEngine", "RtuTicket"]
 
 #: bytes read at most when no answer is being read
 READ_CHUNK = 512
@@ -37,7 +37,7 @@ LOOK_AGAIN = 0.0001
 _Handler = Callable[[Exchange, bytes, float], None]  # an attempt's step
 
 
-class _Step(enum.Enum):
+class Phase(enum.Enum):
     IDLE = "idle"
     START = "start"
     QUIET = "quiet"
@@ -45,8 +45,10 @@ class _Step(enum.Enum):
     TRAIL = "trail"
 
 
-# module constants: an Enum class's attribute goes through the enum type's __getattr__ hook (read at every step)
-_IDLE, _START, _QUIET, _ANSWER, _TRAIL = _Step.IDLE, _Step.START, _Step.QUIET, _Step.ANSWER, _Step.TRAIL
+# module constants, compared by identity: an Enum class's attribute goes through the enum type's __getattr__ hook
+# (read at every step; a driver reads ``RtuEngine.phase`` against these)
+IDLE, START, QUIET, ANSWER, TRAIL = Phase.IDLE, Phase.START, Phase.QUIET, Phase.ANSWER, Phase.TRAIL
+_IDLE, _START, _QUIET, _ANSWER, _TRAIL = IDLE, START, QUIET, ANSWER, TRAIL
 
 
 class RtuTicket(Ticket[Exchange, "Response | None"]):
@@ -68,7 +70,7 @@ class RtuEngine:
         self.name = name
         self._queue: deque[RtuTicket] = deque()
         self._current: RtuTicket | None = None
-        self._step = _IDLE
+        self.phase = _IDLE  # the step the engine is at (a plain attribute: its driver reads it at every step)
         self._stray = b""  # bytes seen while no request was under way: discarded at the next start
         self._give_up = 0.0  # QUIET: when waiting for silence becomes an error
         self._look_at = 0.0  # QUIET, silent long enough: when to ask again for a look at the input
@@ -87,21 +89,21 @@ class RtuEngine:
 
     @property
     def deadline(self) -> float:
-        step = self._step
-        if step is _START:
-            return -FOREVER  # due now: take_output sends or starts waiting
-        if step is _QUIET:
-            return min(max(self.guard.quiet_at, self._look_at), self._give_up)
+        step = self.phase
         if step is _ANSWER:
             return self._deadline
         if step is _TRAIL:
             return self.guard.trail_until
+        if step is _START:
+            return -FOREVER  # due now: take_output sends or starts waiting
+        if step is _QUIET:
+            return min(max(self.guard.quiet_at, self._look_at), self._give_up)
         return FOREVER
 
     @property
     def answering(self) -> Exchange | None:
         """The exchange whose answer is being read (a driver may look later on a pty: see ``LineTask``)."""
-        return self._current.request if self._step is _ANSWER and self._current is not None else None
+        return self._current.request if self.phase is _ANSWER and self._current is not None else None
 
     @property
     def answer_so_far(self) -> tuple[int, float]:
@@ -112,7 +114,7 @@ class RtuEngine:
     def want(self) -> int:
         """How many bytes to read at most: the rest of the answer while one is read (the bytes after it are
         read when its silence is watched), else :data:`READ_CHUNK`."""
-        if self._step is _ANSWER and self._current is not None:
+        if self.phase is _ANSWER and self._current is not None:
             receiver = self._receiver
             if receiver is None:
                 return self._current.request.answer_length - len(self._data)
@@ -122,16 +124,16 @@ class RtuEngine:
     @property
     def trailing(self) -> bool:
         """An answer is complete and its silence is being watched."""
-        return self._step is _TRAIL
+        return self.phase is _TRAIL
 
     @property
     def wants_to_send(self) -> bool:
-        return self._step is _START or self._step is _QUIET
+        return self.phase is _START or self.phase is _QUIET
 
     def must_look(self, now: float) -> bool:
         """Whether the input must be looked at (``receive``) now: always while waiting for the silence (bytes then
         are stray), else unless it was found empty a moment ago (the silence after the last answer)."""
-        return self._step is _QUIET or self.guard.must_discard(now)
+        return self.phase is _QUIET or self.guard.must_discard(now)
 
     @property
     def pending(self) -> int:
@@ -142,7 +144,7 @@ class RtuEngine:
     def submit(self, request: Exchange, now: float) -> RtuTicket:
         ticket = RtuTicket(request)
         self._queue.append(ticket)
-        if self._step is _IDLE:
+        if self.phase is _IDLE:
             self._next()
         return ticket
 
@@ -153,13 +155,13 @@ class RtuEngine:
             self._queue.remove(ticket)  # type: ignore[arg-type]
             self._end_cancelled(ticket, now)  # type: ignore[arg-type]
             return
-        if self._step in (_ANSWER, _TRAIL):  # an answer may still come: the line is not silent
+        if self.phase in (_ANSWER, _TRAIL):  # an answer may still come: the line is not silent
             self.guard.failed(now, ticket.request.quarantine)
         self._end_cancelled(ticket, now)
         self._next()
 
     def receive(self, data: bytes | None, now: float) -> None:
-        step = self._step
+        step = self.phase
         if not data:
             if data is None:
                 if step is _TRAIL:
@@ -179,7 +181,7 @@ class RtuEngine:
             self._stray += data
 
     def advance(self, now: float) -> None:
-        step = self._step
+        step = self.phase
         if step is _QUIET:
             if now >= self._give_up:
                 assert self._current is not None
@@ -202,7 +204,7 @@ class RtuEngine:
         if ticket is None:
             return ()
         exchange = ticket.request
-        if self._step is _START:
+        if self.phase is _START:
             if ticket.attempts == 0:
                 self.transactions += 1
             if self._stray:
@@ -211,9 +213,9 @@ class RtuEngine:
             if not guard.send_now(now):
                 self._give_up = now + exchange.quiet_limit
                 self._look_at = now if guard.quiet_at > now else now + max(guard.fresh, LOOK_AGAIN)
-                self._step = _QUIET
+                self.phase = _QUIET
                 return ()
-        elif self._step is _QUIET:
+        elif self.phase is _QUIET:
             if guard.quiet_at > now:
                 return ()
             if guard.must_discard(now):  # the input was not looked at just now: the driver is asked to
@@ -233,7 +235,7 @@ class RtuEngine:
         self._deadline = now + exchange.budget
         self._data, self._receiver = b"", None
         self._empty_at = 0.0
-        self._step = _ANSWER
+        self.phase = _ANSWER
         return (exchange.frame,)
 
     def take_completed(self) -> Sequence[RtuTicket]:
@@ -257,7 +259,7 @@ class RtuEngine:
                 self._given_up(exc, now)
             else:
                 self.retries += 1
-                self._step = _START
+                self.phase = _START
 
     def _receive(self, exchange: Exchange, chunk: bytes, at: float) -> None:
         self._at = at
@@ -301,7 +303,7 @@ class RtuEngine:
         if error is not None:
             raise error
         self._answer = (frame, response)
-        self._step = _TRAIL
+        self.phase = _TRAIL
 
     def _trailing(self, _exchange: Exchange, extra: bytes, _now: float) -> None:
         assert self._answer is not None
@@ -336,5 +338,5 @@ class RtuEngine:
 
     def _next(self) -> None:
         self._current = self._queue.popleft() if self._queue else None
-        self._step = _START if self._current is not None else _IDLE
+        self.phase = _START if self._current is not None else _IDLE
         self._answer = None
