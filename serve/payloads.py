@@ -56,10 +56,7 @@ def encode(
                 field, wire = WRITERS[defn.datatype]
                 fields[field] = wire(value)
             metrics.append(fields)
-        payload = Payload(timestamp=timestamp, metrics=metrics)
-        if seq is not None:
-            payload.seq = seq
-        return bytes(payload.SerializeToString())
+        return encode_fields(metrics, timestamp=timestamp, seq=seq)
     payload = Payload(timestamp=timestamp)
     if seq is not None:
         payload.seq = seq
@@ -82,6 +79,14 @@ def encode(
             metric.is_historical = True
         _set_value(metric, defn.datatype, value)
     return bytes(payload.SerializeToString())
+
+
+def encode_fields(metrics: list[dict[str, object]], *, timestamp: int, seq: int | None) -> bytes:
+    """A DATA payload of metrics given as protobuf's field dicts (``{"timestamp": ..., "alias": ..., FIELD:
+    value}``), made in one constructor call."""
+    if seq is None:
+        return bytes(Payload(timestamp=timestamp, metrics=metrics).SerializeToString())
+    return bytes(Payload(timestamp=timestamp, metrics=metrics, seq=seq).SerializeToString())
 
 
 def encode_ndeath(bdseq: int) -> bytes:

@@ -39,7 +39,7 @@ from starterbus.serve.actions import (
     Reconnect,
     SessionOptions,
 )
-from starterbus.serve.device_state import UNREPORTED, DeviceState
+from starterbus.serve.device_state import DeviceState
 from starterbus.serve.history import Bounds, HistoryStore, MemoryStore
 from starterbus.serve.metrics import (
     BAD,
@@ -55,13 +55,12 @@ from starterbus.serve.metrics import (
     MetricDef,
     MetricSet,
     Scalar,
-    changed,
     device_metrics,
     initial_values,
     node_metrics,
     sample_values,
 )
-from starterbus.serve.payloads import Entry, encode, encode_ndeath
+from starterbus.serve.payloads import Entry, encode, encode_fields, encode_ndeath
 from starterbus.serve.session_commands import NAMESPACE, SessionCommands
 
 __all__ = [
@@ -256,6 +255,7 @@ class EdgeSession(SessionCommands):
         dev.born = True
         dev.reported = {d.name: dev.current.get(d.name, (None, 0))[0] for d in dev.metrics.defs}
         dev.quality = {d.name: self._quality(dev, d) for d in dev.metrics.defs if d.polled}
+        dev.settle()
         dev.last_full = now
         payload = encode(entries, timestamp=_ms(now), seq=self._next_seq(), birth=True, quality=dev.quality)
         return Publish(self.topic("DBIRTH", dev.name), payload)
@@ -321,12 +321,17 @@ class EdgeSession(SessionCommands):
         current = dev.current
         for name, value in values.items():
             current[name] = (value, ts)
-        if self.born and not dev.born:
+        full = self.options.refresh > 0 and now - dev.last_full >= self.options.refresh
+        if dev.born and not full and dev.settled == fresh and len(fresh) == len(values):
+            metrics = dev.report_settled(values, ts or _ms(now))  # only this sample's values can have changed
+            if metrics:
+                payload = encode_fields(metrics, timestamp=_ms(now), seq=self._next_seq())
+                out.append(Publish(self.topic("DDATA", dev.name), payload))
+        elif self.born and not dev.born:
             out.append(self._dbirth(dev, now))
             if self.store.pending().get(dev.name):
                 out.append(HistoryReady())
         else:
-            full = self.options.refresh > 0 and now - dev.last_full >= self.options.refresh
             out += self._device_data(dev, now, full=full)
         out += self._node_data(now)
         if not self.born:  # born: no births are due
@@ -339,47 +344,19 @@ class EdgeSession(SessionCommands):
     def _device_data(
         self, dev: DeviceState, now: float, *, full: bool = False, always: frozenset[str] = frozenset()
     ) -> list[Action]:
-        """DDATA of what changed (``full``: everything; ``always``: these metrics whether changed or not).
-
-        Runs for every sample, so the per-metric work is inlined: equal values are never a change (see
-        :func:`~starterbus.serve.metrics.changed`), and the Quality is :meth:`_quality`'s."""
-        entries: list[Entry] = []
-        quality: dict[str, int] = {}
-        current, reported, fresh, published_quality = dev.current, dev.reported, dev.fresh, dev.quality
+        """DDATA of what changed (``full``: everything; ``always``: these metrics whether changed or not)."""
         now_ms = _ms(now)
-        for d in dev.metrics.defs:
-            name = d.name
-            held = current.get(name)
-            if held is None:
-                continue
-            value, ts = held
-            is_polled = d.polled
-            q = (GOOD if name in fresh else BAD) if is_polled else GOOD
-            q_changed = is_polled and published_quality.get(name) != q
-            old = reported.get(name, UNREPORTED)
-            if full or old is UNREPORTED or name in always or (old != value and changed(d, old, value)):
-                entries.append((d, value, ts or now_ms))
-                reported[name] = value
-            elif q_changed:
-                entries.append((d, value, ts or now_ms))
-            else:
-                continue
-            if is_polled and (q_changed or q != GOOD):  # Quality is needed only when not good, or good again
-                quality[name] = published_quality[name] = q
+        entries, quality = dev.changes(now_ms, full=full, always=always)
         if full:
             dev.last_full = now
         if not entries:
             return []
         if dev.born:
-            return [
-                Publish(
-                    self.topic("DDATA", dev.name),
-                    encode(entries, timestamp=_ms(now), seq=self._next_seq(), birth=False, quality=quality),
-                )
-            ]
+            payload = encode(entries, timestamp=now_ms, seq=self._next_seq(), birth=False, quality=quality)
+            return [Publish(self.topic("DDATA", dev.name), payload)]
         polled = [(d.name, value, ts) for d, value, ts in entries if d.polled]  # history is of the device's values
         if not self.born and polled:
-            self.store.append(dev.name, polled, _ms(now))
+            self.store.append(dev.name, polled, now_ms)
         return []
 
     def _node_data(self, now: float) -> list[Action]:
