@@ -87,6 +87,8 @@ class EdgeNodeDriver(PahoOnLoop):
         self._loop_thread = 0
         self._flushing: set[int] = set()  # id(socket): a _flush is scheduled
         self._writers: set[int] = set()  # id(socket): its writability is watched (a full send buffer)
+        self._burst = None  # the packet of paho's queue that _publish adds to
+        self._topics = {}  # topic -> its PUBLISH field
         self.connections = 0  # sessions established (births sent at least once)
 
     @property
@@ -180,7 +182,11 @@ class EdgeNodeDriver(PahoOnLoop):
         client = self._client
         for action in actions:
             if isinstance(action, Publish):
-                if client is not None:
+                if client is None:
+                    pass
+                elif action.qos == 0:
+                    self._publish(client, action.topic, action.payload)  # a burst: one packet of paho's
+                else:
                     client.publish(action.topic, action.payload, qos=action.qos, retain=False)
             elif isinstance(action, CommandAudit):
                 self._audit(action.device, action.topic, action.asked, action.result)
