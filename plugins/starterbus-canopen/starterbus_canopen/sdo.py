@@ -67,6 +67,7 @@ _DOWNLOAD_RESPONSE = 0x60
 _ABORT = 0x80
 _EXPEDITED, _SIZE_GIVEN = 0x02, 0x01
 _MUX = struct.Struct("<BHB")
+FRAME_CACHE = 64  # request frames kept per engine, by request (a transport sends the same request objects again)
 
 
 @dataclass(frozen=True, slots=True)
@@ -132,6 +133,8 @@ class SdoEngine:
         self._quiet_until = -math.inf
         self._out: list[CanFrame] = []
         self._done: list[SdoTicket] = []
+        #: id(request) -> (request, its frame): the request held, so its id is not reused while it is here
+        self._frames: dict[int, tuple[SdoRequest, CanFrame]] = {}
         self.tpdo: tuple[Tpdo1, float] | None = None  #: the latest TPDO1 and when it was received
         self.bad_tpdos = 0  #: malformed TPDO1s dropped
         self.stale = 0  #: responses dropped: no transfer waited for them (the quiet period), or another object's
@@ -222,7 +225,16 @@ class SdoEngine:
             self.transfers += 1
             self._current = ticket
             self._answer_by = now + ticket.request.timeout
-            self._out.append(request_frame(self.node, ticket.request))
+            request = ticket.request
+            kept = self._frames.get(id(request))
+            if kept is not None and kept[0] is request:
+                frame = kept[1]
+            else:
+                frame = request_frame(self.node, request)
+                if len(self._frames) >= FRAME_CACHE:
+                    self._frames.clear()
+                self._frames[id(request)] = (request, frame)
+            self._out.append(frame)
         out, self._out = self._out, []
         return out
 
