@@ -284,8 +284,10 @@ class Scheduler(SchedulerLoop):
         self._serving.set()
         failure: Exception | None = None
         try:
+            clock = self.clock
             while not self._stopping:
-                self._turn(self.clock(), self.clock() + IDLE, None)
+                now = clock()
+                self._turn(now, now + IDLE, None)
         except Exception as exc:
             failure = exc
             raise

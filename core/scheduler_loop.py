@@ -115,6 +115,7 @@ class SchedulerLoop:
         #: attribute: a blocking RTU call reads it on every transaction)
         self.thread: threading.Thread | None = None
         self.drivers: list[Served] = []
+        self._may_block = False  # a driver in ``drivers`` offers ``can_block`` (else no turn looks for a blocker)
         self._due: list[Served] = []  # to step at the next turn (a submission)
         self._watched: dict[Served, tuple[int, bool]] = {}
         #: the driver whose own wait the loop uses now (:class:`Blocking`; None: the waiter's select)
@@ -215,11 +216,13 @@ class SchedulerLoop:
         """Serve ``driver`` from now on (called in the loop: from :meth:`call`)."""
         if driver not in self.drivers:
             self.drivers = [*self.drivers, driver]
+            self._may_block = self._may_block or hasattr(driver, "can_block")
 
     def remove(self, driver: Served) -> None:
         """Stop serving ``driver`` (called in the loop, before it closes its descriptor)."""
         self._watch(driver, -1, False)
         self.drivers = [d for d in self.drivers if d is not driver]
+        self._may_block = any(hasattr(d, "can_block") for d in self.drivers)
         self._due = [d for d in self._due if d is not driver]
 
     def _lead(self, done: Callable[[], bool], give_up: float) -> None:
@@ -242,7 +245,7 @@ class SchedulerLoop:
             for driver in due:
                 self._step(driver, now, False)
         drivers = self.drivers
-        blocker = _blocker(drivers)
+        blocker = _blocker(drivers) if self._may_block else None
         self._blocker = blocker  # before the inbox is looked at below: a post from now on interrupts the blocker
         wait_until = until
         watched = self._watched
@@ -259,7 +262,9 @@ class SchedulerLoop:
             return
         if self._inbox or self._due:
             wait_until = now
-        timeout = max(0.0, wait_until - self.clock())
+        timeout = wait_until - self.clock()
+        if timeout < 0.0:  # noqa: PLR1730 (max() is a call)
+            timeout = 0.0
         if blocker is not None:
             ready: list[Served | None] = [blocker] if blocker.block(timeout) else []
         else:
@@ -269,15 +274,13 @@ class SchedulerLoop:
                 ready = []
                 self._drop_closed()
         now = self.clock()
-        stepped: list[Served] = []
         for which in ready:
             if which is None:
                 self._drain()
             else:
-                stepped.append(which)
                 self._step(which, now, True)
         for driver in self.drivers:
-            if driver.deadline <= now and driver not in stepped:
+            if driver.deadline <= now and driver not in ready:  # (stepped above when it was ready)
                 self._step(driver, now, False)
 
     def _step(self, driver: Served, now: float, ready: bool) -> None:
