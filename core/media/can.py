@@ -12,7 +12,9 @@ IFACE/CH``): it puts the frames in a queue and writes one wake byte to a pipe wh
 costs one wake-up); the driver's descriptor is that pipe.
 
 Requests reach an engine through the scheduler as :class:`ToEngine` (``Scheduler.run(driver, [ToEngine(engine,
-request)], ...)``); the ticket is the engine's own. An engine that raises is not dropped (a malformed frame or a
+request)], ...)``); the ticket is the engine's own. While the loop waits in a virtual bus's own queue, a caller may
+give its request to the engine in its own thread instead (:meth:`CanDriver.submit_here`: no thread hand-off before
+the frame goes out). An engine that raises is not dropped (a malformed frame or a
 bug must not silence a bus that others share): the error is kept in :attr:`CanDriver.errors` and its
 ``advance`` is held back :data:`BUG_BACKOFF`.
 
