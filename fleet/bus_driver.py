@@ -22,6 +22,10 @@ def _nothing(bus: Bus, now: float) -> None:
     pass
 
 
+def _alone() -> None:
+    pass
+
+
 @dataclass(eq=False)
 class Bus:
     """A bus, its poll under way, and where it stands between polls."""
@@ -39,6 +43,7 @@ class Bus:
     fd: int = -1  # the poll's descriptor (-1: none)
     deadline: float = 0.0  # the poll's ``wake_at``, or ``next_at`` between polls
     writing: bool = False
+    poke: Callable[[], None] = _alone  # step it at the loop's next turn (the multiplexer's, from any thread)
 
     def __post_init__(self) -> None:
         self.name = self.worker.name

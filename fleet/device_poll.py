@@ -41,6 +41,7 @@ class DeviceRuntime:
     failures_in_a_row: int = 0
     next_due: float = 0.0
     skipped: set[str] = field(default_factory=set)  # keys this transport cannot read, reported once
+    unreadable: tuple[str, ...] = ()  # ``skipped``, sorted (each sample carries it)
     points: list[PointDef] | None = None  # what each poll reads, resolved once the device is open
     status: bool = False  # whether each poll reads the status
     slowest_request: float = 0.0  # longest time per request of a good poll, s (floor of the probe timeout)
@@ -149,6 +150,7 @@ class DevicePolls:
         if runtime.points is None:
             points, runtime.status, skipped = poll_points(runtime.config, device)
             runtime.skipped |= skipped
+            runtime.unreadable = tuple(sorted(runtime.skipped))
             runtime.points = points
         return runtime.points
 
@@ -208,7 +210,8 @@ class DevicePolls:
         if result is not None and device is not None:
             try:
                 status = result.status
-                values = {r.point.key: r.value(device.transport.name) for r in result.readings}
+                name = device.transport.name
+                values = {r.point.key: r.value(name) for r in result.readings}
             except StarterbusError as exc:
                 error = exc
         # online means answered: any error (no answer, an exception response, garbage, a URL or setting the
@@ -251,7 +254,7 @@ class DevicePolls:
             values=values if online else {},
             error=None if error is None else str(error),
             errors=runtime.errors,
-            unreadable=tuple(sorted(runtime.skipped)),
+            unreadable=runtime.unreadable,
             wire=wire,
             probe=probe,
         )

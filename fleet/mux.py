@@ -57,7 +57,7 @@ class Multiplexer:
         self._finishing = False  # the end is decided: the buses are no longer stepped
         self._ended = threading.Event()  # every bus given back and shut down
         for bus in self.buses:
-            bus.worker.notify = functools.partial(self._poke, bus)
+            bus.poke = bus.worker.notify = functools.partial(self._poke, bus)
 
     @property
     def loop(self) -> Scheduler:
@@ -170,7 +170,10 @@ class Multiplexer:
         while True:
             task = bus.task
             if task is not None:
-                self._step(bus, task, now)
+                try:
+                    task.advance(now)
+                except Exception as exc:
+                    self._defect(bus, task, exc)
                 if not task.done:
                     return
                 attempt, bus.task, bus.attempt = bus.attempt, None, None
@@ -193,9 +196,13 @@ class Multiplexer:
                     # poll's bookkeeping follows while its answer is on the way (not after the last poll of a
                     # round: whether another poll follows is decided by that bookkeeping)
                     ended = clock()
-                    following = self._task(bus) if self._next(bus, now, lend=False) else None
+                    started = bus  # (its task read again, not as narrowed above: the one just started)
+                    following = started.task if self._next(bus, now, lend=False) else None
                     if following:
-                        self._step(bus, following, clock())
+                        try:
+                            following.advance(clock())
+                        except Exception as exc:
+                            self._defect(bus, following, exc)
                     self._end(bus, attempt, result, error, ended)
                     if following and not following.done:
                         return
@@ -207,17 +214,11 @@ class Multiplexer:
                 return
 
     @staticmethod
-    def _step(bus: Bus, task: PollTask, now: float) -> None:
-        """``task.advance(now)``; a defect in a transport fails its poll instead of stopping every bus."""
-        try:
-            task.advance(now)
-        except Exception as exc:
-            task.cancel()
-            bus.failure = TransportError(f"{bus.worker.bus.name}: the poll failed: {type(exc).__name__}: {exc}")
-
-    @staticmethod
-    def _task(bus: Bus) -> PollTask | None:
-        return bus.task  # (read again: the one just started)
+    def _defect(bus: Bus, task: PollTask, exc: Exception) -> None:
+        """``task.advance`` raised what it should not: a defect in a transport fails its poll instead of stopping
+        every bus."""
+        task.cancel()
+        bus.failure = TransportError(f"{bus.worker.bus.name}: the poll failed: {type(exc).__name__}: {exc}")
 
     def _next(self, bus: Bus, now: float, lend: bool = True) -> bool:
         """Between polls: lend the bus for queued jobs (or devices to close), lend it to open the device due
@@ -245,7 +246,10 @@ class Multiplexer:
         attempt = bus.attempt = worker.begin(runtime)
         try:
             device = worker.prepare(attempt)
-            with worker.policy(attempt, device):
+            if attempt.probe:
+                with worker.policy(attempt, device):
+                    task = device.transport.start_poll(attempt.points, runtime.status)
+            else:  # (the transport's own rules: no context to enter)
                 task = device.transport.start_poll(attempt.points, runtime.status)
         except StarterbusError as exc:
             bus.attempt = None
@@ -254,7 +258,7 @@ class Multiplexer:
         if task is None:
             self._hand_over(bus, runtime)
             return False
-        task.on_progress = functools.partial(self._poke, bus)
+        task.on_progress = bus.poke
         bus.task = task
         return True
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence, Set
 from dataclasses import dataclass
+from operator import attrgetter
 
 from starterbus.core import (
     PlannedRequest,
@@ -30,6 +31,8 @@ from starterbus.core import (
 )
 from starterbus.transports.modbus.codec.timing import char_time
 from starterbus.transports.modbus.settings import PROTOCOL, TRANSPORT
+
+_KEY = attrgetter("key")
 
 REQUEST_BYTES = 8  # unit, function, address (2), count (2), CRC (2)
 ANSWER_OVERHEAD = 5  # unit, function, byte count, CRC (2)
@@ -95,7 +98,7 @@ class PollPlans:
         self._plans: dict[tuple[tuple[str, ...], bool], PollPlan] = {}
 
     def get(self, points: Sequence[PointDef], status: bool) -> PollPlan:
-        key = (tuple(p.key for p in points), status)
+        key = (tuple(map(_KEY, points)), status)
         plan = self._plans.get(key)
         if plan is None:
             plan = self._plans[key] = self._make(points, status)
@@ -177,5 +180,10 @@ def sort_out(
     transport: str = TRANSPORT,
 ) -> PollResult:
     """The poll's result from the ``values`` of the plan's answers, one after another."""
-    status = decode_status(profile, [values[i] for i in plan.status_at], source, transport) if plan.status_at else None
-    return PollResult(status, [Reading(p, values[i]) for p, i in zip(points, plan.points_at, strict=True)])
+    value = values.__getitem__
+    status = None
+    if plan.status_at:
+        status = decode_status(profile, list(map(value, plan.status_at)), source, transport)
+    if len(points) != len(plan.points_at):
+        raise ValueError(f"{len(points)} points for a plan of {len(plan.points_at)}")
+    return PollResult(status, list(map(Reading, points, map(value, plan.points_at))))
