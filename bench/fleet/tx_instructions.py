@@ -1,15 +1,16 @@
 """Benchmark: the instructions a fleet transaction costs the poller's process, counted by valgrind (callgrind),
 side by side with an older tree: a figure a busy machine does not move (timings on two shared cores do).
 
-    python -m starterbus.bench.fleet.tx_instructions [--before DIR] [--devices 8] [--tx 100 600]
+    python -m starterbus.bench.fleet.tx_instructions [--before DIR] [--devices 8] [--lines 1] [--tx 100 600]
 
-One Modbus RTU line (a bare pty hop: ``bench/modbus/line_emulator.py --baud 0``), ``--devices`` simulated
-starters in a process of their own (``rtu_scale.py serve``), polled by a ``FleetPoller`` back to back (period
-1 ms) until the poller has emitted the given number of good samples. The poller's process runs under
-callgrind, twice (the two ``--tx`` counts); instructions per transaction = the difference / the difference in
-transactions (start-up, imports and the end cancel out). The simulator and the emulator are not counted. Each
-tree runs once natively first (its ``.pyc`` files written). Needs ``valgrind`` (Debian: ``apt-get install
-valgrind``). ``--before DIR``: also the tree in DIR (a directory holding ``starterbus/``), and the ratio.
+``--lines`` Modbus RTU lines (each a bare pty hop: ``bench/modbus/line_emulator.py --baud 0``), ``--devices``
+simulated starters on each in a process of their own (``rtu_scale.py serve``), polled by a ``FleetPoller`` back
+to back (period 1 ms) until the poller has emitted the given number of good samples (several lines: what a turn
+of the loop costs per driver it serves counts too, as on the 16 lines of ``rtu_scale.py``). The poller's process
+runs under callgrind, twice (the two ``--tx`` counts); instructions per transaction = the difference / the
+difference in transactions (start-up, imports and the end cancel out). The simulator and the emulator are not
+counted. Each tree runs once natively first (its ``.pyc`` files written). Needs ``valgrind`` (Debian: ``apt-get
+install valgrind``). ``--before DIR``: also the tree in DIR (a directory holding ``starterbus/``), and the ratio.
 
 What it does not see: the kernel's share (system calls, context switches) and cache misses; the paced lines of
 ``rtu_scale.py`` wake the poller more often per transaction than a bare pty does.
@@ -30,7 +31,7 @@ from pathlib import Path
 MODELS = ("jjr5000", "ssd1")
 
 
-def poll(tx: int, devices: int) -> None:
+def poll(tx: int, devices: int, lines: int = 1) -> None:
     """The measured process: poll until ``tx`` good samples."""
     import starterbus
     from starterbus.bench.modbus.throughput import Emulator
@@ -38,9 +39,10 @@ def poll(tx: int, devices: int) -> None:
     from starterbus.fleet.poller import FleetPoller
 
     rtu_scale = Path(starterbus.__file__).parent / "bench" / "fleet" / "rtu_scale.py"  # the measured tree's
-    emulator = Emulator(0)
+    emulators = [Emulator(0) for _ in range(lines)]
     sims = subprocess.Popen(
-        [sys.executable, str(rtu_scale), "serve", "--paths", emulator.server, "--counts", str(devices)],
+        [sys.executable, str(rtu_scale), "serve", "--paths", *[e.server for e in emulators], "--counts"]
+        + [str(devices)] * lines,
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         text=True,
@@ -49,10 +51,13 @@ def poll(tx: int, devices: int) -> None:
     try:
         if sims.stdout.readline().strip() != "ready":
             raise RuntimeError("the simulator process did not start")
-        url = f"modbus-rtu://{emulator.client}?baudrate=19200&timeout=1.0&retries=1"
-        text = f'[poll]\nperiod = 0.001\n\n[[bus]]\nname = "l"\nurl = "{url}"\n' + "".join(
-            f'[[bus.device]]\nname = "d{u}"\nmodel = "{MODELS[u % 2]}"\naddress = {u}\n' for u in range(1, devices + 1)
-        )
+        text = "[poll]\nperiod = 0.001\n\n"
+        for line, emulator in enumerate(emulators):
+            url = f"modbus-rtu://{emulator.client}?baudrate=19200&timeout=1.0&retries=1"
+            text += f'[[bus]]\nname = "l{line}"\nurl = "{url}"\n' + "".join(
+                f'[[bus.device]]\nname = "d{line}-{u}"\nmodel = "{MODELS[u % 2]}"\naddress = {u}\n'
+                for u in range(1, devices + 1)
+            )
         done, good, bad = threading.Event(), [0], [0]
 
         def on_sample(sample: object) -> None:
@@ -70,7 +75,8 @@ def poll(tx: int, devices: int) -> None:
     finally:
         sims.stdin.close()
         sims.wait(timeout=20)
-        emulator.close()
+        for emulator in emulators:
+            emulator.close()
 
 
 def environment(root: Path | None) -> dict[str, str]:
@@ -82,17 +88,22 @@ def environment(root: Path | None) -> dict[str, str]:
     return env
 
 
-def command(tx: int, devices: int) -> list[str]:
+def command(tx: int, devices: int, lines: int = 1) -> list[str]:
     python = os.path.realpath(sys.executable)  # not a shim script: callgrind follows no child
-    return [python, str(Path(__file__).resolve()), "--poll", str(tx), "--devices", str(devices)]
+    return [python, str(Path(__file__).resolve()), "--poll", str(tx), "--devices", str(devices), "--lines", str(lines)]
 
 
-def instructions(root: Path | None, tx: int, devices: int) -> int:
+def instructions(root: Path | None, tx: int, devices: int, lines: int = 1) -> int:
     """Instructions of one measured process under callgrind."""
+    return callgrind(command(tx, devices, lines), environment(root))
+
+
+def callgrind(measured: list[str], env: dict[str, str]) -> int:
+    """Instructions of the process ``measured`` runs, under callgrind (its children not counted)."""
     with tempfile.TemporaryDirectory() as tmp:
         out = subprocess.run(
-            ["valgrind", "--tool=callgrind", f"--callgrind-out-file={tmp}/cg.out", *command(tx, devices)],
-            env=environment(root),
+            ["valgrind", "--tool=callgrind", f"--callgrind-out-file={tmp}/cg.out", *measured],
+            env=env,
             capture_output=True,
             text=True,
             check=True,
@@ -104,29 +115,31 @@ def instructions(root: Path | None, tx: int, devices: int) -> int:
     return int(found.group(1))
 
 
-def per_transaction(root: Path | None, counts: tuple[int, int], devices: int) -> float:
-    subprocess.run(command(5, devices), env=environment(root), check=True, capture_output=True)  # the .pyc files
-    low, high = (instructions(root, n, devices) for n in counts)
+def per_transaction(root: Path | None, counts: tuple[int, int], devices: int, lines: int = 1) -> float:
+    env = environment(root)
+    subprocess.run(command(5, devices, lines), env=env, check=True, capture_output=True)  # the .pyc files
+    low, high = (instructions(root, n, devices, lines) for n in counts)
     return (high - low) / (counts[1] - counts[0])
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--before", type=Path, help="also this tree (a directory holding starterbus/)")
-    parser.add_argument("--devices", type=int, default=8)
+    parser.add_argument("--devices", type=int, default=8, help="devices a line")
+    parser.add_argument("--lines", type=int, default=1)
     parser.add_argument("--tx", type=int, nargs=2, default=(100, 600), metavar=("LOW", "HIGH"))
     parser.add_argument("--poll", type=int, help=argparse.SUPPRESS)  # the measured process
     args = parser.parse_args()
     if args.poll is not None:
-        poll(args.poll, args.devices)
+        poll(args.poll, args.devices, args.lines)
         return
     if shutil.which("valgrind") is None:
         raise SystemExit("tx_instructions: valgrind is not installed (apt-get install valgrind)")
     counts = (args.tx[0], args.tx[1])
-    after = per_transaction(None, counts, args.devices)
+    after = per_transaction(None, counts, args.devices, args.lines)
     print(f"this tree: {after:,.0f} instructions a transaction", flush=True)
     if args.before is not None:
-        before = per_transaction(args.before, counts, args.devices)
+        before = per_transaction(args.before, counts, args.devices, args.lines)
         print(f"{args.before}: {before:,.0f} instructions a transaction")
         print(f"this tree / before: {after / before:.3f}x")
 
