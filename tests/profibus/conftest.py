@@ -226,6 +226,6 @@ def _nothing_left_open() -> Iterator[None]:
     for name in set(attached_slaves()) - before:
         detach_slave(name)
     left = set(GATEWAYS.leases()) - open_before
-    assert not left, f"gateway connections left open: {sorted(left)}"
+    assert not left, f"gateway connections left open: {sorted(map(str, left))}"
     cycling = [t.name for t in threading.enumerate() if t.name.startswith("profibus-pkw cycle")]
     assert not cycling, f"cycle threads left running: {cycling}"
