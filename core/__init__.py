@@ -96,7 +96,7 @@ if TYPE_CHECKING:
         status_with_currents,
     )
     from starterbus.core.textinput import check_loopback, parse_hex, parse_host_port
-    from starterbus.core.ticket_poll import TicketPoll, run_steps, wait_ticket
+    from starterbus.core.ticket_poll import TicketPoll, follow_steps, run_steps, wait_ticket
     from starterbus.core.transport_template import ALL_CAPABILITIES, Capability, Transport
     from starterbus.core.url import DeviceUrl
 
@@ -225,6 +225,7 @@ _LAZY = {
     "SchedulerReentryError": "starterbus.core.scheduler",
     "process_scheduler": "starterbus.core.scheduler:scheduler",
     "TicketPoll": "starterbus.core.ticket_poll",
+    "follow_steps": "starterbus.core.ticket_poll",
     "run_steps": "starterbus.core.ticket_poll",
     "wait_ticket": "starterbus.core.ticket_poll",
 }
@@ -342,6 +343,7 @@ __all__ = [
     "decode_status_word",
     "describe_control_word",
     "encode_status_word",
+    "follow_steps",
     "get_profile",
     "get_transport",
     "keep_running",

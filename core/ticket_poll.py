@@ -26,7 +26,7 @@ from starterbus.core.errors import StarterbusError, TransportError
 from starterbus.core.polling import PollResult, PollTask
 from starterbus.core.scheduler import Scheduler, Served
 
-__all__ = ["STALL", "TicketPoll", "TimedRequest", "run_steps", "wait_ticket"]
+__all__ = ["STALL", "TicketPoll", "TimedRequest", "follow_steps", "run_steps", "wait_ticket"]
 
 #: the default outer bound of a wait beyond the request's own timeout: only a stalled loop gets there
 STALL = 30.0
@@ -77,12 +77,22 @@ def run_steps(
 ) -> T:
     """Run ``steps`` to its end in the calling thread, each request's ticket waited for in turn
     (:func:`wait_ticket`); ``what``: the text of a stall's error, or a function of the request giving it."""
+
+    def answer(request: R) -> Any:
+        text = what if isinstance(what, str) else what(request)
+        return wait_ticket(loop, driver, request, text, wrap=wrap, stall=stall).outcome()
+
+    return follow_steps(steps, answer)
+
+
+def follow_steps(steps: Generator[R, Any, T], answer: Callable[[R], Any]) -> T:
+    """Run ``steps`` to its end: each request it yields gets ``answer(request)`` back, or the
+    :class:`StarterbusError` that raised thrown in."""
     try:
         request = next(steps)
         while True:
-            text = what if isinstance(what, str) else what(request)
             try:
-                value = wait_ticket(loop, driver, request, text, wrap=wrap, stall=stall).outcome()
+                value = answer(request)
             except StarterbusError as exc:
                 request = steps.throw(exc)
             else:

@@ -16,7 +16,7 @@ import functools
 from collections.abc import Generator
 from typing import TypeVar
 
-from starterbus.core import PollResult, StarterbusError, TicketPoll, ToEngine
+from starterbus.core import PollResult, TicketPoll, ToEngine, follow_steps
 from starterbus_canopen.bus import CanBus
 from starterbus_canopen.sdo import SdoEngine, SdoRequest
 
@@ -67,18 +67,7 @@ def transfer(bus: CanBus, engine: SdoEngine, request: SdoRequest) -> bytes:
 def drive(bus: CanBus, engine: SdoEngine, steps: Steps[T]) -> T:
     """Run ``steps`` to its end, each transfer waited for in turn (:func:`transfer`; the core's ``run_steps`` with
     the request given to the engine in this thread where it can be)."""
-    try:
-        request = next(steps)
-        while True:
-            try:
-                value = transfer(bus, engine, request)
-            except StarterbusError as exc:
-                request = steps.throw(exc)
-            else:
-                request = steps.send(value)
-    except StopIteration as stop:
-        result: T = stop.value
-        return result
+    return follow_steps(steps, lambda request: transfer(bus, engine, request))
 
 
 class SdoPoll(TicketPoll[SdoRequest]):
