@@ -82,6 +82,7 @@ def poll(tx: int, devices: int, lines: int = 1) -> None:
 def environment(root: Path | None) -> dict[str, str]:
     """The measured process imports ``root``'s tree (None: this one); this script runs from this tree."""
     env = dict(os.environ)
+    env["PYTHONHASHSEED"] = "0"  # the same sets and dicts at every start: start-ups that cancel out in the difference
     if root is not None:
         plugin = root / "starterbus" / "plugins" / "starterbus-canopen"
         env["PYTHONPATH"] = os.pathsep.join([str(root), str(plugin), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
