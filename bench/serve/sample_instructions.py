@@ -6,8 +6,9 @@ not move (timings on two shared cores do).
 
 The load of ``bench/serve/throughput.py``: ``--devices`` JJR5000s of 10 metrics, every value changed since the
 device's last sample, so every sample is a DDATA of 10 metrics; 5 samples a turn of the event loop (a 5 ms slot
-of that bench). ``EdgeNodeDriver.run`` connects to mosquitto, the first round of samples makes the births (and
-the history of what was polled before them), then the measured samples follow. The process runs under
+of that bench). ``EdgeNodeDriver.run`` connects to mosquitto, the NBIRTH goes out at once, the first round of
+samples makes the DBIRTHs, then the measured samples follow: nothing waits by the clock (a loop that polls
+would count more instructions on a slower, busier machine). The process runs under
 callgrind twice (the two ``--samples`` counts, every sample built before either is fed in); instructions a
 sample = the difference / the difference in samples (start-up, imports, the births and the stop cancel out).
 mosquitto is not counted. Each tree runs once natively first (its ``.pyc`` files written). Needs ``valgrind``
@@ -27,7 +28,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
@@ -35,10 +36,11 @@ ROUNDS = 4  # samples built: the first round (the births), then up to 3 rounds o
 
 
 class _Source:
-    """A stand-in for the fleet: the first round, then (once ``go`` is set) ``count`` more samples, 5 a turn."""
+    """A stand-in for the fleet: once ``go`` is set, the first round (the DBIRTHs), then ``count`` more samples,
+    5 a turn; ``mark`` is called between the two."""
 
-    def __init__(self, first: list[Any], rest: list[Any], count: int) -> None:
-        self.first, self.rest, self.count = first, rest, count
+    def __init__(self, first: list[Any], rest: list[Any], count: int, mark: Callable[[], None]) -> None:
+        self.first, self.rest, self.count, self.mark = first, rest, count, mark
         self.go = asyncio.Event()
         self.done = asyncio.Event()
 
@@ -49,9 +51,12 @@ class _Source:
         return self._samples()
 
     async def _samples(self) -> AsyncIterator[Any]:
-        for sample in self.first:
-            yield sample
         await self.go.wait()
+        for i in range(0, len(self.first), 5):
+            for sample in self.first[i : i + 5]:
+                yield sample
+            await asyncio.sleep(0)
+        self.mark()
         for i in range(0, self.count, 5):
             for sample in self.rest[i : min(i + 5, self.count)]:
                 yield sample
@@ -103,26 +108,32 @@ def measure(count: int, devices: int, port: int) -> None:
     rest = [s for r in rounds[1:] for s in r]
     if count > len(rest):
         raise SystemExit(f"at most {len(rest)} samples with {devices} devices")
-    source = _Source(rounds[0], rest, count)
+    published = [0]
     aliases = Aliases()
     node = node_metrics(aliases)
     metrics = {c.name: device_metrics(c, profile, aliases) for c in configs}
-    session = EdgeSession(SessionOptions("bench", "node1", refresh=0), node, metrics)
+    # the NBIRTH at once: each device's first sample makes its DBIRTH, none is stored and sent as history
+    session = EdgeSession(SessionOptions("bench", "node1", refresh=0, first_round_wait=0), node, metrics)
+    source = _Source(rounds[0], rest, count, lambda: published.__setitem__(0, session.published))
+    connected = session.on_connected
+
+    def on_connected(now: float) -> list[Any]:  # the samples start with the session: nothing waits by the clock
+        actions = connected(now)
+        source.go.set()
+        return actions
+
+    session.on_connected = on_connected  # type: ignore[method-assign]
 
     async def run() -> None:
         broker = BrokerOptions("127.0.0.1", port, keepalive=600)  # the births of 1000 devices take long in valgrind
         driver = EdgeNodeDriver(cast(AsyncFleet, source), session, broker)
         stop = asyncio.Event()
         task = asyncio.create_task(driver.run(stop))
-        while not (session.born and session.published >= 1 + devices and len(session.store) == 0):
-            await asyncio.sleep(0.01)  # the births, and the history of what was polled before them, written
-        published = session.published
-        source.go.set()
         await source.done.wait()
         stop.set()
         await task
-        if session.published - published != count:
-            raise SystemExit(f"{session.published - published} DDATA published for {count} samples")
+        if session.published - published[0] != count:
+            raise SystemExit(f"{session.published - published[0]} DDATA published for {count} samples")
 
     asyncio.run(run())
     print(f"published {count}", flush=True)
