@@ -40,7 +40,7 @@ class DeviceState:
     metrics: MetricSet
     online: bool = False
     born: bool = False
-    current: dict[str, tuple[Scalar | None, int]] = field(default_factory=dict)  # name -> (value, ms)
+    held: dict[str, tuple[Scalar | None, int]] = field(default_factory=dict)  # ``current``, but the last sample's
     reported: dict[str, Scalar | None] = field(default_factory=dict)
     last_full: float = 0.0
     refused: int = 0
@@ -53,6 +53,31 @@ class DeviceState:
     #: only they can have changed and no Quality can: :meth:`report_settled` looks at them alone.
     settled: set[str] | None = None
     _settled_slots: tuple[_Slot, ...] = ()
+    _sampled: dict[str, Scalar | None] | None = None  # a settled sample's values (:meth:`keep`), not yet in held
+    _sampled_ts: int = 0
+
+    @property
+    def current(self) -> dict[str, tuple[Scalar | None, int]]:
+        """Metric name -> (value, acquisition time in ms) of every metric known of the device."""
+        sampled = self._sampled
+        if sampled is not None:
+            held, ts = self.held, self._sampled_ts
+            for name, value in sampled.items():
+                held[name] = (value, ts)
+            self._sampled = None
+        return self.held
+
+    def keep(self, values: dict[str, Scalar | None], ts: int, *, settled: bool) -> None:
+        """A good sample's values, acquired at ``ts`` (ms), into :attr:`current`: at once, or, for a ``settled``
+        one (:meth:`report_settled`), once :attr:`current` is read. A settled sample names the metrics the last
+        one kept did, if that was settled too (``settled`` changes only after :attr:`current` was read): it
+        replaces it whole, so a device's values are not copied at all while its samples stay settled."""
+        if settled:
+            self._sampled, self._sampled_ts = values, ts
+            return
+        current = self.current
+        for name, value in values.items():
+            current[name] = (value, ts)
 
     def settle(self) -> None:
         """Every metric was just looked at with ``fresh`` as it is: remember it (and the metrics it names)."""
@@ -106,8 +131,9 @@ class DeviceState:
             old = reported.get(name, UNREPORTED)
             if old == value:
                 continue
-            if type(value) is float and type(old) is float:  # changed()'s common case, inlined
-                if not abs(value - old) >= band:
+            kind = type(value)
+            if (kind is float or kind is int) and type(old) is kind:  # changed()'s numbers, inlined
+                if not abs(float(value) - float(old)) >= band:  # type: ignore[arg-type]
                     continue
             elif old is not UNREPORTED and not changed(d, old, value):
                 continue

@@ -92,7 +92,7 @@ class EdgeSession(SessionCommands):
         self.node = node
         self.devices = {name: DeviceState(name, metrics) for name, metrics in devices.items()}
         for dev in self.devices.values():
-            dev.current = {k: (v, 0) for k, v in initial_values().items()}
+            dev.current.update({k: (v, 0) for k, v in initial_values().items()})
         self.bdseq = bdseq  # the value of the current (or last) connection; -1 before the first
         self.seq = 0
         self.connected = False  # subscriptions acknowledged
@@ -318,11 +318,10 @@ class EdgeSession(SessionCommands):
         fresh = dev.fresh = set(values)
         if None in values.values():  # a status bit the model does not have
             fresh -= {name for name, value in values.items() if value is None}
-        current = dev.current
-        for name, value in values.items():
-            current[name] = (value, ts)
         full = self.options.refresh > 0 and now - dev.last_full >= self.options.refresh
-        if dev.born and not full and dev.settled == fresh and len(fresh) == len(values):
+        settled = dev.born and not full and dev.settled == fresh and len(fresh) == len(values)
+        dev.keep(values, ts, settled=settled)
+        if settled:
             metrics = dev.report_settled(values, ts or _ms(now))  # only this sample's values can have changed
             if metrics:
                 payload = encode_fields(metrics, timestamp=_ms(now), seq=self._next_seq())
