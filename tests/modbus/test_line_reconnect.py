@@ -15,6 +15,7 @@ import pytest
 
 from starterbus.core.device import open_device
 from starterbus.core.errors import TransportError
+from starterbus.core.media.resolve import forget_addresses
 from starterbus.core.polling import run_task
 from starterbus.core.scheduler import THREAD_NAME
 from starterbus.tests.modbus.line_task_kit import Poll, values
@@ -104,3 +105,34 @@ def test_the_loop_reconnects_for_a_blocking_caller_without_a_blocking_connect(
         value = device.read("current_limit")["current_limit"].raw
         assert value == sim.starters[2].params["current_limit"] and not line.broken
     assert THREAD_NAME not in blocking_connects
+
+
+def test_a_line_named_by_host_name_is_looked_up_at_its_open_never_again_in_the_loop(
+    make_sim: SimFactory, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``modbus-rtu+tcp://NAME:PORT``: the open looks NAME up (and keeps it); the poll's reconnect in the loop takes
+    the kept address and asks no name server."""
+    name, real = "device-server.plant.test", socket.getaddrinfo
+    asked: list[str] = []
+
+    def getaddrinfo(host: str, port: Any, *args: Any, **kwargs: Any) -> Any:
+        if host == name:
+            asked.append(threading.current_thread().name)
+            host = "127.0.0.1"
+        return real(host, port, *args, **kwargs)
+
+    monkeypatch.setattr(socket, "getaddrinfo", getaddrinfo)
+    forget_addresses()
+    try:
+        sim = make_sim("jjr5000", tcp=("127.0.0.1", 0))
+        port = sim.url(2).split("://", 1)[1].split("?", 1)[0].rsplit(":", 1)[1]
+        with open_device(f"modbus-rtu+tcp://{name}:{port}?unit=2", "jjr5000") as device:
+            assert asked == [threading.current_thread().name]
+            line = line_of(device.transport)
+            line.mark_broken()
+            poll = Poll(line, READ)
+            result = run_task(poll.task, time.monotonic)
+            assert values(result, poll) == [(sim.starters[2].params["motor_rated_current"],)]
+            assert not line.broken and asked == [threading.current_thread().name]
+    finally:
+        forget_addresses()

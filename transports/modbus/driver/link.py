@@ -21,7 +21,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from starterbus.core import TransportError, connect_failure, start_connect
+from starterbus.core import TransportError, address_of, connect_failure, start_connect
 
 if TYPE_CHECKING:
     import serial
@@ -132,8 +132,8 @@ class Link:
 
     @classmethod
     def connect_tcp(cls, host: str, port: int, timeout: float) -> Link:
-        try:
-            sock = socket.create_connection((host, port), timeout=timeout)
+        try:  # the name looked up here and kept: the loop's reconnects (TcpConnect) take that address, never a DNS wait
+            sock = socket.create_connection(address_of(host, port)[3][:2], timeout=timeout)
         except OSError as exc:
             raise TransportError(f"cannot connect to {host}:{port}: {exc}") from exc
         return cls.on_socket(sock, host, port)
