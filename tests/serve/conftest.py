@@ -27,6 +27,7 @@ from tahutils.tahu import sparkplug_b_pb2 as tahu  # the official schema, not st
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.serve.embedded import Mosquitto, free_port, mosquitto_binary, start_mosquitto
+from starterbus.tests.serve.certificates import write_certificates
 from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator
 
 TahuPayload = Any
@@ -247,54 +248,6 @@ def serve(tmp_path: Path, _audit_log_in_tmp: Path) -> Iterator[Callable[..., Ser
                 s.kill()
 
 
-def _certificates(directory: Path) -> tuple[Path, Path, Path]:
-    """A CA and a server certificate for 127.0.0.1 signed by it (cryptography), written as PEM files."""
-    import datetime
-    import ipaddress
-
-    from cryptography import x509
-    from cryptography.hazmat.primitives import hashes, serialization
-    from cryptography.hazmat.primitives.asymmetric import ec
-    from cryptography.x509.oid import NameOID
-
-    now = datetime.datetime.now(datetime.timezone.utc)
-    ca_key = ec.generate_private_key(ec.SECP256R1())
-    ca_name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "starterbus test CA")])
-    ca = (
-        x509.CertificateBuilder()
-        .subject_name(ca_name)
-        .issuer_name(ca_name)
-        .public_key(ca_key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - datetime.timedelta(minutes=5))
-        .not_valid_after(now + datetime.timedelta(days=1))
-        .add_extension(x509.BasicConstraints(ca=True, path_length=None), critical=True)
-        .add_extension(x509.KeyUsage(False, False, False, False, False, True, True, False, False), critical=True)
-        .sign(ca_key, hashes.SHA256())
-    )
-    key = ec.generate_private_key(ec.SECP256R1())
-    cert = (
-        x509.CertificateBuilder()
-        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, "127.0.0.1")]))
-        .issuer_name(ca_name)
-        .public_key(key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - datetime.timedelta(minutes=5))
-        .not_valid_after(now + datetime.timedelta(days=1))
-        .add_extension(x509.SubjectAlternativeName([x509.IPAddress(ipaddress.ip_address("127.0.0.1"))]), critical=False)
-        .sign(ca_key, hashes.SHA256())
-    )
-    paths = directory / "ca.pem", directory / "server.pem", directory / "server.key"
-    paths[0].write_bytes(ca.public_bytes(serialization.Encoding.PEM))
-    paths[1].write_bytes(cert.public_bytes(serialization.Encoding.PEM))
-    paths[2].write_bytes(
-        key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption())
-    )
-    for p in paths:
-        p.chmod(0o644)
-    return paths
-
-
 @dataclass
 class TlsBroker:
     broker: Mosquitto
@@ -315,7 +268,7 @@ def tls_broker() -> Iterator[TlsBroker]:
         pytest.skip("mosquitto is not installed (apt-get install mosquitto)")
     files = Path(tempfile.mkdtemp(prefix="starterbus-tls-"))
     files.chmod(0o755)
-    ca, cert, key = _certificates(files)
+    ca, cert, key = write_certificates(files)
     passwd = files / "passwd"
     subprocess.run([passwd_tool, "-c", "-b", str(passwd), "edge", "s3cret pass"], check=True, capture_output=True)
     passwd.chmod(0o644)
