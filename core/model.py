@@ -19,6 +19,7 @@ from typing import Any
 from starterbus.core.address_space import space_of
 from starterbus.core.entry import alternative_reading, convert_unit, split_quantity
 from starterbus.core.errors import ValidationError
+from starterbus.core.frozen_twin import twin
 
 
 class Kind(str, enum.Enum):
@@ -294,18 +295,20 @@ def _decimals(step: float) -> int:
     return max(0, round(-math.log10(step))) if 0 < step < 1 else 0
 
 
-#: the decimal places of the scales met so far (a handful: every value read is scaled by one of them)
-_PLACES: dict[float, int] = {}
+class _Places(dict[float, int]):
+    """The decimal places of the scales met so far (a handful: every value read is scaled by one of them)."""
+
+    def __missing__(self, factor: float) -> int:
+        places = self[factor] = _decimals(factor)
+        return places
+
+
+_PLACES = _Places()
 
 
 def _engineering(raw: int, factor: float) -> float | int:
     """``raw`` x ``factor``, rounded to the factor's decimal places (``raw`` itself for a factor of 1)."""
-    if factor == 1:
-        return raw
-    places = _PLACES.get(factor)
-    if places is None:
-        places = _PLACES[factor] = _decimals(factor)
-    return round(raw * factor, places)
+    return raw if factor == 1 else round(raw * factor, _PLACES[factor])
 
 
 def _finite(value: object) -> float | None:
@@ -346,7 +349,13 @@ class Value:
     @classmethod
     def from_raw(cls, point: PointDef, raw: int, scale: float | None = None, source: str = "") -> Value:
         factor = point.scale if scale is None else scale
-        return cls(point, raw, _engineering(raw, factor), factor, source)
+        if cls is not Value:
+            return cls(point, raw, _engineering(raw, factor), factor, source)
+        made = _ValueTwin()  # (a poll makes a Value per point read: no __init__, see frozen_twin.py)
+        made.point, made.raw, made.resolution, made.source = point, raw, factor, source
+        made.value = raw if factor == 1 else round(raw * factor, _PLACES[factor])
+        made.__class__ = Value
+        return made  # type: ignore[no-any-return]
 
     def text(self) -> str:
         """Human form: "390 A", "current limit (0)", "0x0900"."""
@@ -372,6 +381,9 @@ class Value:
             "label": label.en if label else None,
             "source": self.source,
         }
+
+
+_ValueTwin = twin(Value)
 
 
 @dataclass(frozen=True, slots=True)

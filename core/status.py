@@ -12,6 +12,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from starterbus.core.frozen_twin import twin
 from starterbus.core.model import Label, PointDef, Value
 from starterbus.core.timestamps import iso_time
 
@@ -148,29 +149,55 @@ def decode_status_word(
     extra_raw: Mapping[str, int] | None = None,
 ) -> Status:
     """Decode the 16-bit status word of section 1 (Modbus register 1, Profibus ZSW)."""
-    if not 0 <= word <= 0xFFFF:
-        raise ValueError(f"status word {word!r} is not a 16-bit value")
-    fault = bool(word & SW_FAULT)
-    code = word & SW_FAULT_CODE_MASK
-    known = SW_KNOWN_BITS | (SW_BIT12 if bit12_is_mains_voltage else 0)
-    raw = {"status_word": word}
-    if extra_raw:
-        raw.update(extra_raw)
-    return Status(
-        fault=fault,
-        fault_code=code if fault else None,
-        fault_text=faults.text(code) if fault else None,
-        starting=bool(word & SW_STARTING),
-        running=bool(word & SW_RUNNING),
-        stopping=bool(word & SW_STOPPING),
-        ready=bool(word & SW_READY),
-        bus_control=bool(word & SW_BUS_CONTROL),
-        mains_voltage=bool(word & SW_BIT12) if bit12_is_mains_voltage else None,
-        currents=dict(currents or {}),
-        raw=raw,
-        unknown_bits=word & ~known & 0xFFFF,
-        source=source,
-    )
+    return _decoded(word, faults, bit12_is_mains_voltage, dict(currents or {}), source, extra_raw)
+
+
+_StatusTwin = twin(Status)
+_now = time.time  # Status's default timestamp
+#: status word -> what it says but the fault's text (words repeat: a poller decodes each device's every round)
+_PARTS: tuple[dict[int, tuple[bool, int | None, bool, bool, bool, bool, bool, bool | None, int]], ...] = ({}, {})
+_PARTS_KEPT = 4096  # per dictionary (bit 12 a mains voltage or not), emptied when full
+
+
+def _decoded(
+    word: int, faults: FaultTable, bit12: bool, currents: dict[str, Value], source: str, extra: Mapping[str, int] | None
+) -> Status:
+    """:func:`decode_status_word`, ``currents`` taken as they are."""
+    kept = _PARTS[1] if bit12 else _PARTS[0]
+    parts = kept.get(word) if type(word) is int else None
+    if parts is None:
+        if not 0 <= word <= 0xFFFF:
+            raise ValueError(f"status word {word!r} is not a 16-bit value")
+        fault = bool(word & SW_FAULT)
+        known = SW_KNOWN_BITS | (SW_BIT12 if bit12 else 0)
+        parts = (
+            fault,
+            word & SW_FAULT_CODE_MASK if fault else None,
+            bool(word & SW_STARTING),
+            bool(word & SW_RUNNING),
+            bool(word & SW_STOPPING),
+            bool(word & SW_READY),
+            bool(word & SW_BUS_CONTROL),
+            bool(word & SW_BIT12) if bit12 else None,
+            word & ~known & 0xFFFF,
+        )
+        if type(word) is int:
+            if len(kept) >= _PARTS_KEPT:
+                kept.clear()
+            kept[word] = parts
+    made = _StatusTwin()  # (no __init__: see frozen_twin.py)
+    (
+        made.fault, made.fault_code, made.starting, made.running, made.stopping, made.ready, made.bus_control,
+        made.mains_voltage, made.unknown_bits,
+    ) = parts  # fmt: skip
+    made.fault_text = faults.text(parts[1]) if parts[0] else None  # type: ignore[arg-type]
+    made.warning = made.at_reference = None
+    made.currents = currents
+    made.raw = {"status_word": word, **extra} if extra else {"status_word": word}
+    made.source = source
+    made.timestamp = _now()
+    made.__class__ = Status
+    return made  # type: ignore[no-any-return]
 
 
 #: the keys of :attr:`Status.currents`, in the order of the profile's ``phase_currents`` role
@@ -217,14 +244,7 @@ def status_with_currents(
         name: Value.from_raw(point, raw, scale, tag)
         for name, point, raw in zip(PHASE_NAMES, profile.phase_currents(), currents, strict=False)
     }
-    return decode_status_word(
-        word,
-        profile.faults,
-        bit12_is_mains_voltage=profile.control.bit12_is_mains_voltage,
-        currents=values,
-        source=source,
-        extra_raw=extra_raw,
-    )
+    return _decoded(word, profile.faults, profile.control.bit12_is_mains_voltage, values, source, extra_raw)
 
 
 def encode_status_word(
