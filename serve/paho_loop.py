@@ -12,6 +12,7 @@ import socket
 import struct
 from typing import TYPE_CHECKING, Any
 
+import paho.mqtt
 import paho.mqtt.client as mqtt
 
 from starterbus.core.supervision import Supervisor
@@ -51,6 +52,19 @@ def _current(client: mqtt.Client, sock: object) -> bool:
 
 _CORK = getattr(socket, "TCP_CORK", None)  # Linux
 
+#: what :meth:`PahoOnLoop._publish` uses of paho's private side; present in paho-mqtt 2.0-2.2
+_QUEUE_PARTS = ("_out_packet", "_packet_queue", "_mid_generate", "_protocol")
+
+
+def queue_known(client: mqtt.Client) -> bool:
+    """Whether ``client``'s private queue is the one :meth:`PahoOnLoop._publish` knows (paho-mqtt 2.x, MQTT
+    3.1.1): else every message goes through paho's own ``publish``, as it did before the bursts."""
+    return (
+        paho.mqtt.__version__.split(".", 1)[0] == "2"
+        and all(hasattr(client, part) for part in _QUEUE_PARTS)
+        and client._protocol == mqtt.MQTTv311
+    )
+
 
 def _set_tcp(sock: Any, option: int | None, on: bool) -> None:
     """Nothing where the option is unknown or the socket is not TCP."""
@@ -78,6 +92,7 @@ class PahoOnLoop:
     _flushing: set[int]  # id(socket): a _flush is scheduled
     _writers: set[int]  # id(socket): its writability is watched (a full send buffer)
     _burst: _OutPacket | None  # the packet of paho's queue that :meth:`_publish` adds to
+    _known_queue: mqtt.Client | None = None  # the client whose private queue :func:`queue_known` found as expected
     _topics: dict[str, bytes | None]  # topic -> _topic_field(topic)
 
     def _supervisor(self) -> Supervisor:
@@ -91,7 +106,13 @@ class PahoOnLoop:
         costs one packet of paho's (one ``send``, one "published") instead of one each: paho's publish and write
         were about 40 % of a sample's CPU. Not connected: dropped, as paho drops a QoS 0 message then. Uses paho's
         private queue (``_out_packet``, ``_packet_queue``, ``_mid_generate``), as paho-mqtt 2.0-2.2 have them:
-        ``tests/serve/test_publish_burst.py`` compares the bytes with paho's own ``publish``."""
+        ``tests/serve/test_publish_burst.py`` compares the bytes with paho's own ``publish``; where that queue is
+        not the one known here (:func:`queue_known`, checked once per client), paho's ``publish`` it is."""
+        if client is not self._known_queue:
+            if not queue_known(client):
+                client.publish(topic, payload, qos=0, retain=False)
+                return
+            self._known_queue = client
         field = self._topics.get(topic)
         if field is None and topic not in self._topics:
             field = self._topics[topic] = _topic_field(topic)

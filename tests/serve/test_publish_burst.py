@@ -7,7 +7,9 @@ import socket
 import threading
 from collections.abc import Callable
 
+import paho.mqtt
 import paho.mqtt.client as mqtt
+import pytest
 from paho.mqtt.enums import CallbackAPIVersion
 
 from starterbus.serve.paho_loop import PahoOnLoop
@@ -73,6 +75,19 @@ def test_the_driver_writes_what_paho_publish_writes_in_fewer_packets() -> None:
     assert max(queued_paho) == 58  # CONNECT, 40 + 2 publishes, SUBSCRIBE, 1, 1, 12
     assert queued_driver[41] == 2  # CONNECT and one packet for the 42 publishes
     assert max(queued_driver) <= 10  # the 9 kB publishes: a packet each about 64 kB
+
+
+@pytest.mark.parametrize("version", ["3.0.0", "1.6.1"])
+def test_a_paho_whose_queue_is_not_known_gets_every_message_through_its_own_publish(
+    monkeypatch: pytest.MonkeyPatch, version: str
+) -> None:
+    monkeypatch.setattr(paho.mqtt, "__version__", version)
+    driver = PahoOnLoop()
+    driver._burst, driver._topics = None, {}
+    queued_paho: list[int] = []
+    queued_driver: list[int] = []
+    assert _stream(_paho, queued_paho) == _stream(driver._publish, queued_driver)
+    assert queued_driver == queued_paho  # a packet of paho's queue per message, as its publish makes them
 
 
 def test_a_topic_paho_refuses_is_still_refused() -> None:
