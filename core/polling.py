@@ -7,6 +7,7 @@ import select
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
+from operator import attrgetter, sub
 
 from starterbus.core.model import Reading
 from starterbus.core.status import Status
@@ -64,13 +65,11 @@ class TransportCounters:
     wire_time: float = 0.0
 
     def _values(self) -> tuple[int, int, int, int, int, int, int, float, float]:
-        return (
-            self.transactions, self.requests, self.retries, self.timeouts, self.errors,
-            self.bytes_sent, self.bytes_received, self.busy_time, self.wire_time,
-        )  # fmt: skip
+        values: tuple[int, int, int, int, int, int, int, float, float] = _COUNTS(self)
+        return values
 
     def copy(self) -> TransportCounters:
-        return TransportCounters(*self._values())
+        return TransportCounters(*_COUNTS(self))
 
     def add(self, other: TransportCounters) -> None:
         self.transactions += other.transactions
@@ -84,11 +83,7 @@ class TransportCounters:
         self.wire_time += other.wire_time
 
     def minus(self, other: TransportCounters) -> TransportCounters:
-        a, b = self._values(), other._values()
-        return TransportCounters(
-            a[0] - b[0], a[1] - b[1], a[2] - b[2], a[3] - b[3], a[4] - b[4], a[5] - b[5], a[6] - b[6],
-            a[7] - b[7], a[8] - b[8],
-        )  # fmt: skip
+        return TransportCounters(*map(sub, _COUNTS(self), _COUNTS(other)))
 
     def as_json(self) -> dict[str, object]:
         out: dict[str, object] = {}
@@ -96,6 +91,10 @@ class TransportCounters:
             value = getattr(self, f.name)
             out[f.name] = round(value, 6) if isinstance(value, float) else value
         return out
+
+
+#: a TransportCounters' values, in the order of its fields (a poller copies and subtracts them every poll)
+_COUNTS = attrgetter(*(f.name for f in dataclasses.fields(TransportCounters)))
 
 
 class PollTask(ABC):

@@ -22,7 +22,7 @@ from starterbus.fleet.line_stats import LineStats
 from starterbus.fleet.plan import poll_points
 from starterbus.fleet.poll_context import PollContext
 from starterbus.fleet.probing import ProbeBudget, backoff
-from starterbus.fleet.sample import Sample
+from starterbus.fleet.sample import Sample, polled
 
 __all__ = ["Attempt", "DevicePolls", "DeviceRuntime"]
 
@@ -211,7 +211,8 @@ class DevicePolls:
             try:
                 status = result.status
                 name = device.transport.name
-                values = {r.point.key: r.value(name) for r in result.readings}
+                from_raw = Value.from_raw  # (Reading.value, one call less a point)
+                values = {r.point.key: from_raw(r.point, r.raw, r.scale, name) for r in result.readings}
             except StarterbusError as exc:
                 error = exc
         # online means answered: any error (no answer, an exception response, garbage, a URL or setting the
@@ -244,19 +245,19 @@ class DevicePolls:
             )
         runtime.online = online
         self.stats.polls += 1
-        sample = Sample(
-            device=config.name,
-            bus=config.bus,
-            model=config.model,
-            time=time.time(),
-            online=online,
-            status=status if online else None,
-            values=values if online else {},
-            error=None if error is None else str(error),
-            errors=runtime.errors,
-            unreadable=runtime.unreadable,
-            wire=wire,
-            probe=probe,
+        sample = polled(
+            config.name,
+            config.bus,
+            config.model,
+            time.time(),
+            online,
+            status if online else None,
+            values if online else {},
+            None if error is None else str(error),
+            runtime.errors,
+            runtime.unreadable,
+            wire,
+            probe,
         )
         runtime.last_sample = sample
         poller.emit(sample)

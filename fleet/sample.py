@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from starterbus.core.frozen_twin import twin
 from starterbus.core.model import Value
 from starterbus.core.status import Status
 from starterbus.core.timestamps import iso_time
@@ -51,3 +52,30 @@ class Sample:
             "probe": self.probe,
             "wire": self.wire.as_json() if self.wire is not None else None,
         }
+
+
+_SampleTwin = twin(Sample)
+
+
+def polled(
+    device: str,
+    bus: str,
+    model: str,
+    time: float,
+    online: bool,
+    status: Status | None,
+    values: dict[str, Value],
+    error: str | None,
+    errors: int,
+    unreadable: tuple[str, ...],
+    wire: TransportCounters | None,
+    probe: bool,
+) -> Sample:
+    """``Sample(...)`` of every field, as a poller makes one each poll (no ``__init__``: core/frozen_twin.py)."""
+    made = _SampleTwin()
+    made.device, made.bus, made.model, made.time, made.online, made.status = device, bus, model, time, online, status
+    made.values, made.error, made.errors, made.unreadable, made.wire, made.probe = (
+        values, error, errors, unreadable, wire, probe
+    )  # fmt: skip
+    made.__class__ = Sample
+    return made  # type: ignore[no-any-return]
