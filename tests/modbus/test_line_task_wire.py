@@ -182,3 +182,22 @@ def test_a_polls_task_gives_what_poll_gives_with_the_same_requests(model: str, m
             assert (c.transactions, c.requests, c.errors, c.timeouts) == (requests[0], requests[0], 0, 0)
             assert (c.bytes_sent, c.bytes_received) == (counted[2].bytes_sent, counted[2].bytes_received)
             assert c.wire_time == pytest.approx(counted[2].wire_time)
+
+
+def test_a_poll_task_prepares_its_requests_once_for_each_policy(make_sim: SimFactory) -> None:
+    sim = make_sim("jjr5000", baudrate=19200)
+    with open_device(sim.url(2, timeout=0.5), "jjr5000") as device:
+        transport = device.transport
+        points = [p for p in device.profile.points.values() if "modbus-rtu" in p.addresses][:5]
+        tasks = [transport.start_poll(points, True) for _ in range(2)]
+        with transport.probe_policy(0.05):
+            tasks.append(transport.start_poll(points, True))
+        tasks.append(transport.start_poll(points, True))
+        first, again, probe, after = (t._exchanges for t in tasks if isinstance(t, LineTask))
+        assert again is first and after is first  # the same plan: the same prepared requests
+        assert {e.policy.timeout for e in first} == {0.5} and {e.policy.timeout for e in probe} == {0.05}
+        assert {e.attempts for e in probe} == {1}
+        assert [e.request for e in probe] == [e.request for e in first]
+        for task in tasks:
+            assert task is not None
+            task.cancel()

@@ -49,7 +49,7 @@ from starterbus.transports.modbus.codec.timing import char_time
 from starterbus.transports.modbus.decoder import exception_meaning
 from starterbus.transports.modbus.driver.line import Exchange, Link, RtuLine
 from starterbus.transports.modbus.driver.line_task import LineTask
-from starterbus.transports.modbus.master.poll_plan import PollPlans, sort_out
+from starterbus.transports.modbus.master.poll_plan import PollPlan, PollPlans, sort_out
 from starterbus.transports.modbus.master.poll_plan import run as run_poll_plan
 from starterbus.transports.modbus.settings import PROTOCOL, TRANSPORT, max_read_registers
 from starterbus.transports.modbus.url import ModbusRtuConfig
@@ -132,6 +132,8 @@ class ModbusRtuTransport(Transport):
         self.poll_plans = PollPlans(profile, self.max_read, self.config.serial.baudrate, self.config.serial.silence)
         self._counters = TransportCounters()
         self._points: dict[tuple[int, ...], _KnownPoints] = {}  # ids of the points asked for -> their requests
+        #: id of a poll plan -> the plan (held: its id stays its own) and its prepared requests
+        self._poll_exchanges: dict[int, tuple[PollPlan, tuple[Exchange, ...]]] = {}
 
     # -- lifecycle ------------------------------------------------------------------------------------------
 
@@ -298,7 +300,12 @@ class ModbusRtuTransport(Transport):
             return None
         self._no_broadcast_reads()
         plan = self.poll_plans.get(points, status)
-        exchanges = [self._read_exchange(request) for request in plan.requests]
+        kept = self._poll_exchanges.get(id(plan))
+        if kept is None or kept[0] is not plan:
+            kept = (plan, tuple(self._read_exchange(request) for request in plan.requests))
+            if len(self._poll_exchanges) >= CACHE_SIZE:
+                self._poll_exchanges.clear()
+            self._poll_exchanges[id(plan)] = kept
 
         def finish(responses: list[Response]) -> PollResult:
             values: tuple[int, ...] = ()
@@ -307,7 +314,7 @@ class ModbusRtuTransport(Transport):
                 values += response.values
             return sort_out(plan, values, points, self.profile, self._source)
 
-        return LineTask(line, exchanges, self._counters, self._refuse_exceptions, finish)
+        return LineTask(line, kept[1], self._counters, self._refuse_exceptions, finish)
 
     def _refuse_exceptions(self, exchange: Exchange, response: Response | None) -> None:
         """An exception answer becomes :class:`RemoteDeviceError`."""
@@ -323,10 +330,11 @@ class ModbusRtuTransport(Transport):
     @contextlib.contextmanager
     def probe_policy(self, timeout: float) -> Iterator[None]:
         """One attempt, at most ``timeout`` s: requests made inside use a policy of their own (fresh caches)."""
-        normal = self.config, self._reads, self._writes, self._points
+        normal = self.config, self._reads, self._writes, self._points, self._poll_exchanges
         policy = dataclasses.replace(self.config.policy, retries=0, timeout=min(timeout, self.config.policy.timeout))
-        self.config, self._reads, self._writes, self._points = (
+        self.config, self._reads, self._writes, self._points, self._poll_exchanges = (
             dataclasses.replace(self.config, policy=policy),
+            {},
             {},
             {},
             {},
@@ -334,7 +342,7 @@ class ModbusRtuTransport(Transport):
         try:
             yield
         finally:
-            self.config, self._reads, self._writes, self._points = normal
+            self.config, self._reads, self._writes, self._points, self._poll_exchanges = normal
 
     def _read_status(self) -> Status:
         self._no_broadcast_reads()
