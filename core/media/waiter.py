@@ -80,7 +80,7 @@ class Waiter(Generic[D]):
             lists = self._lists = (list(self._readers), list(self._writers))
         readers, writers = lists
         if not writers:
-            return list(map(self._data.__getitem__, select.select(readers, (), (), timeout)[0]))
+            return [self._data[fd] for fd in select.select(readers, (), (), timeout)[0]]
         readable, writable, _ = select.select(readers, writers, (), timeout)
         return [self._data[fd] for fd in (*readable, *writable)]
 
