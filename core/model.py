@@ -8,7 +8,6 @@ engineering units happens here, once, for every transport.
 from __future__ import annotations
 
 import enum
-import functools
 import math
 import re
 from collections.abc import Mapping
@@ -20,6 +19,9 @@ from starterbus.core.address_space import space_of
 from starterbus.core.entry import alternative_reading, convert_unit, split_quantity
 from starterbus.core.errors import ValidationError
 from starterbus.core.frozen_twin import twin
+from starterbus.core.scaling import SCALED
+from starterbus.core.scaling import decimals as _decimals
+from starterbus.core.scaling import engineering as _engineering
 
 
 class Kind(str, enum.Enum):
@@ -289,28 +291,6 @@ class PointDef:
         return self._from_engineering(converted, text.strip(), bare=not unit)
 
 
-@functools.lru_cache(maxsize=64)
-def _decimals(step: float) -> int:
-    """Decimal places of a step such as 0.1 (1) or 0.01 (2); 0 for a step of 1 or more."""
-    return max(0, round(-math.log10(step))) if 0 < step < 1 else 0
-
-
-class _Places(dict[float, int]):
-    """The decimal places of the scales met so far (a handful: every value read is scaled by one of them)."""
-
-    def __missing__(self, factor: float) -> int:
-        places = self[factor] = _decimals(factor)
-        return places
-
-
-_PLACES = _Places()
-
-
-def _engineering(raw: int, factor: float) -> float | int:
-    """``raw`` x ``factor``, rounded to the factor's decimal places (``raw`` itself for a factor of 1)."""
-    return raw if factor == 1 else round(raw * factor, _PLACES[factor])
-
-
 def _finite(value: object) -> float | None:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return None
@@ -353,7 +333,7 @@ class Value:
             return cls(point, raw, _engineering(raw, factor), factor, source)
         made = _ValueTwin()  # (a poll makes a Value per point read: no __init__, see frozen_twin.py)
         made.point, made.raw, made.resolution, made.source = point, raw, factor, source
-        made.value = raw if factor == 1 else round(raw * factor, _PLACES[factor])
+        made.value = raw if factor == 1 else SCALED[factor][raw]
         made.__class__ = Value
         return made  # type: ignore[no-any-return]
 
