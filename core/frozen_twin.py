@@ -19,6 +19,8 @@ def twin(cls: type) -> type[Any]:
     slots = cls.__dict__.get("__slots__")
     if slots is None or "__dict__" in slots or "__weakref__" in slots:
         raise TypeError(f"{cls.__qualname__} has no plain __slots__ to mirror")
+    if hasattr(cls, "__post_init__"):
+        raise TypeError(f"{cls.__qualname__} has a __post_init__, which a twin would not run")
     made = type(f"_{cls.__name__}Twin", (), {"__slots__": tuple(slots), "__module__": cls.__module__})
     probe = made()
     probe.__class__ = cls  # raises TypeError now, at import, if the layouts differ

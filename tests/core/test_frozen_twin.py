@@ -100,8 +100,17 @@ def test_a_twin_needs_plain_slots() -> None:
     class NoSlots:
         a: int
 
+    @dataclasses.dataclass(frozen=True, slots=True)
+    class Checked:
+        a: int
+
+        def __post_init__(self) -> None:
+            assert self.a >= 0
+
     with pytest.raises(TypeError, match="no plain __slots__"):
         twin(NoSlots)
+    with pytest.raises(TypeError, match="__post_init__"):
+        twin(Checked)
 
 
 def test_counters_arithmetic() -> None:
