@@ -97,8 +97,8 @@ class Driver(Generic[E]):
 
     def complete(self, now: float, done: Sequence[Ticket[Any, Any]] | None = None) -> None:
         """End the futures of the ended tickets (``done``: what the engine's ``take_completed`` just gave, if the
-        caller took it); a ticket of a batch that ended other than DONE withdraws the batch's tickets that have not
-        ended (cancelled: never sent, or forgotten)."""
+        caller took it); a ticket of a batch that ended so (:meth:`ends_batch`: other than DONE) withdraws the batch's
+        tickets that have not ended (cancelled: never sent, or forgotten)."""
         if done is None:
             done = self.engine.take_completed()
         while done:
@@ -106,7 +106,7 @@ class Driver(Generic[E]):
             for ticket in done:
                 future = self._futures.pop(ticket, None)
                 batch = self._batches.pop(ticket, None)
-                if batch is not None and ticket.state is not _DONE:
+                if batch is not None and self.ends_batch(ticket):
                     for other in batch:
                         if not other.ended:
                             self.engine.cancel(other, now)
@@ -114,6 +114,11 @@ class Driver(Generic[E]):
                 if future is not None:
                     future.set_result(ticket)
             done = self.engine.take_completed() if withdrawn else []
+
+    def ends_batch(self, ticket: Ticket[Any, Any]) -> bool:
+        """Whether ``ticket``'s end withdraws the rest of its batch: an end other than DONE (a medium's driver may
+        add its own, as a refusal)."""
+        return ticket.state is not _DONE
 
     # -- what the scheduler calls -------------------------------------------------------------------------------
 

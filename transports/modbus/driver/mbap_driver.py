@@ -4,7 +4,8 @@ PKW gateway stations alike: ``tcp_line.CONNECTIONS``).
 
 Two rules beyond :class:`~starterbus.core.media.Driver`'s, written here once for every user of a connection:
 
-- **A refused transaction withdraws the rest of its batch**, as a failed one does: an exception answer is DONE for
+- **A refused transaction withdraws the rest of its batch** (:meth:`MbapDriver.ends_batch`, the hook of the core's
+  batch rule), as a failed one does: an exception answer is DONE for
   the engine (the caller reads it as the device's refusal), but nothing after it in the batch is sent (a poll's
   next read, a gateway station's read after its refused write).
 - **A batch submitted in the loop** (:meth:`MbapDriver.submit_then`: a gateway station's DP exchange, made by its
@@ -18,7 +19,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from starterbus.core import Scheduler, StarterbusError, TcpDriver, Ticket, TicketState, TransportError
+from starterbus.core import StarterbusError, TcpDriver, Ticket, TicketState, TransportError
 from starterbus.transports.modbus.codec.messages import ExceptionResponse, Response
 from starterbus.transports.modbus.master.exchange import Exchange
 from starterbus.transports.modbus.master.mbap import MbapEngine
@@ -40,14 +41,12 @@ class _Told:
 
 
 class MbapDriver(TcpDriver[MbapEngine]):
-    """One Modbus TCP connection on ``loop`` (``outstanding``: transactions on the wire at once)."""
+    """One Modbus TCP connection (``outstanding``: transactions on the wire at once)."""
 
-    def __init__(self, host: str, port: int, outstanding: int, connect_timeout: float, loop: Scheduler) -> None:
+    def __init__(self, host: str, port: int, outstanding: int, connect_timeout: float) -> None:
         name = f"gateway {host}:{port}"
         super().__init__(host, port, lambda: MbapEngine(outstanding=outstanding, name=name), connect_timeout)
         self.name = name
-        self.outstanding = outstanding
-        self.loop = loop
         self._told: list[_Told] = []
 
     def submit_then(self, exchanges: Sequence[Exchange], now: float, ended: Ended) -> None:
@@ -60,28 +59,16 @@ class MbapDriver(TcpDriver[MbapEngine]):
         except Exception as exc:
             self.crash(exc if isinstance(exc, StarterbusError) else TransportError(f"{self.name}: {exc!r}"), now)
 
+    def ends_batch(self, ticket: Ticket[Any, Any]) -> bool:
+        """An exception answer withdraws the rest of its batch too (DONE for the engine: the caller's refusal)."""
+        return ticket.state is not _DONE or isinstance(ticket.result, ExceptionResponse)
+
     def complete(self, now: float, done: Sequence[Ticket[Any, Any]] | None = None) -> None:
-        """As :meth:`Driver.complete`, and an exception answer withdraws the rest of its batch too; then each batch
-        submitted in the loop whose tickets have all ended is told."""
-        engine = self.engine
+        """As :meth:`Driver.complete`; then each batch submitted in the loop whose tickets have all ended is told."""
         if done is None:
-            done = engine.take_completed()
-        ended = bool(done)
-        futures, batches = self._futures, self._batches
-        while done:
-            withdrawn = False
-            for ticket in done:
-                future = futures.pop(ticket, None)
-                batch = batches.pop(ticket, None)
-                if batch is not None and (ticket.state is not _DONE or isinstance(ticket.result, ExceptionResponse)):
-                    for other in batch:
-                        if not other.ended:
-                            engine.cancel(other, now)
-                            withdrawn = True
-                if future is not None:
-                    future.set_result(ticket)
-            done = engine.take_completed() if withdrawn else []
-        if ended and self._told:
+            done = self.engine.take_completed()
+        super().complete(now, done)
+        if done and self._told:
             self._tell()
 
     def crash(self, error: StarterbusError, now: float) -> None:

@@ -71,15 +71,15 @@ class MbapConnection:
         connect: bool = True,
     ) -> None:
         self.host, self.port = host, port
-        try:  # here, in the opener's thread: the loop never waits on a name server
-            address_of(host, port)
-        except OSError as exc:
-            raise TransportError(f"cannot connect to gateway {host}:{port}: cannot look up {host!r}: {exc}") from exc
         self.outstanding = outstanding
         self.connect_timeout = connect_timeout
         self.loop = loop or process_scheduler()
-        self.driver = MbapDriver(host, port, outstanding, connect_timeout, self.loop)
+        self.driver = MbapDriver(host, port, outstanding, connect_timeout)
         self.name = self.driver.name
+        try:  # here, in the opener's thread: the loop never waits on a name server
+            address_of(host, port)
+        except OSError as exc:
+            raise TransportError(f"cannot connect to {self.name}: cannot look up {host!r}: {exc}") from exc
         opened = self._call(self._open if connect else self._add, "connect")
         if connect:
             try:
