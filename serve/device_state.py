@@ -9,7 +9,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Final
 
-from starterbus.serve.metrics import BAD, GOOD, MetricDef, MetricSet, Scalar, changed
+from starterbus.serve.metrics import BAD, BAND_MET, GOOD, MetricDef, MetricSet, Scalar, changed
 from starterbus.serve.payloads import Entry
 from starterbus.serve.schema import WRITERS
 
@@ -29,7 +29,7 @@ _Slot = tuple[str, str, "int | str", str, Callable[[Any], object], float, Metric
 def _slot(d: MetricDef) -> _Slot:
     field_name, wire = WRITERS[d.datatype]
     key, ident = ("name", d.name) if d.alias is None else ("alias", d.alias)
-    return (d.name, key, ident, field_name, wire, d.deadband * (1 - 1e-9), d)
+    return (d.name, key, ident, field_name, wire, d.deadband * BAND_MET, d)
 
 
 @dataclass(slots=True)
@@ -132,7 +132,7 @@ class DeviceState:
             if old == value:
                 continue
             kind = type(value)
-            if (kind is float or kind is int) and type(old) is kind:  # changed()'s numbers, inlined
+            if (kind is float or kind is int) and type(old) is kind:  # changed()'s rule for numbers, inlined (hot)
                 if not abs(float(value) - float(old)) >= band:  # type: ignore[arg-type]
                     continue
             elif old is not UNREPORTED and not changed(d, old, value):

@@ -210,6 +210,10 @@ def sample_values(sample: Sample, metrics: MetricSet) -> dict[str, Scalar | None
     return out
 
 
+#: a deadband is met by a change of the band less this (a change of exactly the band, after float arithmetic)
+BAND_MET = 1 - 1e-9
+
+
 def changed(defn: MetricDef, old: Scalar | None, new: Scalar | None) -> bool:
     """Report by exception: a numeric value outside the deadband, any other change. Equal values are never a
     change (``EdgeSession._device_data`` skips them without calling this)."""
@@ -217,7 +221,7 @@ def changed(defn: MetricDef, old: Scalar | None, new: Scalar | None) -> bool:
         pass
     elif old is None or new is None or isinstance(new, (bool, str)) or isinstance(old, (bool, str)):
         return old != new or (old is None) != (new is None)
-    return abs(float(new) - float(old)) >= defn.deadband * (1 - 1e-9) and new != old
+    return abs(float(new) - float(old)) >= defn.deadband * BAND_MET and new != old
 
 
 def initial_values() -> Mapping[str, Scalar | None]:
