@@ -63,7 +63,7 @@ if TYPE_CHECKING:
     from starterbus.core.media.keeper import keep_running, let_go
     from starterbus.core.media.local import LocalDriver, LocalEngine
     from starterbus.core.media.waiter import precise_timers
-    from starterbus.core.model import Access, EnumTable, Kind, Label, PointDef, Reading, Value
+    from starterbus.core.model import Access, EnumTable, Kind, Label, PointDef, Reading, Value, readings
     from starterbus.core.plugin import Annotation, RunningSimulator, TransportPlugin
     from starterbus.core.plugin_options import OptionValues, PluginOption, SimOption, resolve_options
     from starterbus.core.polling import PlannedRequest, PollResult, PollTask, TransportCounters, run_task
@@ -138,6 +138,7 @@ _LAZY = {
     "Label": "starterbus.core.model",
     "PointDef": "starterbus.core.model",
     "Reading": "starterbus.core.model",
+    "readings": "starterbus.core.model",
     "Value": "starterbus.core.model",
     "Profile": "starterbus.core.profile",
     "load_profile_file": "starterbus.core.profile",
@@ -359,6 +360,7 @@ __all__ = [
     "parse_host_port",
     "precise_timers",
     "process_scheduler",
+    "readings",
     "resolve_options",
     "run_steps",
     "run_task",

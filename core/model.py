@@ -10,7 +10,7 @@ from __future__ import annotations
 import enum
 import math
 import re
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
@@ -376,3 +376,18 @@ class Reading:
 
     def value(self, source: str = "") -> Value:
         return Value.from_raw(self.point, self.raw, self.scale, source)
+
+
+_ReadingTwin = twin(Reading)
+
+
+def readings(points: Iterable[PointDef], raws: Iterable[int]) -> list[Reading]:
+    """``Reading(point, raw)`` for each pair, on the profile's scale, built without ``__init__`` (a poll makes one
+    a point: see frozen_twin.py). The two must be as long as each other."""
+    out = []
+    for point, raw in zip(points, raws, strict=True):
+        made = _ReadingTwin()
+        made.point, made.raw, made.scale = point, raw, None
+        made.__class__ = Reading
+        out.append(made)
+    return out

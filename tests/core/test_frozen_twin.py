@@ -8,7 +8,7 @@ import pickle
 import pytest
 
 from starterbus.core.frozen_twin import twin
-from starterbus.core.model import Kind, Label, PointDef, Value
+from starterbus.core.model import Kind, Label, PointDef, Reading, Value, readings
 from starterbus.core.polling import TransportCounters
 from starterbus.core.status import FaultTable, Status, decode_status_word, status_with_currents
 
@@ -93,6 +93,19 @@ def test_value_is_the_one_init_makes(raw: int, scale: float | None) -> None:
     assert pickle.loads(pickle.dumps(made)) == made
     with pytest.raises(dataclasses.FrozenInstanceError):
         made.raw = 1  # type: ignore[misc]
+
+
+def test_readings_are_the_ones_init_makes() -> None:
+    other = dataclasses.replace(CURRENT, key="current_b")
+    made = readings([CURRENT, other], iter([123, 0]))
+    expected = [Reading(CURRENT, 123), Reading(other, 0)]
+    assert [type(r) for r in made] == [Reading, Reading] and made == expected and repr(made) == repr(expected)
+    assert made[0].scale is None and made[0].value("wire") == Value.from_raw(CURRENT, 123, None, "wire")
+    assert pickle.loads(pickle.dumps(made)) == made
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        made[0].raw = 1  # type: ignore[misc]
+    with pytest.raises(ValueError, match="shorter"):  # a point without its word is a defect, never a reading
+        readings([CURRENT, other], [123])
 
 
 def test_a_twin_needs_plain_slots() -> None:

@@ -24,9 +24,9 @@ from starterbus.core import (
     PointDef,
     PollResult,
     Profile,
-    Reading,
     Status,
     UnsupportedOperationError,
+    readings,
     status_with_currents,
 )
 from starterbus.transports.modbus.codec.timing import char_time
@@ -186,4 +186,4 @@ def sort_out(
         status = decode_status(profile, list(map(value, plan.status_at)), source, transport)
     if len(points) != len(plan.points_at):
         raise ValueError(f"{len(points)} points for a plan of {len(plan.points_at)}")
-    return PollResult(status, list(map(Reading, points, map(value, plan.points_at))))
+    return PollResult(status, readings(points, map(value, plan.points_at)))

@@ -33,6 +33,7 @@ from starterbus.core import (
     Transport,
     TransportCounters,
     UnsupportedOperationError,
+    readings,
     status_with_currents,
 )
 from starterbus.transports.modbus.codec.messages import (
@@ -262,9 +263,9 @@ class ModbusRtuTransport(Transport):
         last_values, last_readings = known.last
         if values == last_values:  # the same words: the same (immutable) readings
             return list(last_readings)
-        readings = [Reading(point, values[i]) for point, i in zip(known.points, known.positions, strict=True)]
-        known.last = (values, tuple(readings))  # one assignment: another thread sees the old pair or the new one
-        return readings
+        made = readings(known.points, [values[i] for i in known.positions])
+        known.last = (values, tuple(made))  # one assignment: another thread sees the old pair or the new one
+        return made
 
     def _point_requests(self, points: Sequence[PointDef], key: tuple[int, ...]) -> _KnownPoints:
         self._no_broadcast_reads()
