@@ -24,6 +24,10 @@ The window opens once every device has answered once and closes ``--seconds`` la
   turnarounds the emulator saw (master: answer delivered -> next request; slave: request -> answer; the plan
   counts 3.5 characters = 2.005 ms for each) and how often the master broke the 3.5-character silence;
 * the CPU of the rig (the simulator process and the emulators), since all of it shares the machine's cores;
+* how often the poller's process was preempted (involuntary context switches) and slept (voluntary ones) a
+  transaction: on 2 cores, each request wakes its line's emulator, which may take the core from the poller;
+  ``--rig-batch`` starts the rig under ``SCHED_BATCH`` (its wake-ups then preempt nobody, as a UART's would
+  not): the poller's share of the rig's cost, apart (not the figures of docs/fleet.md, which run the default);
 * with ``--floor``: the rig's own limit, without the poller: one thread sends the same FC03 to every unit of
   every line back to back (the poller's LineTask, waited on with select, no schedule and no samples); its rate
   against the wire limit of the plan (1 / wire per round);
@@ -37,6 +41,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -172,7 +177,7 @@ def direct_loop(emulators: list[Emulator], counts: list[int], seconds: float) ->
 
 
 def measure(
-    n: int, lines: int, seconds: float, period: float, floor: bool = False, multiplex: bool = True
+    n: int, lines: int, seconds: float, period: float, floor: bool = False, multiplex: bool = True, batch: bool = False
 ) -> dict[str, object]:
     from starterbus.fleet.config import parse_fleet
     from starterbus.fleet.plan import fleet_plan
@@ -180,13 +185,19 @@ def measure(
 
     counts = layout(n, lines)
     used = [c for c in counts if c]
-    emulators = [Emulator(BAUD) for _ in used]
-    sims = subprocess.Popen(
-        [sys.executable, __file__, "serve", "--paths", *[e.server for e in emulators], "--counts", *map(str, used)],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-    )
+    if batch:  # the rig's processes inherit it; this thread (and the poller's, made later) go back to the default
+        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
+    try:
+        emulators = [Emulator(BAUD) for _ in used]
+        sims = subprocess.Popen(
+            [sys.executable, __file__, "serve", "--paths", *[e.server for e in emulators], "--counts", *map(str, used)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+    finally:
+        if batch:
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
     assert sims.stdout is not None and sims.stdin is not None
     try:
         if sims.stdout.readline().strip() != "ready":
@@ -219,10 +230,12 @@ def measure(
             start_stats = poller.line_stats()
             rig = [sims.pid, *(e.proc.pid for e in emulators)]
             t0, c0, r0 = time.monotonic(), time.process_time(), [process_cpu(pid) for pid in rig]
+            u0 = resource.getrusage(resource.RUSAGE_SELF)
             time.sleep(seconds)
             with lock:
                 end_good, end_errors = dict(good), errors[0]
             t1, c1, r1 = time.monotonic(), time.process_time(), [process_cpu(pid) for pid in rig]
+            u1 = resource.getrusage(resource.RUSAGE_SELF)
             end_stats = poller.line_stats()
             wire_seen = [e.stats() for e in emulators]
         direct = direct_loop(emulators, used, seconds) if floor else []
@@ -276,6 +289,9 @@ def measure(
         "emulators_cpu_cores": (sum(r1[1:]) - sum(r0[1:])) / window,
         "cpu_per_transaction_us": (c1 - c0) / transactions * 1e6 if transactions else None,
         "transactions_per_s": transactions / window,
+        "preempted_per_transaction": (u1.ru_nivcsw - u0.ru_nivcsw) / transactions if transactions else None,
+        "slept_per_transaction": (u1.ru_nvcsw - u0.ru_nvcsw) / transactions if transactions else None,
+        "rig": "SCHED_BATCH" if batch else "default",
         "errors": end_errors - start_errors,
         "per_line": per_line,
     }
@@ -291,8 +307,9 @@ def report(result: dict[str, object]) -> None:
         f"lines at {min(of_limit):.3f}..{max(of_limit):.3f} of their plan's limit; "
         f"poller CPU {result['poller_cpu_cores']:.3f} of a core "
         f"({result['cpu_per_transaction_us']:.0f} us per transaction, {result['transactions_per_s']:.0f} tx/s); "
-        f"errors {result['errors']}; the rig: simulator process {result['simulator_cpu_cores']:.2f}, "
-        f"emulators {result['emulators_cpu_cores']:.2f} cores",
+        f"errors {result['errors']}; the rig ({result['rig']}): simulator process {result['simulator_cpu_cores']:.2f}, "
+        f"emulators {result['emulators_cpu_cores']:.2f} cores; the poller preempted "
+        f"{result['preempted_per_transaction']:.2f}, asleep {result['slept_per_transaction']:.2f} times a transaction",
         flush=True,
     )
     direct = [line["direct_of_wire_limit"] for line in lines if line["direct_of_wire_limit"] is not None]
@@ -347,6 +364,7 @@ def main() -> None:
     parser.add_argument(
         "--floor", action="store_true", help="also measure the rig without the poller (the same FC03 back to back)"
     )
+    parser.add_argument("--rig-batch", action="store_true", help="run the rig (emulators, simulator) under SCHED_BATCH")
     parser.add_argument(
         "--baseline",
         action="store_true",
@@ -361,12 +379,12 @@ def main() -> None:
     results = []
     for n in args.sizes:
         if args.baseline and args.baseline_first:
-            base = measure(n, args.lines, args.seconds, args.period, multiplex=False)
+            base = measure(n, args.lines, args.seconds, args.period, multiplex=False, batch=args.rig_batch)
             report(base)
-        result = measure(n, args.lines, args.seconds, args.period, args.floor)
+        result = measure(n, args.lines, args.seconds, args.period, args.floor, batch=args.rig_batch)
         report(result)
         if args.baseline and not args.baseline_first:
-            base = measure(n, args.lines, args.seconds, args.period, multiplex=False)
+            base = measure(n, args.lines, args.seconds, args.period, multiplex=False, batch=args.rig_batch)
             report(base)
         results.append(result)
         if args.baseline:
