@@ -25,9 +25,10 @@ The window opens once every device has answered once and closes ``--seconds`` la
   counts 3.5 characters = 2.005 ms for each) and how often the master broke the 3.5-character silence;
 * the CPU of the rig (the simulator process and the emulators), since all of it shares the machine's cores;
 * how often the poller's process was preempted (involuntary context switches) and slept (voluntary ones) a
-  transaction: on 2 cores, each request wakes its line's emulator, which may take the core from the poller;
-  ``--rig-batch`` starts the rig under ``SCHED_BATCH`` (its wake-ups then preempt nobody, as a UART's would
-  not): the poller's share of the rig's cost, apart (not the figures of docs/fleet.md, which run the default);
+  transaction: the emulators run at a real-time priority where allowed (``SCHED_FIFO``, so that a line never
+  pauses), so each byte they pace takes a core from the poller at once when both are busy; ``--rig-batch`` puts
+  every thread of the rig under ``SCHED_BATCH`` once it runs (its wake-ups then preempt nobody, as a UART's would
+  not): the rig's share of the poller's CPU, apart (docs/fleet.md's figures run the default);
 * with ``--floor``: the rig's own limit, without the poller: one thread sends the same FC03 to every unit of
   every line back to back (the poller's LineTask, waited on with select, no schedule and no samples); its rate
   against the wire limit of the plan (1 / wire per round);
@@ -185,23 +186,21 @@ def measure(
 
     counts = layout(n, lines)
     used = [c for c in counts if c]
-    if batch:  # the rig's processes inherit it; this thread (and the poller's, made later) go back to the default
-        os.sched_setscheduler(0, os.SCHED_BATCH, os.sched_param(0))
-    try:
-        emulators = [Emulator(BAUD) for _ in used]
-        sims = subprocess.Popen(
-            [sys.executable, __file__, "serve", "--paths", *[e.server for e in emulators], "--counts", *map(str, used)],
-            stdin=subprocess.PIPE,
-            stdout=subprocess.PIPE,
-            text=True,
-        )
-    finally:
-        if batch:
-            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    emulators = [Emulator(BAUD) for _ in used]
+    sims = subprocess.Popen(
+        [sys.executable, __file__, "serve", "--paths", *[e.server for e in emulators], "--counts", *map(str, used)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     assert sims.stdout is not None and sims.stdin is not None
     try:
         if sims.stdout.readline().strip() != "ready":
             raise RuntimeError("the simulator process did not start")
+        if batch:  # every thread of the rig, now that they run (the emulators asked for SCHED_FIFO at their start)
+            for pid in [sims.pid, *(e.proc.pid for e in emulators)]:
+                for tid in os.listdir(f"/proc/{pid}/task"):
+                    os.sched_setscheduler(int(tid), os.SCHED_BATCH, os.sched_param(0))
         config = parse_fleet(fleet_text(emulators, used, period), "<rtu scale>")
         plans = {p.name: p for p in fleet_plan(config)}
         good: dict[str, int] = {d.name: 0 for d in config.devices}
@@ -364,7 +363,7 @@ def main() -> None:
     parser.add_argument(
         "--floor", action="store_true", help="also measure the rig without the poller (the same FC03 back to back)"
     )
-    parser.add_argument("--rig-batch", action="store_true", help="run the rig (emulators, simulator) under SCHED_BATCH")
+    parser.add_argument("--rig-batch", action="store_true", help="the rig (emulators, simulator) under SCHED_BATCH")
     parser.add_argument(
         "--baseline",
         action="store_true",
