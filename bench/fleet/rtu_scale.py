@@ -26,9 +26,10 @@ The window opens once every device has answered once and closes ``--seconds`` la
 * the CPU of the rig (the simulator process and the emulators), since all of it shares the machine's cores;
 * how often the poller's process was preempted (involuntary context switches) and slept (voluntary ones) a
   transaction: the emulators run at a real-time priority where allowed (``SCHED_FIFO``, so that a line never
-  pauses), so each byte they pace takes a core from the poller at once when both are busy; ``--rig-batch`` puts
-  every thread of the rig under ``SCHED_BATCH`` once it runs (its wake-ups then preempt nobody, as a UART's would
-  not): the rig's share of the poller's CPU, apart (docs/fleet.md's figures run the default);
+  pauses; the report says what they were granted), so each byte they pace takes a core from the poller at once
+  when both are busy; ``--rig-batch`` puts every thread of the rig under ``SCHED_BATCH`` once it runs (its
+  wake-ups then preempt nobody, as a UART's would not): the rig's share of the poller's CPU, apart
+  (docs/fleet.md's figures run the default);
 * with ``--floor``: the rig's own limit, without the poller: one thread sends the same FC03 to every unit of
   every line back to back (the poller's LineTask, waited on with select, no schedule and no samples); its rate
   against the wire limit of the plan (1 / wire per round);
@@ -290,7 +291,8 @@ def measure(
         "transactions_per_s": transactions / window,
         "preempted_per_transaction": (u1.ru_nivcsw - u0.ru_nivcsw) / transactions if transactions else None,
         "slept_per_transaction": (u1.ru_nvcsw - u0.ru_nvcsw) / transactions if transactions else None,
-        "rig": "SCHED_BATCH" if batch else "default",
+        # what the emulators were granted (real-time only as root): the rig differs without it
+        "rig": "SCHED_BATCH" if batch else ", ".join(sorted({str(w.get("scheduling")) for w in wire_seen})),
         "errors": end_errors - start_errors,
         "per_line": per_line,
     }
