@@ -198,8 +198,9 @@ def measure(
     try:
         if sims.stdout.readline().strip() != "ready":
             raise RuntimeError("the simulator process did not start")
+        rig = [sims.pid, *(e.proc.pid for e in emulators)]
         if batch:  # every thread of the rig, now that they run (the emulators asked for SCHED_FIFO at their start)
-            for pid in [sims.pid, *(e.proc.pid for e in emulators)]:
+            for pid in rig:
                 for tid in os.listdir(f"/proc/{pid}/task"):
                     os.sched_setscheduler(int(tid), os.SCHED_BATCH, os.sched_param(0))
         config = parse_fleet(fleet_text(emulators, used, period), "<rtu scale>")
@@ -228,7 +229,6 @@ def measure(
             for e in emulators:
                 e.stats()
             start_stats = poller.line_stats()
-            rig = [sims.pid, *(e.proc.pid for e in emulators)]
             t0, c0, r0 = time.monotonic(), time.process_time(), [process_cpu(pid) for pid in rig]
             u0 = resource.getrusage(resource.RUSAGE_SELF)
             time.sleep(seconds)
