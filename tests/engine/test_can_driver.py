@@ -110,13 +110,6 @@ class Responder:
 
 
 @pytest.fixture
-def loop() -> Iterator[Scheduler]:
-    sched = Scheduler()
-    yield sched
-    sched.stop()
-
-
-@pytest.fixture
 def channel() -> Iterator[str]:
     name = f"can-{uuid.uuid4().hex[:8]}"
     yield name

@@ -8,6 +8,7 @@ from __future__ import annotations
 import threading
 import uuid
 from collections.abc import Iterator
+from contextlib import contextmanager
 
 import pytest
 
@@ -65,13 +66,6 @@ class Counted:
 
 
 @pytest.fixture
-def loop() -> Iterator[Scheduler]:
-    sched = Scheduler()
-    yield sched
-    sched.stop()
-
-
-@pytest.fixture
 def channel() -> Iterator[str]:
     name = f"can-{uuid.uuid4().hex[:8]}"
     responder = Responder(name)  # answers 0x601 with 0x581, the data plus one
@@ -89,92 +83,71 @@ def waiting(driver: CanDriver) -> bool:
     return True
 
 
-def test_while_the_loop_waits_the_caller_sends_in_its_own_thread(loop: Scheduler, channel: str) -> None:
+@contextmanager
+def waiting_in_queue(loop: Scheduler, channel: str, engine: ThreadEngine) -> Iterator[CanDriver]:
+    """``engine`` on the virtual bus ``channel``, the loop's own thread running and waiting in the bus's queue."""
     driver = CanDriver.acquire("virtual", channel, loop)
-    engine = ThreadEngine()
     try:
         driver.call(lambda now: driver.add(engine), "add")
-        assert driver._queue is not None
-        interrupts = Counted(driver._queue)
         keep_running(loop)
         try:
-            for n in range(5):
-                assert wait_until(lambda: waiting(driver), timeout=WAIT)
-                interrupts.count = 0  # (starting the loop's thread woke it)
-                handoff = driver.submit_here(engine, bytes((n,)))
-                assert handoff is not None
-                assert handoff.wait(WAIT)  # ended in the loop's thread, which read the answer
-                ticket = handoff.ticket
-                assert ticket.state is TicketState.DONE and ticket.result == bytes((n + 1,))
-                assert interrupts.count == 0  # the loop was not woken for the request: only by the answer
-            assert engine.threads == [threading.get_ident()] * 5
+            assert wait_until(lambda: waiting(driver), timeout=WAIT)
+            yield driver
         finally:
             let_go(loop)
     finally:
         driver.release()
+
+
+def test_while_the_loop_waits_the_caller_sends_in_its_own_thread(loop: Scheduler, channel: str) -> None:
+    engine = ThreadEngine()
+    with waiting_in_queue(loop, channel, engine) as driver:
+        assert driver._queue is not None
+        interrupts = Counted(driver._queue)  # (from the loop's wait on: starting its thread woke it)
+        for n in range(5):
+            assert wait_until(lambda: waiting(driver), timeout=WAIT)
+            interrupts.count = 0
+            handoff = driver.submit_here(engine, bytes((n,)))
+            assert handoff is not None
+            assert handoff.wait(WAIT)  # ended in the loop's thread, which read the answer
+            ticket = handoff.ticket
+            assert ticket.state is TicketState.DONE and ticket.result == bytes((n + 1,))
+            assert interrupts.count == 0  # the loop was not woken for the request: only by the answer
+        assert engine.threads == [threading.get_ident()] * 5
 
 
 def test_a_request_due_before_the_loops_wait_ends_wakes_it(loop: Scheduler) -> None:
-    channel = f"can-{uuid.uuid4().hex[:8]}"  # nobody answers
-    driver = CanDriver.acquire("virtual", channel, loop)
     engine = ThreadEngine(limit=0.05)
-    try:
-        driver.call(lambda now: driver.add(engine), "add")
+    # nobody answers; the loop waits up to its idle second: the request's limit comes first
+    with waiting_in_queue(loop, f"can-{uuid.uuid4().hex[:8]}", engine) as driver:
         assert driver._queue is not None
-        interrupts = Counted(driver._queue)
-        keep_running(loop)  # the loop waits up to its idle second: the request's limit comes first
-        try:
-            assert wait_until(lambda: waiting(driver), timeout=WAIT)
-            interrupts.count = 0  # (starting the loop's thread woke it)
-            handoff = driver.submit_here(engine, b"\x01")
-            assert handoff is not None and interrupts.count == 1
-            assert handoff.wait(WAIT)
-            ticket = handoff.ticket
-            assert ticket.state is TicketState.FAILED and str(ticket.error) == "no answer"
-        finally:
-            let_go(loop)
-    finally:
-        driver.release()
+        interrupts = Counted(driver._queue)  # (from the loop's wait on: starting its thread woke it)
+        handoff = driver.submit_here(engine, b"\x01")
+        assert handoff is not None and interrupts.count == 1
+        assert handoff.wait(WAIT)
+        ticket = handoff.ticket
+        assert ticket.state is TicketState.FAILED and str(ticket.error) == "no answer"
 
 
 def test_a_request_given_here_is_withdrawn_in_the_loop(loop: Scheduler) -> None:
-    channel = f"can-{uuid.uuid4().hex[:8]}"  # nobody answers
-    driver = CanDriver.acquire("virtual", channel, loop)
     engine = ThreadEngine()
-    try:
-        driver.call(lambda now: driver.add(engine), "add")
-        keep_running(loop)
-        try:
-            assert wait_until(lambda: waiting(driver), timeout=WAIT)
-            handoff = driver.submit_here(engine, b"\x01")
-            assert handoff is not None and not handoff.ended
-            given = handoff.ticket
-            loop.wait(loop.call(lambda now: driver.withdraw([given], now)), WAIT, "withdraw")
-            assert handoff.wait(WAIT) and given.state is TicketState.CANCELLED and driver.pending == 0
-        finally:
-            let_go(loop)
-    finally:
-        driver.release()
+    with waiting_in_queue(loop, f"can-{uuid.uuid4().hex[:8]}", engine) as driver:  # nobody answers
+        handoff = driver.submit_here(engine, b"\x01")
+        assert handoff is not None and not handoff.ended
+        given = handoff.ticket
+        loop.wait(loop.call(lambda now: driver.withdraw([given], now)), WAIT, "withdraw")
+        assert handoff.wait(WAIT) and given.state is TicketState.CANCELLED and driver.pending == 0
 
 
 def test_a_handoff_followed_through_the_scheduler(loop: Scheduler, channel: str) -> None:
-    driver = CanDriver.acquire("virtual", channel, loop)
     engine = ThreadEngine()
-    try:
-        driver.call(lambda now: driver.add(engine), "add")
-        keep_running(loop)
-        try:
-            assert wait_until(lambda: waiting(driver), timeout=WAIT)
-            handoff = driver.submit_here(engine, b"\x01")
-            assert handoff is not None
-            early = handoff.follow()  # (likely before its end: the loop sets it)
-            assert loop.wait(early, WAIT, "follow").result == b"\x02"
-            late = handoff.follow()  # after its end: set at once
-            assert late.done() and late.result() is handoff.ticket
-        finally:
-            let_go(loop)
-    finally:
-        driver.release()
+    with waiting_in_queue(loop, channel, engine) as driver:
+        handoff = driver.submit_here(engine, b"\x01")
+        assert handoff is not None
+        early = handoff.follow()  # (likely before its end: the loop sets it)
+        assert loop.wait(early, WAIT, "follow").result == b"\x02"
+        late = handoff.follow()  # after its end: set at once
+        assert late.done() and late.result() is handoff.ticket
 
 
 def test_nothing_is_given_here_unless_the_loop_waits_in_the_queue(loop: Scheduler, channel: str) -> None:

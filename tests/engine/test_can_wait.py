@@ -90,13 +90,6 @@ def add(driver: CanDriver, engine: AskEngine) -> None:
 
 
 @pytest.fixture
-def loop() -> Iterator[Scheduler]:
-    sched = Scheduler()
-    yield sched
-    sched.stop()
-
-
-@pytest.fixture
 def channel() -> Iterator[str]:
     name = f"can-{uuid.uuid4().hex[:8]}"
     responder = Responder(name)
