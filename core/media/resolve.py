@@ -48,10 +48,14 @@ def address_of(host: str, port: int) -> Address:
         return kept
     address = _look_up(host, port)
     if not _numeric(host):
-        with _lock:
-            _kept[key] = address
-            _failed.pop(key, None)
+        _keep(key, address)
     return address
+
+
+def _keep(key: tuple[str, int], address: Address) -> None:
+    with _lock:
+        _kept[key] = address
+        _failed.pop(key, None)
 
 
 def kept_address(host: str, port: int) -> Address:
@@ -88,9 +92,7 @@ def _look_up_now(host: str, port: int) -> None:
         with _lock:
             _failed[key] = str(exc)
     else:
-        with _lock:
-            _kept[key] = address
-            _failed.pop(key, None)
+        _keep(key, address)
     finally:
         with _lock:
             _looking.discard(key)
