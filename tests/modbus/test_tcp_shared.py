@@ -10,10 +10,12 @@ from collections.abc import Iterator
 import pytest
 
 from starterbus.core.device import open_device
-from starterbus.core.errors import ConfigurationError, RemoteDeviceError
+from starterbus.core.engine import Ticket, TicketState
+from starterbus.core.errors import ConfigurationError, RemoteDeviceError, TransportError
 from starterbus.core.registry import get_profile
 from starterbus.core.simulator import ManualClock, SimulatedStarter
-from starterbus.transports.modbus.codec.messages import ExceptionResponse, ReadRequest, ReadResponse
+from starterbus.transports.modbus.codec.messages import ExceptionResponse, ReadRequest, ReadResponse, Response
+from starterbus.transports.modbus.driver.mbap_driver import MbapDriver
 from starterbus.transports.modbus.driver.tcp_line import MbapConnection, connection_key
 from starterbus.transports.modbus.master.exchange import Exchange, TransactionPolicy
 from starterbus.transports.modbus.master.mbap import encode_adu
@@ -157,3 +159,24 @@ def test_a_poll_refused_on_the_way_reads_as_the_devices_refusal(server: tuple[Mo
         with pytest.raises(RemoteDeviceError, match="illegal data address|02"):
             device.transport.poll(points, True)
         assert len(image.log) - before == 1  # nothing after the refused request went out
+
+
+def test_a_defect_under_a_batch_submitted_in_the_loop_fails_it_and_tells_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``submit_then``'s own step raising what no transport should (a defect): every ticket of the batch fails with a
+    TransportError naming the connection and the defect, as the scheduler says a step's, and the batch is told."""
+    driver = MbapDriver("127.0.0.1", 1, 1, 1.0)
+
+    def broken(now: float, ready: bool) -> None:
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(driver, "step", broken)
+    told: list[list[Ticket[Exchange, Response]]] = []
+    policy = TransactionPolicy(timeout=1.0, retries=0)
+    driver.submit_then(
+        [Exchange(ReadRequest(PLAIN, address, 1), policy, 0.0) for address in (10, 20)], 0.0, told.append
+    )
+    (tickets,) = told
+    assert [ticket.state for ticket in tickets] == [TicketState.FAILED, TicketState.FAILED]
+    assert {str(ticket.error) for ticket in tickets} == {"gateway 127.0.0.1:1: RuntimeError: boom"}
+    assert all(type(ticket.error) is TransportError for ticket in tickets)
+    assert driver.crashes == 1 and driver.pending == 0

@@ -54,10 +54,11 @@ class MbapDriver(TcpDriver[MbapEngine]):
         tickets once every one of them has ended."""
         tickets: list[Ticket[Exchange, Response]] = self.submit(exchanges, now, [None] * len(exchanges))
         self._told.append(_Told(tickets, ended))
-        try:  # as the scheduler steps a driver: a defect here is the connection's, not the submitter's
+        try:  # as the scheduler steps a driver (SchedulerLoop._step): a defect here is the connection's
             self.step(now, False)
         except Exception as exc:
-            self.crash(exc if isinstance(exc, StarterbusError) else TransportError(f"{self.name}: {exc!r}"), now)
+            error = exc if isinstance(exc, StarterbusError) else None
+            self.crash(error or TransportError(f"{self.name}: {type(exc).__name__}: {exc}"), now)
 
     def ends_batch(self, ticket: Ticket[Any, Any]) -> bool:
         """An exception answer withdraws the rest of its batch too (DONE for the engine: the caller's refusal)."""
