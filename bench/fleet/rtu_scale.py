@@ -1,7 +1,7 @@
 """Benchmark: the fleet poller at scale on real-speed RTU lines, with its own CPU measured apart.
 
 Run: ``python bench/fleet/rtu_scale.py [--sizes 20 200 992] [--lines 16] [--seconds 20] [--period 1.0]
-[--floor] [--baseline [--baseline-first]]``
+[--floor] [--rig-batch | --emulators-on CPU] [--baseline [--baseline-first]]``
 
 For each size N: ``--lines`` RTU lines at 19200 baud, each a line emulator process
 (``bench/modbus/line_emulator.py``: bytes paced at 11 bits a character, half duplex); ONE simulator process
@@ -27,9 +27,8 @@ The window opens once every device has answered once and closes ``--seconds`` la
 * how often the poller's process was preempted (involuntary context switches) and slept (voluntary ones) a
   transaction: the emulators run at a real-time priority where allowed (``SCHED_FIFO``, so that a line never
   pauses; the report says what they were granted), so each byte they pace takes a core from the poller at once
-  when both are busy; ``--rig-batch`` puts every thread of the rig under ``SCHED_BATCH`` once it runs (its
-  wake-ups then preempt nobody, as a UART's would not): the rig's share of the poller's CPU, apart
-  (docs/fleet.md's figures run the default);
+  when both are busy. ``--rig-batch`` (the rig under ``SCHED_BATCH``) or ``--emulators-on CPU`` (every
+  emulator thread on that CPU) takes the rig's share of the poller's CPU out (``bench/fleet/rig.py``);
 * with ``--floor``: the rig's own limit, without the poller: one thread sends the same FC03 to every unit of
   every line back to back (the poller's LineTask, waited on with select, no schedule and no samples); its rate
   against the wire limit of the plan (1 / wire per round);
@@ -42,7 +41,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import resource
 import statistics
 import subprocess
@@ -51,6 +49,7 @@ import threading
 import time
 from pathlib import Path
 
+from starterbus.bench.fleet.rig import AS_ASKED, RigScheduling, process_cpu
 from starterbus.bench.modbus.throughput import Emulator
 
 HERE = Path(__file__).resolve().parent
@@ -85,13 +84,6 @@ def serve(paths: list[str], counts: list[int]) -> None:
 
 
 # -- the poller's side ------------------------------------------------------------------------------------------------
-
-
-def process_cpu(pid: int) -> float:
-    """CPU seconds (user + system) a process has used so far, from /proc/PID/stat (Linux)."""
-    with open(f"/proc/{pid}/stat", encoding="ascii") as f:
-        fields = f.read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def fleet_text(emulators: list[Emulator], counts: list[int], period: float) -> str:
@@ -179,7 +171,13 @@ def direct_loop(emulators: list[Emulator], counts: list[int], seconds: float) ->
 
 
 def measure(
-    n: int, lines: int, seconds: float, period: float, floor: bool = False, multiplex: bool = True, batch: bool = False
+    n: int,
+    lines: int,
+    seconds: float,
+    period: float,
+    floor: bool = False,
+    multiplex: bool = True,
+    rig: RigScheduling = AS_ASKED,
 ) -> dict[str, object]:
     from starterbus.fleet.config import parse_fleet
     from starterbus.fleet.plan import fleet_plan
@@ -198,11 +196,8 @@ def measure(
     try:
         if sims.stdout.readline().strip() != "ready":
             raise RuntimeError("the simulator process did not start")
-        rig = [sims.pid, *(e.proc.pid for e in emulators)]
-        if batch:  # every thread of the rig, now that they run (the emulators asked for SCHED_FIFO at their start)
-            for pid in rig:
-                for tid in os.listdir(f"/proc/{pid}/task"):
-                    os.sched_setscheduler(int(tid), os.SCHED_BATCH, os.sched_param(0))
+        pids = [sims.pid, *(e.proc.pid for e in emulators)]
+        rig.apply(pids[0], pids[1:])
         config = parse_fleet(fleet_text(emulators, used, period), "<rtu scale>")
         plans = {p.name: p for p in fleet_plan(config)}
         good: dict[str, int] = {d.name: 0 for d in config.devices}
@@ -229,12 +224,12 @@ def measure(
             for e in emulators:
                 e.stats()
             start_stats = poller.line_stats()
-            t0, c0, r0 = time.monotonic(), time.process_time(), [process_cpu(pid) for pid in rig]
+            t0, c0, r0 = time.monotonic(), time.process_time(), [process_cpu(pid) for pid in pids]
             u0 = resource.getrusage(resource.RUSAGE_SELF)
             time.sleep(seconds)
             with lock:
                 end_good, end_errors = dict(good), errors[0]
-            t1, c1, r1 = time.monotonic(), time.process_time(), [process_cpu(pid) for pid in rig]
+            t1, c1, r1 = time.monotonic(), time.process_time(), [process_cpu(pid) for pid in pids]
             u1 = resource.getrusage(resource.RUSAGE_SELF)
             end_stats = poller.line_stats()
             wire_seen = [e.stats() for e in emulators]
@@ -292,7 +287,7 @@ def measure(
         "preempted_per_transaction": (u1.ru_nivcsw - u0.ru_nivcsw) / transactions if transactions else None,
         "slept_per_transaction": (u1.ru_nvcsw - u0.ru_nvcsw) / transactions if transactions else None,
         # what the emulators were granted (real-time only as root): the rig differs without it
-        "rig": "SCHED_BATCH" if batch else ", ".join(sorted({str(w.get("scheduling")) for w in wire_seen})),
+        "rig": rig.describe(str(w.get("scheduling")) for w in wire_seen),
         "errors": end_errors - start_errors,
         "per_line": per_line,
     }
@@ -366,6 +361,7 @@ def main() -> None:
         "--floor", action="store_true", help="also measure the rig without the poller (the same FC03 back to back)"
     )
     parser.add_argument("--rig-batch", action="store_true", help="the rig (emulators, simulator) under SCHED_BATCH")
+    parser.add_argument("--emulators-on", type=int, metavar="CPU", help="every line emulator's thread on that CPU")
     parser.add_argument(
         "--baseline",
         action="store_true",
@@ -377,15 +373,17 @@ def main() -> None:
         help="with --baseline: the thread per bus first (the second run of a pair tends to do a little better)",
     )
     args = parser.parse_args()
+    rig = RigScheduling(args.rig_batch, args.emulators_on)
+    rig.check()
     results = []
     for n in args.sizes:
         if args.baseline and args.baseline_first:
-            base = measure(n, args.lines, args.seconds, args.period, multiplex=False, batch=args.rig_batch)
+            base = measure(n, args.lines, args.seconds, args.period, multiplex=False, rig=rig)
             report(base)
-        result = measure(n, args.lines, args.seconds, args.period, args.floor, batch=args.rig_batch)
+        result = measure(n, args.lines, args.seconds, args.period, args.floor, rig=rig)
         report(result)
         if args.baseline and not args.baseline_first:
-            base = measure(n, args.lines, args.seconds, args.period, multiplex=False, batch=args.rig_batch)
+            base = measure(n, args.lines, args.seconds, args.period, multiplex=False, rig=rig)
             report(base)
         results.append(result)
         if args.baseline:
