@@ -21,8 +21,9 @@ The window opens once every device has answered once and closes ``--seconds`` la
 * the poller's CPU as a fraction of one core (``time.process_time()`` of this process over the window: the
   simulators and the emulators run in other processes), and per transaction;
 * errors and timeouts; the share of the window the poller spent inside its transactions (busy); the median
-  turnarounds the emulator saw (master: answer delivered -> next request; slave: request -> answer; the plan
-  counts 3.5 characters = 2.005 ms for each) and how often the master broke the 3.5-character silence;
+  turnarounds the emulator saw and their 99th percentiles (master: answer delivered -> next request; slave:
+  request -> answer; the plan counts 3.5 characters = 2.005 ms for each) and how often the master broke the
+  3.5-character silence;
 * the CPU of the rig (the simulator process and the emulators), since all of it shares the machine's cores;
 * how often the poller's process was preempted (involuntary context switches) and slept (voluntary ones) a
   transaction: the emulators run at a real-time priority where allowed (``SCHED_FIFO``, so that a line never
@@ -270,6 +271,8 @@ def measure(
                 "silence_broken": turnaround.get("below_silence", 0) if isinstance(turnaround, dict) else None,
                 "master_turnaround_ms": turnaround.get("median_ms") if isinstance(turnaround, dict) else None,
                 "slave_turnaround_ms": slave.get("median_ms") if isinstance(slave, dict) else None,
+                "master_turnaround_p99_ms": turnaround.get("p99_ms") if isinstance(turnaround, dict) else None,
+                "slave_turnaround_p99_ms": slave.get("p99_ms") if isinstance(slave, dict) else None,
             }
         )
     return {
@@ -315,13 +318,14 @@ def report(result: dict[str, object]) -> None:
             f"{min(direct):.3f}..{max(direct):.3f} of the wire limit of the plan (1 / wire time per round)"
         )
     head = f"  {'line':<7} {'dev':>3} {'rounds/s':>8} {'limit':>6} {'of lim':>6} {'wire %':>6} {'emul %':>6} {'t/o':>4}"
-    print(f"{head} {'busy %':>6} {'master ms':>9} {'slave ms':>8} {'<3.5ch':>6}")
+    print(f"{head} {'busy %':>6} {'master ms':>9} {'p99':>5} {'slave ms':>8} {'p99':>5} {'<3.5ch':>6}")
     for line in lines:
         print(
             f"  {line['line']:<7} {line['devices']:>3} {line['rounds_per_s']:>8.3f} {line['limit_rounds_per_s']:>6.3f} "
             f"{line['of_limit']:>6.3f} {line['wire_utilisation'] * 100:>6.1f} "
             f"{line['emulator_bytes_utilisation'] * 100:>6.1f} {line['timeouts']:>4} {line['busy'] * 100:>6.1f} "
-            f"{line['master_turnaround_ms'] or 0:>9.3f} {line['slave_turnaround_ms'] or 0:>8.3f} "
+            f"{line['master_turnaround_ms'] or 0:>9.3f} {line['master_turnaround_p99_ms'] or 0:>5.2f} "
+            f"{line['slave_turnaround_ms'] or 0:>8.3f} {line['slave_turnaround_p99_ms'] or 0:>5.2f} "
             f"{line['silence_broken']:>6}",
             flush=True,
         )

@@ -69,6 +69,8 @@ class Stats:
                 "min_ms": ordered[0] * 1000,
                 "median_ms": ordered[len(ordered) // 2] * 1000,
                 "below_silence": sum(1 for g in gaps if g < silence),
+                "p99_ms": ordered[len(ordered) * 99 // 100] * 1000,  # (a line's rare stalls, which a median hides)
+                "max_ms": ordered[-1] * 1000,
             }
 
         return {
