@@ -11,6 +11,7 @@ driver's own wait (a wake-up then interrupts it).
 
 from __future__ import annotations
 
+import operator
 import os
 import threading
 import time
@@ -23,6 +24,8 @@ from starterbus.core.errors import StarterbusError, TransportError
 from starterbus.core.media.waiter import Waiter
 
 __all__ = ["SchedulerLoop", "Served"]
+
+_deadline = operator.attrgetter("deadline")
 
 
 class Served(Protocol):
@@ -233,8 +236,8 @@ class SchedulerLoop:
             self._turn(now, give_up, done)
 
     def _turn(self, now: float, until: float, done: Callable[[], bool] | None) -> None:
-        """One pass: the inbox, the drivers due, one wait on every descriptor, the drivers ready or due (no
-        wait once what the leader waits for is ``done``)."""
+        """One pass: the inbox, the drivers due, one wait on every descriptor, the drivers ready, then those whose
+        deadline has come, the longest overdue first (no wait once what the leader waits for is ``done``)."""
         if self._inbox:
             with self._lock:
                 items, self._inbox = self._inbox, []
@@ -279,9 +282,11 @@ class SchedulerLoop:
                 self._drain()
             else:
                 self._step(which, now, True)
-        for driver in self.drivers:
-            if driver.deadline <= now and driver not in ready:  # (stepped above when it was ready)
-                self._step(driver, now, False)
+        due = [driver for driver in self.drivers if driver.deadline <= now and driver not in ready]  # (ready: stepped)
+        if len(due) > 1:  # the longest overdue first, whatever its place among the drivers
+            due.sort(key=_deadline)
+        for driver in due:
+            self._step(driver, now, False)
 
     def _step(self, driver: Served, now: float, ready: bool) -> None:
         try:

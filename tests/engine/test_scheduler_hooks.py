@@ -1,6 +1,7 @@
 """What the fleet (and a sync caller's fast path) use of the scheduler: a driver marked due is stepped at the
 next turn from any thread, the leadership taken and given back without a turn, the loop's own thread given by
-the caller, and the loop failing raised out of ``serve``."""
+the caller, the loop failing raised out of ``serve``, and drivers overdue in one turn stepped the longest overdue
+first."""
 
 from __future__ import annotations
 
@@ -169,3 +170,39 @@ def test_a_descriptor_taken_over_in_the_turn_before_its_watcher_lets_go_stays_wa
     finally:
         os.close(r)
         os.close(w)
+
+
+class Timed(Counting):
+    """A driver due at ``deadline`` (set by the test); its steps are logged, by name, in ``log``; once stepped it is
+    never due again."""
+
+    def __init__(self, loop: Scheduler, name: str, log: list[str]) -> None:
+        super().__init__(loop)
+        self.name, self.log = name, log
+
+    def step(self, now: float, ready: bool) -> None:
+        super().step(now, ready)
+        self.log.append(self.name)
+        self.deadline = math.inf
+
+
+def test_drivers_overdue_in_one_turn_are_stepped_the_longest_overdue_first() -> None:
+    """Whatever their places among the drivers: the last added (a line added last, a CAN bus after sixteen RTU
+    lines) waits for no other because of its place."""
+    loop = Scheduler()
+    log: list[str] = []
+    drivers = [Timed(loop, name, log) for name in ("a", "b", "c", "d")]
+
+    def add_all(now: float) -> None:
+        for driver in drivers:
+            loop.add(driver)
+
+    loop.call(add_all)
+    assert loop.try_turn()
+    now = loop.clock()
+    for driver, overdue in zip(drivers, (0.001, 0.004, 0.003, 0.002), strict=True):
+        driver.deadline = now - overdue
+    assert loop.try_turn()
+    assert log == ["b", "c", "d", "a"]
+    assert loop.try_turn()
+    assert log == ["b", "c", "d", "a"], "each stepped once: nothing due since"
