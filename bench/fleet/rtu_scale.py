@@ -20,16 +20,15 @@ The window opens once every device has answered once and closes ``--seconds`` la
   (``FleetPoller.line_stats()``: frames and silences over the window) and as the emulator saw it (bytes);
 * the poller's CPU as a fraction of one core (``time.process_time()`` of this process over the window: the
   simulators and the emulators run in other processes), and per transaction;
-* errors and timeouts; the share of the window the poller spent inside its transactions (busy); the median
-  turnarounds the emulator saw and their 99th percentiles (master: answer delivered -> next request; slave:
-  request -> answer; the plan counts 3.5 characters = 2.005 ms for each) and how often the master broke the
-  3.5-character silence;
-* the CPU of the rig (the simulator process and the emulators), since all of it shares the machine's cores;
-* how often the poller's process was preempted (involuntary context switches) and slept (voluntary ones) a
-  transaction: the emulators run at a real-time priority where allowed (``SCHED_FIFO``, so that a line never
-  pauses; the report says what they were granted), so each byte they pace takes a core from the poller at once
-  when both are busy. ``--rig-batch`` (the rig under ``SCHED_BATCH``) or ``--emulators-on CPU`` (every
-  emulator thread on that CPU) takes the rig's share of the poller's CPU out (``bench/fleet/rig.py``);
+* errors and timeouts; the share of the window the poller spent inside its transactions (busy); the turnarounds
+  the emulator saw, median and 99th percentile (``--json``: the longest too; master: answer delivered -> next
+  request; slave: request -> answer; the plan counts 3.5 characters = 2.005 ms each), and how often the master
+  broke the 3.5-character silence;
+* the CPU of the rig (the simulator process and the emulators), since all of it shares the machine's cores, and
+  how often the poller's process was preempted (involuntary context switches) and slept (voluntary ones) a
+  transaction: the emulators take a real-time priority where allowed (the report says which), so each byte they
+  pace takes a core from the poller when both are busy; ``--rig-batch`` or ``--emulators-on CPU`` takes that
+  share out (``bench/fleet/rig.py``);
 * with ``--floor``: the rig's own limit, without the poller: one thread sends the same FC03 to every unit of
   every line back to back (the poller's LineTask, waited on with select, no schedule and no samples); its rate
   against the wire limit of the plan (1 / wire per round);
@@ -273,6 +272,8 @@ def measure(
                 "slave_turnaround_ms": slave.get("median_ms") if isinstance(slave, dict) else None,
                 "master_turnaround_p99_ms": turnaround.get("p99_ms") if isinstance(turnaround, dict) else None,
                 "slave_turnaround_p99_ms": slave.get("p99_ms") if isinstance(slave, dict) else None,
+                "master_turnaround_max_ms": turnaround.get("max_ms") if isinstance(turnaround, dict) else None,
+                "slave_turnaround_max_ms": slave.get("max_ms") if isinstance(slave, dict) else None,
             }
         )
     return {
