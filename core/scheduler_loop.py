@@ -286,7 +286,8 @@ class SchedulerLoop:
         if len(due) > 1:  # the longest overdue first, whatever its place among the drivers
             due.sort(key=_deadline)
         for driver in due:
-            self._step(driver, now, False)
+            if driver.deadline <= now:  # (still: a step before it in this turn may have moved its deadline)
+                self._step(driver, now, False)
 
     def _step(self, driver: Served, now: float, ready: bool) -> None:
         try:

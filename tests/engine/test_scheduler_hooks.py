@@ -206,3 +206,29 @@ def test_drivers_overdue_in_one_turn_are_stepped_the_longest_overdue_first() -> 
     assert log == ["b", "c", "d", "a"]
     assert loop.try_turn()
     assert log == ["b", "c", "d", "a"], "each stepped once: nothing due since"
+
+
+def test_a_driver_whose_deadline_a_step_before_it_moved_is_not_stepped_in_that_turn() -> None:
+    """A step may serve another driver (a line's poll and its blocking callers' tickets share the line): the other,
+    overdue when the turn began, is stepped only if it still is."""
+    loop = Scheduler()
+    log: list[str] = []
+    first, second = Timed(loop, "first", log), Timed(loop, "second", log)
+    serve = first.step
+
+    def step_serving_second(now: float, ready: bool) -> None:
+        serve(now, ready)
+        second.deadline = math.inf
+
+    first.step = step_serving_second  # type: ignore[method-assign]
+
+    def add_both(now: float) -> None:
+        loop.add(second)
+        loop.add(first)
+
+    loop.call(add_both)
+    assert loop.try_turn()
+    now = loop.clock()
+    first.deadline, second.deadline = now - 0.002, now - 0.001
+    assert loop.try_turn()
+    assert log == ["first"]
