@@ -197,6 +197,9 @@ def test_watchdog_and_master_restart_with_the_old_allocation(
         config = ScannerConfig("virtual", channel, poll_period=0.01, dup_mac_wait=0.05, timeout=0.5)
         first = Scanner(config)
         first.wait_online(2)
+        # the slave on line too: an Allocate sent before its duplicate MAC check ends goes unanswered and is sent
+        # again (the frame counts below count one)
+        assert sim.wait_online(2)
         link = first.attach(LinkConfig(5, epr_ms=30))
         assert until(lambda: link.established)
         first.set_outputs(link, run=True)
