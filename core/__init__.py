@@ -58,6 +58,7 @@ if TYPE_CHECKING:
         connect_failure,
         connect_timeout,
         start_connect,
+        step_error,
     )
     from starterbus.core.media.can import CanDriver, CanEngine, Periodic, ToEngine
     from starterbus.core.media.keeper import keep_running, let_go
@@ -209,6 +210,7 @@ _LAZY = {
     "Driver": "starterbus.core.media",
     "StreamDriver": "starterbus.core.media",
     "TcpDriver": "starterbus.core.media",
+    "step_error": "starterbus.core.media",
     "address_of": "starterbus.core.media",
     "connect_failure": "starterbus.core.media",
     "connect_timeout": "starterbus.core.media",
@@ -367,5 +369,6 @@ __all__ = [
     "shutdown_bus",
     "start_connect",
     "status_with_currents",
+    "step_error",
     "wait_ticket",
 ]

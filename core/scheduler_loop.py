@@ -21,6 +21,7 @@ from typing import Any, Protocol, cast
 
 from starterbus.core.engine import Ticket
 from starterbus.core.errors import StarterbusError, TransportError
+from starterbus.core.media.driver import step_error
 from starterbus.core.media.waiter import Waiter
 
 __all__ = ["SchedulerLoop", "Served"]
@@ -293,8 +294,7 @@ class SchedulerLoop:
         try:
             driver.step(now, ready)
         except Exception as exc:
-            error = exc if isinstance(exc, StarterbusError) else None
-            driver.crash(error or TransportError(f"{driver.name}: {type(exc).__name__}: {exc}"), self.clock())
+            driver.crash(step_error(driver.name, exc), self.clock())
 
     def _watch(self, driver: Served, fd: int, writing: bool) -> None:
         """Watch ``fd`` for ``driver`` (-1: nothing). A descriptor has one watcher: two drivers may take turns on

@@ -2,7 +2,7 @@
 with a descriptor (:class:`StreamDriver`), a TCP client connection (:class:`TcpDriver`); ``waiter.py`` waits on
 their descriptors. Protocol-neutral."""
 
-from starterbus.core.media.driver import Driver, Stream, StreamDriver
+from starterbus.core.media.driver import Driver, Stream, StreamDriver, step_error
 from starterbus.core.media.resolve import address_of
 from starterbus.core.media.tcp import TcpDriver, connect_failure, connect_timeout, start_connect
 
@@ -15,4 +15,5 @@ __all__ = [
     "connect_failure",
     "connect_timeout",
     "start_connect",
+    "step_error",
 ]

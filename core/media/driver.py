@@ -23,7 +23,7 @@ from typing import Any, Generic, Protocol, TypeVar
 from starterbus.core.engine import Engine, Ticket, TicketState
 from starterbus.core.errors import StarterbusError, TransportError
 
-__all__ = ["Driver", "Stream", "StreamDriver"]
+__all__ = ["Driver", "Stream", "StreamDriver", "step_error"]
 
 Req = TypeVar("Req")
 Res = TypeVar("Res")
@@ -34,6 +34,15 @@ _DONE = TicketState.DONE  # (an Enum class's attributes are slow to read)
 
 #: bytes taken from a stream per read (a Modbus ADU is at most 260)
 READ_SIZE = 4096
+
+
+def step_error(name: str, exc: Exception) -> StarterbusError:
+    """What the tickets of driver ``name`` fail with when its step raised ``exc`` (the scheduler's rule, and a
+    driver's own step made in the loop): a starterbus error as it is, anything else a TransportError naming the
+    driver and the defect."""
+    if isinstance(exc, StarterbusError):
+        return exc
+    return TransportError(f"{name}: {type(exc).__name__}: {exc}")
 
 
 class Driver(Generic[E]):

@@ -19,7 +19,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from starterbus.core import StarterbusError, TcpDriver, Ticket, TicketState, TransportError
+from starterbus.core import StarterbusError, TcpDriver, Ticket, TicketState, step_error
 from starterbus.transports.modbus.codec.messages import ExceptionResponse, Response
 from starterbus.transports.modbus.master.exchange import Exchange
 from starterbus.transports.modbus.master.mbap import MbapEngine
@@ -57,8 +57,7 @@ class MbapDriver(TcpDriver[MbapEngine]):
         try:  # as the scheduler steps a driver (SchedulerLoop._step): a defect here is the connection's
             self.step(now, False)
         except Exception as exc:
-            error = exc if isinstance(exc, StarterbusError) else None
-            self.crash(error or TransportError(f"{self.name}: {type(exc).__name__}: {exc}"), now)
+            self.crash(step_error(self.name, exc), now)
 
     def ends_batch(self, ticket: Ticket[Any, Any]) -> bool:
         """An exception answer withdraws the rest of its batch too (DONE for the engine: the caller's refusal)."""
