@@ -18,9 +18,12 @@ from starterbus.core.status import Command
 from starterbus.core.transport import Capability, TransportCounters
 from starterbus.testing.faults import Fault, FaultControl, FaultsNotProvided, preview_text
 from starterbus.testing.kit_base import KitBase, raw_values
+from starterbus.testing.waits import wait_until
 
 #: the probe timeout the kit asks for (seconds)
 PROBE_TIMEOUT = 0.1
+#: how long a request that was sent may take to reach a held-up device's record (seconds)
+RECORDED = 10.0
 
 
 def sent_during(control: FaultControl, mark: int) -> list[str]:
@@ -103,16 +106,22 @@ class FaultChecks(KitBase):
         tries once; the fleet says offline. The device answers again: the right values."""
         faulty = self.url_with(url, timeout=self.fault_timeout, retries=1)
         with self.tap(starter) as tap, open_device(faulty, profile) as device:
-            p, _ = self.two_parameters(device, starter)
+            p, q = self.two_parameters(device, starter)
             mark = len(tap.requests)
             assert raw_of(device, p) == starter.params[p.key]
             per_attempt = len(tap.requests) - mark
+            of_p = tap.requests[mark:]
+            mark = len(tap.requests)
+            assert raw_of(device, q) == starter.params[q.key]
+            marker = tap.requests[mark]  # the first request of a read of q: it ends a record (unanswered_since)
+            assert marker not in of_p, f"the device records reads of {p.key} and {q.key} alike: {marker}"
             before = counted(device)
             self.set_fault(tap, Fault.SILENT)
             mark = len(tap.requests)
             with pytest.raises(TimeoutError):
                 device.read(p)
-            assert len(tap.requests) - mark == 2 * per_attempt, "requests for one read with one retry"
+            sent = self.unanswered_since(device, tap, mark, q, marker)
+            assert len(sent) == 2 * per_attempt, f"requests for one read with one retry: {sent}"
             after = counted(device)
             if before is not None and after is not None:
                 grown = after.minus(before)
@@ -124,7 +133,8 @@ class FaultChecks(KitBase):
                 mark = len(tap.requests)
                 with device.transport.probe_policy(PROBE_TIMEOUT), pytest.raises(TimeoutError):
                     probe([p])
-                assert len(tap.requests) - mark == per_attempt, f"a probe ({name}) retried: probe_policy is one attempt"
+                sent = self.unanswered_since(device, tap, mark, q, marker)
+                assert len(sent) == per_attempt, f"a probe ({name}) retried: probe_policy is one attempt: {sent}"
             if Capability.WRITE_PARAMETERS in device.capabilities:
                 point = self.write_targets(device)[0][0]
                 raw = next(v for v in raw_values(point) if v != starter.params[point.key])
@@ -144,6 +154,18 @@ class FaultChecks(KitBase):
             self.fleet_offline(faulty, profile)
             tap.set(None)
             assert raw_of(device, p) == starter.params[p.key]
+
+    def unanswered_since(self, device: Device, tap: FaultControl, mark: int, other: PointDef, marker: str) -> list[str]:
+        """Every request that reached the silent device since ``mark``, the record complete. A device held up on
+        a loaded machine records a request after the master gave up on it, so one more read follows (of
+        ``other``, one attempt, unanswered), and the record is taken once that read's first request
+        (``marker``) is in it: the device records requests in the order they were sent."""
+        with device.transport.probe_policy(PROBE_TIMEOUT), pytest.raises(TimeoutError):
+            device.transport.read_points([other])
+        if not wait_until(lambda: marker in tap.requests[mark:], RECORDED):
+            pytest.fail(f"the device did not record the read of {other.key} ({marker}) within {RECORDED:g} s")
+        sent = list(tap.requests[mark:])
+        return sent[: sent.index(marker)]
 
     def fleet_offline(self, url: str, profile: Profile) -> None:
         from starterbus.fleet.config import build_fleet
