@@ -22,6 +22,8 @@ from typing import Any
 from starterbus.aio import AsyncFleet
 from starterbus.cli.opcua_cmd import demo_remote
 from starterbus.core.audit import ENV_VAR, AuditLog
+from starterbus.core.registry import get_transport
+from starterbus.fleet.config import parse_fleet
 from starterbus.fleet.demo import DemoFleet, start_demo_fleet
 from starterbus.ops.recorder import for_fleet
 from starterbus.ops.throttle import Throttle
@@ -60,9 +62,26 @@ class WebDemo:
         return AuditLog(self.audit).read()
 
 
+def _with_modbus_tcp(demo: DemoFleet, name: str) -> DemoFleet:
+    address = next(d.address for bus in demo.config.buses for d in bus.devices if d.name == name)
+    starter = demo.starters[name]
+    (front,) = get_transport("modbus-tcp").start_simulator({"address": "127.0.0.1:0"}, {address: starter})
+    demo.simulators.append(front)  # closed with the demo's
+    url = front.client_urls()[address].partition("?")[0]
+    text = (
+        f'{demo.fleet_toml}\n[[bus]]\nname = "{name}-modbus-tcp"\nurl = "{url}"'
+        f'\n\n  [[bus.device]]\n  name = "{name}-tcp"\n  model = "{starter.profile.name}"\n  address = {address}\n'
+    )
+    return DemoFleet(text, parse_fleet(text, "<demo fleet>"), demo.starters, demo.simulators)
+
+
 @contextmanager
-def web_demo(tmp: Path, *, period: float = 0.5, **settings: Any) -> Iterator[WebDemo]:
-    """The demo fleet polled every ``period`` s, recorded into ``tmp/history.db``, served on a free port."""
+def web_demo(tmp: Path, *, period: float = 0.5, modbus_tcp: str | None = None, **settings: Any) -> Iterator[WebDemo]:
+    """The demo fleet polled every ``period`` s, recorded into ``tmp/history.db``, served on a free port.
+
+    ``modbus_tcp``: a demo device whose starter also gets a Modbus TCP front end (a second communication module
+    on the same simulated starter), in the fleet as the device ``NAME-tcp`` on a bus of its own.
+    """
     audit, history = tmp / "audit.jsonl", tmp / "history.db"
     before = os.environ.get(ENV_VAR)
     os.environ[ENV_VAR] = str(audit)  # the guarded path and the recorder's audit follower use this file
@@ -74,6 +93,8 @@ def web_demo(tmp: Path, *, period: float = 0.5, **settings: Any) -> Iterator[Web
     async def main() -> None:
         demo = await asyncio.to_thread(start_demo_fleet, period)
         try:
+            if modbus_tcp is not None:
+                demo = _with_modbus_tcp(demo, modbus_tcp)
             config = demo_remote(demo.config)
             recorder = for_fleet(history, config)  # as serve's: audit records named by the fleet's device names
             options = {"users": USERS, "history": history, "host": "127.0.0.1", "port": 0, **settings}

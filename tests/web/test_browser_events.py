@@ -28,7 +28,6 @@ from starterbus.testing.conformance import wait_until
 from starterbus.tests.web.chromium import WAIT_MS, needs_chromium, sync_api
 from starterbus.tests.web.harness import PASSWORD, WebDemo, web_demo
 from starterbus.tests.web.test_backup_api import _raw, _with_raw
-from starterbus.transports.profibus_pkw.driver.station_lock import LOCK_DIR_ENV
 from starterbus.web.auth import AuthPolicy
 from starterbus.web.backup_api import MAX_UPLOAD
 
@@ -38,7 +37,9 @@ pytestmark = needs_chromium
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Iterator[WebDemo]:
     logins = AuthPolicy(ThrottlePolicy(backoff_base=60.0), refusal_delay=0.1)
-    with web_demo(tmp_path_factory.mktemp("events"), allow_plaintext_commands=True, logins=logins) as demo:
+    with web_demo(
+        tmp_path_factory.mktemp("events"), modbus_tcp="mill", allow_plaintext_commands=True, logins=logins
+    ) as demo:
         yield demo
 
 
@@ -109,17 +110,16 @@ def test_an_operators_stop_by_keyboard_and_write_appear_in_the_event_log_with_wh
 
 
 def test_a_cli_command_on_the_same_audit_log_appears_in_the_open_page(site: WebDemo, page: Any, tmp_path: Path) -> None:
+    # A technician's CLI on the serve's machine, with the same fleet file, commands a Modbus TCP starter that serve
+    # polls: a Modbus TCP server takes several masters (a PKW gateway station, an RTU line or a DeviceNet
+    # slave serves one, and the CLI would be refused).
     fleet = tmp_path / "fleet.toml"
     fleet.write_text(site.demo.fleet_toml, encoding="utf-8")
-    _open(site, page, "mill")
+    _open(site, page, "mill-tcp")
     page.wait_for_selector("#events[data-loaded='1']", timeout=WAIT_MS)  # the log as it was before
-    cli = [sys.executable, "-m", "starterbus.cli.main", "stop", "mill", "--fleet", str(fleet), "--yes", "--json"]
-    # mill is behind a Modbus TCP gateway, which this machine's serve holds (one master per station: the CLI is
-    # refused). The CLI here stands in for a master on another machine, which no lock of this one sees: a stop is
-    # the control word only, and its status reads are PZD words, never a PKW answer to take for another's.
-    elsewhere = {**os.environ, LOCK_DIR_ENV: str(tmp_path / "another-machine")}
+    cli = [sys.executable, "-m", "starterbus.cli.main", "stop", "mill-tcp", "--fleet", str(fleet), "--yes", "--json"]
     done = subprocess.run(
-        [*cli, "--audit-log", str(site.audit)], check=False, capture_output=True, text=True, timeout=60, env=elsewhere
+        [*cli, "--audit-log", str(site.audit)], check=False, capture_output=True, text=True, timeout=60
     )
     assert done.returncode == 0, done.stderr
     actor = f"cli:{getpass.getuser()}"
