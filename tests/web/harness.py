@@ -10,7 +10,9 @@ import asyncio
 import http.cookiejar
 import json
 import os
+import sys
 import threading
+import traceback
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
@@ -62,8 +64,21 @@ class WebDemo:
         return AuditLog(self.audit).read()
 
 
+def _threads() -> str:
+    """Every other thread of the process and its innermost calls (what a loop that did not stop waits for)."""
+    frames = sys._current_frames()
+    lines = []
+    for thread in threading.enumerate():
+        frame = frames.get(thread.ident or 0)
+        if thread is not threading.current_thread() and frame is not None:
+            calls = [f"{f.name} ({Path(f.filename).name}:{f.lineno})" for f in traceback.extract_stack(frame)[-3:]]
+            lines.append(f"{thread.name}: {' > '.join(calls)}")
+    return "; ".join(lines)
+
+
 def _with_modbus_tcp(demo: DemoFleet, name: str) -> DemoFleet:
     address = next(d.address for bus in demo.config.buses for d in bus.devices if d.name == name)
+    assert address is not None, f"{name}: a demo device with no address"
     starter = demo.starters[name]
     (front,) = get_transport("modbus-tcp").start_simulator({"address": "127.0.0.1:0"}, {address: starter})
     demo.simulators.append(front)  # closed with the demo's
@@ -128,6 +143,8 @@ def web_demo(tmp: Path, *, period: float = 0.5, modbus_tcp: str | None = None, *
     finally:
         loop.call_soon_threadsafe(stop.set)
         thread.join(30)
+        if thread.is_alive():  # (closing a loop that still runs would hide why behind "Cannot close a running loop")
+            raise RuntimeError(f"the web demo did not stop within 30 s of its end; threads: {_threads()}")
         loop.close()
         if before is None:
             os.environ.pop(ENV_VAR, None)
