@@ -110,7 +110,7 @@ def test_an_operators_stop_by_keyboard_and_write_appear_in_the_event_log_with_wh
 
 
 def test_a_cli_command_on_the_same_audit_log_appears_in_the_open_page(site: WebDemo, page: Any, tmp_path: Path) -> None:
-    # A technician's CLI on the serve's machine, with the same fleet file, commands a Modbus TCP starter that serve
+    # A technician's CLI on serve's machine, with serve's fleet file, commands a Modbus TCP starter that serve
     # polls: a Modbus TCP server takes several masters (a PKW gateway station, an RTU line or a DeviceNet
     # slave serves one, and the CLI would be refused).
     fleet = tmp_path / "fleet.toml"
