@@ -1,6 +1,7 @@
 """The conformance kit's hooks for Modbus RTU (the reference transport): several units on one pseudo-terminal, the
 fault hook on :attr:`ModbusRtuSimulator.fault_hook`, the slave's refusal codes, the model's unit range and
-speeds. Used by the built-in transport's kit run and by the mutant test (``test_kit_catches_mutants.py``)."""
+speeds. Used by the built-in transport's kit run and by the mutant test (``test_kit_catches_mutants.py``).
+:class:`ModbusHooks` (the faults and the refusal codes) serves the Modbus TCP kit run too."""
 
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from starterbus.testing.faults import DeviceTap, Fault
 from starterbus.transports.modbus.codec.frames import AnyRequest
 from starterbus.transports.modbus.settings import modbus_settings
 from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator, SlaveFault
+from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
 from starterbus.transports.modbus.slave import refusal_code
 
 BUSY = 0x06  # Modbus exception "server device busy"
@@ -35,29 +37,16 @@ def slave_fault(fault: Fault | None, delay: float) -> SlaveFault | None:
     }[fault]
 
 
-class ModbusRtuKit(TransportConformance):
-    transport = "modbus-rtu"
-    model = "jjr5000"
-    url_timeout = "timeout"
-    url_retries = "retries"
-    merges_requests = True
+class ModbusHooks:
+    """The kit's hooks every Modbus simulator offers, RTU or TCP: the fault hook of the simulator that ``serve()``
+    noted for each starter (:meth:`note_served`), and the slave's refusal codes."""
 
-    served: dict[int, tuple[ModbusRtuSimulator, int]] | None = None  # id(starter) -> its simulator and unit
+    served: dict[int, tuple[ModbusRtuSimulator | ModbusTcpSimulator, int]] | None = None  # id(starter) -> (sim, unit)
 
-    @contextlib.contextmanager
-    def serve(self, starter: SimulatedStarter) -> Iterator[str]:
-        with ModbusRtuSimulator({UNIT: starter}, pty=True) as sim:
-            if self.served is None:
-                self.served = {}  # per test: pytest makes an instance for each
-            self.served[id(starter)] = (sim, UNIT)
-            yield sim.client_urls()[UNIT] + "&timeout=0.5"
-
-    @contextlib.contextmanager
-    def serve_units(self, starters: Sequence[SimulatedStarter]) -> Iterator[list[str]]:
-        units = {UNIT + 5 * i: starter for i, starter in enumerate(starters)}
-        with ModbusRtuSimulator(units, pty=True) as sim:
-            urls = sim.client_urls()
-            yield [urls[unit] + "&timeout=0.5" for unit in units]
+    def note_served(self, starter: SimulatedStarter, sim: ModbusRtuSimulator | ModbusTcpSimulator, unit: int) -> None:
+        if self.served is None:
+            self.served = {}  # per test: pytest makes an instance for each
+        self.served[id(starter)] = (sim, unit)
 
     @contextlib.contextmanager
     def faults(self, starter: SimulatedStarter) -> Iterator[DeviceTap]:
@@ -68,7 +57,7 @@ class ModbusRtuKit(TransportConformance):
         def hook(request: AnyRequest) -> SlaveFault | None:
             if request.unit != unit:
                 return None
-            return slave_fault(*tap.record(request.encode().hex(" ").upper()))
+            return slave_fault(*tap.record(self.frame_text(request)))
 
         sim.fault_hook = hook
         try:
@@ -76,8 +65,35 @@ class ModbusRtuKit(TransportConformance):
         finally:
             sim.fault_hook = None
 
+    @staticmethod
+    def frame_text(request: AnyRequest) -> str:
+        """How the tap records a request that reached the device: as the transport's previews show it (RTU: the
+        frame)."""
+        return request.encode().hex(" ").upper()
+
     def refusal_code(self, profile: Profile, reason: Refusal) -> int | None:
         return int(refusal_code(profile, reason))
+
+
+class ModbusRtuKit(ModbusHooks, TransportConformance):
+    transport = "modbus-rtu"
+    model = "jjr5000"
+    url_timeout = "timeout"
+    url_retries = "retries"
+    merges_requests = True
+
+    @contextlib.contextmanager
+    def serve(self, starter: SimulatedStarter) -> Iterator[str]:
+        with ModbusRtuSimulator({UNIT: starter}, pty=True) as sim:
+            self.note_served(starter, sim, UNIT)
+            yield sim.client_urls()[UNIT] + "&timeout=0.5"
+
+    @contextlib.contextmanager
+    def serve_units(self, starters: Sequence[SimulatedStarter]) -> Iterator[list[str]]:
+        units = {UNIT + 5 * i: starter for i, starter in enumerate(starters)}
+        with ModbusRtuSimulator(units, pty=True) as sim:
+            urls = sim.client_urls()
+            yield [urls[unit] + "&timeout=0.5" for unit in units]
 
     def invalid_url_values(self, profile: Profile) -> Mapping[str, Sequence[str]]:
         settings = modbus_settings(profile)

@@ -9,7 +9,9 @@ from collections.abc import Iterator
 
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.testing import TransportConformance
-from starterbus.tests.conformance.modbus_kit import ModbusRtuKit
+from starterbus.tests.conformance.modbus_kit import ModbusHooks, ModbusRtuKit
+from starterbus.transports.modbus.codec.messages import AnyRequest
+from starterbus.transports.modbus.transport.tcp import adu_text
 
 _channels = itertools.count()
 
@@ -58,18 +60,26 @@ class TestDeviceNet(TransportConformance):
             yield f"devicenet://virtual/{channel}?mac=5&assemblies=extended&dup_mac_wait=0.05&timeout=1"
 
 
-class TestModbusTcp(TransportConformance):
-    """Modbus TCP through the simulated gateway (the kit's cross-check compares it with RTU on one starter)."""
+class TestModbusTcp(ModbusHooks, TransportConformance):
+    """Modbus TCP through the simulated gateway (the kit's cross-check compares it with RTU on one starter), with
+    the faults of a device behind it and the slave's refusal codes."""
 
     transport = "modbus-tcp"
     model = "jjr5000"
+    url_timeout = "timeout"
+    url_retries = "retries"
 
     @contextlib.contextmanager
     def serve(self, starter: SimulatedStarter) -> Iterator[str]:
         from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
 
         with ModbusTcpSimulator({2: starter}) as sim:
+            self.note_served(starter, sim, 2)
             yield sim.url(2, timeout=0.5)
+
+    @staticmethod
+    def frame_text(request: AnyRequest) -> str:
+        return adu_text(request)  # the MBAP ADU, its transaction id "TT TT" as in the previews
 
 
 class TestModbusTcpSsd1(TestModbusTcp):

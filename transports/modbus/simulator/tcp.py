@@ -3,6 +3,8 @@
 One listening socket, one thread per client connection. Each MBAP request is answered with its own transaction
 id by the same slave logic as the RTU simulator (``slave.py``); a unit no starter answers gets exception 0x0B
 ("gateway target device failed to respond"), as a real gateway answers for a device that is silent behind it.
+:attr:`ModbusTcpSimulator.fault_hook` makes a device behind it misbehave as the RTU simulator's does (a
+:class:`~starterbus.transports.modbus.simulator.rtu.SlaveFault` a request: silent, late, repeated, refused).
 """
 
 from __future__ import annotations
@@ -10,12 +12,14 @@ from __future__ import annotations
 import select
 import socket
 import threading
+import time
 from collections.abc import Callable, Mapping
 
 from starterbus.core import ConfigurationError, DecodeError, RunningSimulator, SimulatedStarter
 from starterbus.transports.modbus.codec.decoding import decode_request
 from starterbus.transports.modbus.codec.messages import ExceptionResponse, Response
 from starterbus.transports.modbus.master.mbap import HEADER, HEADER_LENGTH, MAX_PDU, PROTOCOL_ID, encode_adu
+from starterbus.transports.modbus.simulator.rtu import FaultHook
 from starterbus.transports.modbus.slave import SlaveLogic
 
 GATEWAY_TARGET_FAILED = 0x0B
@@ -41,6 +45,9 @@ class ModbusTcpSimulator(RunningSimulator):
         self.connections = 0
         #: (transaction, unit, pdu) -> the ADU to send instead of the answer (b"": none), or None: answer as usual
         self.answer_hook: AnswerHook | None = None
+        #: what a served device does with a request instead of answering it at once (the connection's thread waits
+        #: out a delay: later requests on that connection wait too, as behind a gateway serving one at a time)
+        self.fault_hook: FaultHook | None = None
 
     @property
     def starters(self) -> dict[int, SimulatedStarter]:
@@ -173,11 +180,21 @@ class ModbusTcpSimulator(RunningSimulator):
             return b""
         if unit != 0 and unit not in self.starters:  # 0: a broadcast, written to every starter, not answered
             response = ExceptionResponse(unit, request.function, GATEWAY_TARGET_FAILED)
+            return encode_adu(transaction, unit, response.encode()[1:-2])
+        faults = self.fault_hook
+        fault = faults(request) if faults is not None else None
+        if fault is not None and fault.exception is not None:
+            response = ExceptionResponse(unit, request.function, fault.exception)
         else:
             response = self.logic.handle(request)
-        if response is None:
+        if response is None or (fault is not None and not fault.answer):
             return b""
-        return encode_adu(transaction, unit, response.encode()[1:-2])
+        answer = encode_adu(transaction, unit, response.encode()[1:-2])
+        if fault is None:
+            return answer
+        if fault.delay > 0:
+            time.sleep(fault.delay)
+        return answer * fault.copies
 
 
 __all__ = ["GATEWAY_TARGET_FAILED", "ModbusTcpSimulator"]

@@ -24,7 +24,13 @@ from starterbus.core import (
     status_with_currents,
 )
 from starterbus.spaces.modbus import MAX_UNIT, ModbusSettings
-from starterbus.transports.modbus.codec.messages import ExceptionResponse, ReadResponse, Request, Response
+from starterbus.transports.modbus.codec.messages import (
+    AnyRequest,
+    ExceptionResponse,
+    ReadResponse,
+    Request,
+    Response,
+)
 from starterbus.transports.modbus.codec.timing import silent_interval
 from starterbus.transports.modbus.decoder import exception_meaning
 from starterbus.transports.modbus.driver.link import SerialSettings
@@ -100,6 +106,14 @@ class ModbusTcpConfig(ModbusRtuConfig):
         )
 
 
+def adu_text(request: Request | AnyRequest) -> str:
+    """The MBAP ADU ``request`` goes out as, in a preview; its transaction id is given when it is sent (``TT TT``
+    here)."""
+    pdu = request.encode()[1:-2]  # the RTU frame less its unit id and CRC
+    adu = encode_adu(0, request.unit, pdu).hex(" ").upper()
+    return f"TT TT{adu[5:]}  (MBAP; TT TT: the transaction id, given when sent)"
+
+
 class ModbusTcpTransport(ModbusRtuTransport):
     name = NAME
 
@@ -131,10 +145,7 @@ class ModbusTcpTransport(ModbusRtuTransport):
             GATEWAYS.release(self.tcp.line_key)
 
     def _frame_text(self, request: Request) -> str:
-        """The MBAP ADU ``request`` goes out as; its transaction id is given when it is sent (``TT TT`` here)."""
-        pdu = request.encode()[1:-2]  # the RTU frame less its unit id and CRC
-        adu = encode_adu(0, request.unit, pdu).hex(" ").upper()
-        return f"TT TT{adu[5:]}  (MBAP; TT TT: the transaction id, given when sent)"
+        return adu_text(request)
 
     def _remote_error(self, request: Request, response: ExceptionResponse) -> StarterbusError:
         """The device's own refusal, in the words of its manual (the gateway's 0x0A / 0x0B never get here)."""
