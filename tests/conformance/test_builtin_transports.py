@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.testing import TransportConformance
@@ -76,6 +76,14 @@ class TestModbusTcp(ModbusHooks, TransportConformance):
         with ModbusTcpSimulator({2: starter}) as sim:
             self.note_served(starter, sim, 2)
             yield sim.url(2, timeout=0.5)
+
+    @contextlib.contextmanager
+    def serve_units(self, starters: Sequence[SimulatedStarter]) -> Iterator[list[str]]:
+        from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
+
+        units = {2 + 5 * i: starter for i, starter in enumerate(starters)}
+        with ModbusTcpSimulator(units) as sim:  # the units behind one gateway: one connection serves them all
+            yield [sim.url(unit, timeout=0.5) for unit in units]
 
     @staticmethod
     def frame_text(request: AnyRequest) -> str:
