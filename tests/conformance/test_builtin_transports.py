@@ -59,6 +59,20 @@ class TestDeviceNet(TransportConformance):
             sim.add_node(starter, 5)
             yield f"devicenet://virtual/{channel}?mac=5&assemblies=extended&dup_mac_wait=0.05&timeout=1"
 
+    @contextlib.contextmanager
+    def serve_units(self, starters: Sequence[SimulatedStarter]) -> Iterator[list[str]]:
+        from starterbus.transports.devicenet.simulator import DeviceNetSimulator
+
+        channel = f"conformance-{os.getpid()}-{next(_channels)}"
+        macs = [5 + 5 * i for i in range(len(starters))]
+        with DeviceNetSimulator(("virtual", channel), dup_mac_wait=0.05) as sim:  # the nodes on one bus
+            for starter, mac in zip(starters, macs, strict=True):
+                sim.add_node(starter, mac)
+            yield [
+                f"devicenet://virtual/{channel}?mac={mac}&assemblies=extended&dup_mac_wait=0.05&timeout=1"
+                for mac in macs
+            ]
+
 
 class TestModbusTcp(ModbusHooks, TransportConformance):
     """Modbus TCP through the simulated gateway (the kit's cross-check compares it with RTU on one starter), with

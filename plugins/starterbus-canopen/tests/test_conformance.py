@@ -5,7 +5,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import os
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 
 from starterbus_canopen.simulator import CanopenSimulator
 
@@ -25,3 +25,12 @@ class TestCanopen(TransportConformance):
         with CanopenSimulator(("virtual", channel), heartbeat_ms=0, event_timer=0.05) as sim:
             sim.add_node(starter, 5)
             yield f"canopen://virtual/{channel}?node=5&heartbeat=50"
+
+    @contextlib.contextmanager
+    def serve_units(self, starters: Sequence[SimulatedStarter]) -> Iterator[list[str]]:
+        channel = f"conformance-co-{os.getpid()}-{next(_channels)}"
+        nodes = [5 + 5 * i for i in range(len(starters))]
+        with CanopenSimulator(("virtual", channel), heartbeat_ms=0, event_timer=0.05) as sim:  # the nodes on one bus
+            for starter, node in zip(starters, nodes, strict=True):
+                sim.add_node(starter, node)
+            yield [f"canopen://virtual/{channel}?node={node}&heartbeat=50" for node in nodes]
