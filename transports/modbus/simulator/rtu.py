@@ -56,6 +56,17 @@ class SlaveFault:
 FaultHook = Callable[[AnyRequest], "SlaveFault | None"]
 
 
+def fault_response(logic: SlaveLogic, request: AnyRequest, fault: SlaveFault | None) -> Response | None:
+    """The answer to ``request`` under ``fault`` (None: none): the fault's exception, acting on nothing (for a
+    served unit; none for a broadcast), else the slave's own, acted on. Whether and how it is sent is the fault's
+    ``answer``, ``delay`` and ``copies``."""
+    if fault is not None and fault.exception is not None:
+        if request.unit not in logic.starters:
+            return None
+        return ExceptionResponse(request.unit, request.function, fault.exception)
+    return logic.handle(request)
+
+
 @dataclass(slots=True)
 class SlaveCounters:
     requests: int = 0
@@ -354,12 +365,7 @@ class ModbusRtuSimulator(RunningSimulator):
         self.counters.requests += 1
         hook = self.fault_hook
         fault = hook(request) if hook is not None else None
-        response: Response | None
-        if fault is not None and fault.exception is not None:
-            served = request.unit in self.starters
-            response = ExceptionResponse(request.unit, request.function, fault.exception) if served else None
-        else:
-            response = self.logic.handle(request)
+        response = fault_response(self.logic, request, fault)
         if response is None:
             self.counters.ignored += 1
             return
@@ -394,4 +400,12 @@ def parse_host_port(text: str) -> tuple[str, int]:
     return host.strip("[]") or "0.0.0.0", int(port)
 
 
-__all__ = ["TRANSPORT", "FaultHook", "ModbusRtuSimulator", "SlaveCounters", "SlaveFault", "parse_host_port"]
+__all__ = [
+    "TRANSPORT",
+    "FaultHook",
+    "ModbusRtuSimulator",
+    "SlaveCounters",
+    "SlaveFault",
+    "fault_response",
+    "parse_host_port",
+]

@@ -19,7 +19,7 @@ from starterbus.core import ConfigurationError, DecodeError, RunningSimulator, S
 from starterbus.transports.modbus.codec.decoding import decode_request
 from starterbus.transports.modbus.codec.messages import ExceptionResponse, Response
 from starterbus.transports.modbus.master.mbap import HEADER, HEADER_LENGTH, MAX_PDU, PROTOCOL_ID, encode_adu
-from starterbus.transports.modbus.simulator.rtu import FaultHook
+from starterbus.transports.modbus.simulator.rtu import FaultHook, fault_response
 from starterbus.transports.modbus.slave import SlaveLogic
 
 GATEWAY_TARGET_FAILED = 0x0B
@@ -183,10 +183,7 @@ class ModbusTcpSimulator(RunningSimulator):
             return encode_adu(transaction, unit, response.encode()[1:-2])
         faults = self.fault_hook
         fault = faults(request) if faults is not None else None
-        if fault is not None and fault.exception is not None:
-            response = ExceptionResponse(unit, request.function, fault.exception)
-        else:
-            response = self.logic.handle(request)
+        response = fault_response(self.logic, request, fault)
         if response is None or (fault is not None and not fault.answer):
             return b""
         answer = encode_adu(transaction, unit, response.encode()[1:-2])
