@@ -11,6 +11,7 @@ from starterbus.core.simulator import SimulatedStarter
 from starterbus.testing import TransportConformance
 from starterbus.tests.conformance.modbus_kit import ModbusHooks, ModbusRtuKit
 from starterbus.transports.modbus.codec.messages import AnyRequest
+from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
 from starterbus.transports.modbus.transport.tcp import adu_text
 
 _channels = itertools.count()
@@ -52,12 +53,8 @@ class TestDeviceNet(TransportConformance):
 
     @contextlib.contextmanager
     def serve(self, starter: SimulatedStarter) -> Iterator[str]:
-        from starterbus.transports.devicenet.simulator import DeviceNetSimulator
-
-        channel = f"conformance-{os.getpid()}-{next(_channels)}"
-        with DeviceNetSimulator(("virtual", channel), dup_mac_wait=0.05) as sim:
-            sim.add_node(starter, 5)
-            yield f"devicenet://virtual/{channel}?mac=5&assemblies=extended&dup_mac_wait=0.05&timeout=1"
+        with self.serve_units([starter]) as (url,):
+            yield url
 
     @contextlib.contextmanager
     def serve_units(self, starters: Sequence[SimulatedStarter]) -> Iterator[list[str]]:
@@ -85,18 +82,15 @@ class TestModbusTcp(ModbusHooks, TransportConformance):
 
     @contextlib.contextmanager
     def serve(self, starter: SimulatedStarter) -> Iterator[str]:
-        from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
-
-        with ModbusTcpSimulator({2: starter}) as sim:
-            self.note_served(starter, sim, 2)
-            yield sim.url(2, timeout=0.5)
+        with self.serve_units([starter]) as (url,):
+            yield url
 
     @contextlib.contextmanager
     def serve_units(self, starters: Sequence[SimulatedStarter]) -> Iterator[list[str]]:
-        from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
-
         units = {2 + 5 * i: starter for i, starter in enumerate(starters)}
         with ModbusTcpSimulator(units) as sim:  # the units behind one gateway: one connection serves them all
+            for unit, starter in units.items():
+                self.note_served(starter, sim, unit)
             yield [sim.url(unit, timeout=0.5) for unit in units]
 
     @staticmethod

@@ -21,10 +21,8 @@ class TestCanopen(TransportConformance):
 
     @contextlib.contextmanager
     def serve(self, starter: SimulatedStarter) -> Iterator[str]:
-        channel = f"conformance-co-{os.getpid()}-{next(_channels)}"
-        with CanopenSimulator(("virtual", channel), heartbeat_ms=0, event_timer=0.05) as sim:
-            sim.add_node(starter, 5)
-            yield f"canopen://virtual/{channel}?node=5&heartbeat=50"
+        with self.serve_units([starter]) as (url,):
+            yield url
 
     @contextlib.contextmanager
     def serve_units(self, starters: Sequence[SimulatedStarter]) -> Iterator[list[str]]:
