@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import enum
 import threading
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Protocol
 
 
@@ -61,7 +61,9 @@ class FaultControl(Protocol):
 class DeviceTap:
     """A :class:`FaultControl` a simulator's hook feeds (thread-safe: the simulator serves in its own thread)."""
 
-    def __init__(self, unsupported: Iterable[Fault] = ()) -> None:
+    def __init__(self, unsupported: Iterable[Fault] | Mapping[Fault, str] = ()) -> None:
+        """``unsupported``: the faults the simulator cannot produce, or a mapping of each to the reason."""
+        self.reasons = dict(unsupported) if isinstance(unsupported, Mapping) else {}
         self.unsupported = frozenset(unsupported)
         self._lock = threading.Lock()
         self._requests: list[str] = []
@@ -85,7 +87,8 @@ class DeviceTap:
 
     def set(self, fault: Fault | None, delay: float = 0.0) -> None:
         if fault in self.unsupported:
-            raise FaultNotSupported(f"the simulator cannot make the device {fault.value if fault else ''}")
+            generic = f"the simulator cannot make the device {fault.value if fault else None}"
+            raise FaultNotSupported(self.reasons.get(fault) or generic)
         with self._lock:
             self._fault = (fault, delay)
 

@@ -58,6 +58,9 @@ class KitBase:
     #: none; the tests that need them skip)
     url_timeout: str | None = None
     url_retries: str | None = None
+    #: a transport whose URL names no retries (``url_retries`` None) but never sends a request again: 0 (the tests
+    #: that ask for no retries then run without the parameter; those that ask for some skip)
+    fixed_retries: int | None = None
     #: seconds a slow answer takes in the slow-device test: longer than the transport's default timeout (a
     #: transport that ignores the URL's timeout fails), shorter than the timeout the kit then gives (twice this)
     slow_answer: float = 0.8
@@ -144,9 +147,13 @@ class KitBase:
                 pytest.skip(f"{type(self).__name__} names no URL timeout parameter (url_timeout)")
             params[self.url_timeout] = f"{timeout:g}"
         if retries is not None:
-            if self.url_retries is None:
-                pytest.skip(f"{type(self).__name__} names no URL retries parameter (url_retries)")
-            params[self.url_retries] = retries
+            if self.url_retries is not None:
+                params[self.url_retries] = retries
+            elif retries != self.fixed_retries:
+                pytest.skip(
+                    f"{type(self).__name__} names no URL retries parameter (url_retries)"
+                    + ("" if self.fixed_retries is None else f"; it always makes {self.fixed_retries} retries")
+                )
         return with_query(url, **params)
 
     def two_parameters(self, device: Device, starter: SimulatedStarter) -> tuple[PointDef, PointDef]:

@@ -188,6 +188,7 @@ class FaultChecks(KitBase):
         slow = self.url_with(url, timeout=2 * self.slow_answer, retries=0)
         with self.tap(starter) as tap, open_device(slow, profile) as device:
             p, q = self.two_parameters(device, starter)
+            assert raw_of(device, q) == starter.params[q.key]  # it answered in time before (a session is set up)
             self.set_fault(tap, Fault.SLOW, self.slow_answer)
             assert raw_of(device, p) == starter.params[p.key]
             tap.set(None)

@@ -10,6 +10,10 @@ output image; writes (FC06, FC16) go to the output image. So the output and inpu
 numbers (``out=0&in=0``, the usual "read = inputs, write = outputs" gateway layout) or be apart (then the
 client can read its outputs back). Anything outside the mapped areas answers exception 02.
 
+``unreachable`` (tests, the conformance kit): a callable given a station's index that says it has left data
+exchange; the gateway then answers every request touching that station's registers with exception 0x0B ("gateway
+target device failed to respond") and exchanges nothing with it, until the callable says otherwise.
+
 Programmatic use (in-process; :meth:`start` returns once the port is bound)::
 
     sim = ProfibusGatewaySimulator([starter], host="127.0.0.1", port=0, ppo=1).start()
@@ -22,7 +26,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from starterbus.core import ConfigurationError, RunningSimulator, SimulatedStarter, TransportError
@@ -82,6 +86,7 @@ class ProfibusGatewaySimulator(RunningSimulator):
                 self._is_output[out + k * words + i] = True
                 self._is_input[inp + k * words + i] = True
         self.cycles = 0
+        self.unreachable: Callable[[int], bool] | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
@@ -154,7 +159,10 @@ class ProfibusGatewaySimulator(RunningSimulator):
 
     def _exchange_all(self) -> None:
         words = self.ppo.words
+        unreachable = self.unreachable
         for k, slave in enumerate(self.slaves):
+            if unreachable is not None and unreachable(k):
+                continue
             o = self.out + k * words
             i = self.inp + k * words
             self._in_image[i : i + words] = slave.exchange(self._out_image[o : o + words])
@@ -184,6 +192,8 @@ class ProfibusGatewaySimulator(RunningSimulator):
 
         if address < 0 or address + count > self._size:
             return ExcCodes.ILLEGAL_ADDRESS
+        if self.unreachable is not None and any(map(self.unreachable, self._stations_at(address, count))):
+            return ExcCodes.GATEWAY_NO_RESPONSE
         if set_values is not None and function_code in (6, 16):
             if not all(self._is_output[address + i] for i in range(count)):
                 return ExcCodes.ILLEGAL_ADDRESS
@@ -201,6 +211,15 @@ class ProfibusGatewaySimulator(RunningSimulator):
             else:
                 return ExcCodes.ILLEGAL_ADDRESS
         return None
+
+    def _stations_at(self, address: int, count: int) -> set[int]:
+        """The indexes of the stations whose output or input registers ``address`` to ``address + count`` touch."""
+        words, stations = self.ppo.words, len(self.slaves)
+        touched: set[int] = set()
+        for start in (self.out, self.inp):
+            first, last = (address - start) // words, (address + count - 1 - start) // words
+            touched.update(range(max(first, 0), min(last, stations - 1) + 1))
+        return touched
 
     def _thread_main(self) -> None:
         loop = asyncio.new_event_loop()

@@ -11,12 +11,17 @@ input words. Behaviour (the rules the master's handshake relies on, see ``handsh
   ``latency`` delays every new PKW response by that many exchanges (a slow slave or gateway) so that masters
   can be tested against stale input.
 - Refusals of the simulated starter become the model's own response/error numbers (:data:`REFUSAL_ANSWERS`).
+- ``fault_hook`` (tests, the conformance kit): called with the output words whenever they change (a new telegram
+  reached the slave); the :class:`PkwFault` it returns applies to the PKW task that telegram carries, if it is a
+  new task (not "no task"): its response lost (the task is still carried out) or shown ``delay`` seconds late:
+  as the answer if the master still sends that task, else for a moment over the response in force.
 """
 
 from __future__ import annotations
 
+import time
 from collections import deque
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 from starterbus.core import ConfigurationError, DecodeError, Kind, Profile, Refusal, SimulatedStarter, SimulatorRefusal
@@ -34,6 +39,21 @@ class PkwAnswer:
     response: ResponseCode
     error: int = 0
 
+
+@dataclass(frozen=True, slots=True)
+class PkwFault:
+    """What a slave does wrong with one PKW task (the ``fault_hook``'s answer): ``answer`` False carries the task
+    out and never shows its response; ``delay`` shows it that many seconds late."""
+
+    answer: bool = True
+    delay: float = 0.0
+
+
+#: how long a late answer to a task the master no longer sends shows over the response in force (s): a few of a
+#: master's cycles
+LATE_SHOWN = 0.05
+
+FaultHook = Callable[[tuple[int, ...]], "PkwFault | None"]
 
 _R2 = PkwAnswer(ResponseCode.NO_WRITE_PERMISSION)
 # Module constants of the enum members read on every exchange: an Enum's class attribute goes through the enum
@@ -111,7 +131,13 @@ class SimulatedDpSlave:
     """A DP slave of one PPO type around a :class:`SimulatedStarter`. Thread-safe (uses the starter's lock)."""
 
     def __init__(
-        self, starter: SimulatedStarter, ppo: Ppo | int = Ppo.PPO1, *, latency: int = 0, name: str = ""
+        self,
+        starter: SimulatedStarter,
+        ppo: Ppo | int = Ppo.PPO1,
+        *,
+        latency: int = 0,
+        name: str = "",
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.starter = starter
         self.profile = starter.profile
@@ -130,7 +156,11 @@ class SimulatedDpSlave:
         self.outputs: tuple[int, ...] | None = None  # the last output words received
         self._request: PkwRequest | None = None
         self._shown: PkwResponse = NO_RESPONSE
-        self._pending: deque[tuple[int, PkwResponse]] = deque()
+        self._pending: deque[tuple[int, PkwResponse]] = deque()  # (the exchange it shows from, the response)
+        self._clock = clock
+        self._held: list[tuple[float, PkwRequest, PkwResponse]] = []  # a fault's late answers: (when, task, response)
+        self._flash: tuple[float, PkwResponse] | None = None  # a late answer over the response in force, until
+        self.fault_hook: FaultHook | None = None
         self.tasks_executed = 0
         currents = self.profile.phase_currents()
         self._phase_a = currents[0] if currents else None
@@ -152,10 +182,13 @@ class SimulatedDpSlave:
             else:
                 words = given  # type: ignore[assignment]  # no None in it
             self.exchanges += 1
+            fault = None
+            if self.fault_hook is not None and words != self.outputs:
+                fault = self.fault_hook(words)
             self.outputs = words
             ppo1 = self._ppo1
             if ppo1:
-                self._pkw(PkwRequest(words[0], words[1]))
+                self._pkw(PkwRequest(words[0], words[1]), fault)
             stw_index = 2 if ppo1 else 0
             if given[stw_index] is not None:
                 self.starter.write_control_word(words[stw_index], cyclic=True, source=self._control_source())
@@ -176,17 +209,39 @@ class SimulatedDpSlave:
             zsw = self.starter.status_word()
             act = max(0, min(0xFFFF, round(self.starter.current() * 10)))
             if self._ppo1:
-                return (self._shown.ind, self._shown.pwe, zsw, act)
+                shown = self._shown if self._flash is None else self._flash[1]
+                return (shown.ind, shown.pwe, zsw, act)
             return (zsw, act)
 
     # -- PKW ---------------------------------------------------------------------------------------------
 
-    def _pkw(self, request: PkwRequest) -> None:
+    def _pkw(self, request: PkwRequest, fault: PkwFault | None = None) -> None:
+        pending = self._pending
         if request != self._request:
             self._request = request
-            self._pending.append((self.exchanges + self.latency, self.execute(request)))
-        while self._pending and self._pending[0][0] <= self.exchanges:
-            self._shown = self._pending.popleft()[1]
+            self._flash = None
+            response = self.execute(request)
+            if fault is None or request.task == _NO_TASK:  # "no response" to "no task" is the handshake's, not a task's
+                pending.append((self.exchanges + self.latency, response))
+            elif fault.answer:
+                self._held.append((self._clock() + fault.delay, request, response))
+        while pending and pending[0][0] <= self.exchanges:
+            self._shown = pending.popleft()[1]
+        if self._held or self._flash is not None:
+            self._late(self._clock())
+
+    def _late(self, now: float) -> None:
+        """The responses a fault held back, when their time comes: the answer to the task the master still sends
+        (a slow slave), or one that shows :data:`LATE_SHOWN` seconds over the response in force (the master has
+        moved on: a late answer, as a gateway that buffers its image shows it)."""
+        if self._flash is not None and now >= self._flash[0]:
+            self._flash = None
+        for entry in [held for held in self._held if held[0] <= now]:
+            self._held.remove(entry)
+            if entry[1] == self._request:
+                self._shown = entry[2]
+            else:
+                self._flash = (now + LATE_SHOWN, entry[2])
 
     def execute(self, request: PkwRequest) -> PkwResponse:
         """Carry out one PKW task on the starter now and return the response (no latching)."""

@@ -7,7 +7,8 @@ URL forms (the part after ``+`` picks the channel)::
                                                 Modbus TCP gateway / PLC showing the DP words as registers
 
 Common parameters: ``ppo`` (1 or 3, default 1), ``cycle`` (s between DP exchanges; 0 = on demand, no thread),
-``timeout`` (PKW time limit, s), ``max_cycles`` (PKW cycle limit), ``hold`` (exchanges per command word),
+``timeout`` (PKW time limit, s), ``max_cycles`` (PKW cycle limit; default: as many DP cycles as ``timeout``
+lasts, at least 100), ``hold`` (exchanges per command word),
 ``pulse`` (minimum s per command word), ``station`` (the DP address, for messages; checked against the model),
 ``stale_cycles`` / ``stale_time`` (how many exchanges / seconds old an input may be; sim 0/0, gateway 1/0),
 ``inherited`` (how many tasks an earlier session may have left for the slave to answer; default 2).
@@ -18,6 +19,7 @@ are read).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from starterbus.core import ConfigurationError, DeviceUrl, Profile
@@ -41,6 +43,18 @@ _COMMON = (
 )
 _SIM = (*_COMMON, "latency")
 _GATEWAY = (*_COMMON, "out", "in", "unit", "in_fc")
+
+
+#: the PKW cycle limit when the URL gives none, at least: with a DP cycle, as many exchanges as ``timeout`` lasts
+MIN_MAX_CYCLES = 100
+
+
+def default_max_cycles(timeout: float, cycle: float) -> int:
+    """The cycle limit of a URL that gives ``timeout`` and no ``max_cycles``: enough exchanges for the whole time
+    limit at the DP cycle (a slow slave gets the time the URL gives it), and never fewer than 100."""
+    if cycle <= 0:  # exchanges back to back: the time limit alone is no count
+        return MIN_MAX_CYCLES
+    return max(MIN_MAX_CYCLES, math.ceil(timeout / cycle) + 2)  # + the clear and the task cycle
 
 
 @dataclass(frozen=True, slots=True)
@@ -92,9 +106,10 @@ class LinkSettings:
         cycle = url.get_float("cycle", 0.01, 0.0, 10.0)
         # How old an input may be (docs/profibus.md, "Stale answers"): the in-process slave's is always current;
         # a gateway's image may lag, and a faulty one may show an older image again.
+        timeout = url.get_float("timeout", 2.0, 0.001, 600.0)
         limits = Limits(
-            url.get_int("max_cycles", 100, 2, 1_000_000),
-            url.get_float("timeout", 2.0, 0.001, 600.0),
+            url.get_int("max_cycles", default_max_cycles(timeout, cycle), 2, 1_000_000),
+            timeout,
             url.get_int("stale_cycles", 1 if gateway else 0, 0, 10_000),
             url.get_float("stale_time", 0.0, 0.0, 60.0),
             verify_start=True,  # a task an earlier session left on the slave must not answer our first one

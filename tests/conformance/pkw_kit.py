@@ -1,0 +1,69 @@
+"""The conformance kit's hooks for Profibus PKW behind the simulated Modbus TCP gateway: the fault hook on the
+station's :attr:`SimulatedDpSlave.fault_hook` (every new output telegram, as the previews write it) and the
+gateway's :attr:`ProfibusGatewaySimulator.unreachable`.
+
+What a PKW device can do wrong: a task's response lost (silent) or shown late (slow, late), and the gateway's
+"target device failed to respond" (unreachable). A duplicated answer is not a fault here: a slave shows its
+response in every cycle until the next task. Busy is not either: neither manual has a PKW error number for it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Iterator
+
+from starterbus.core.simulator import SimulatedStarter
+from starterbus.testing.faults import DeviceTap, Fault
+from starterbus.transports.profibus_pkw.codec.telegram import hex_text
+from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
+from starterbus.transports.profibus_pkw.slave import PkwFault
+
+#: the DP cycle of the simulated gateway (s)
+CYCLE = 0.002
+REPEATED = "a slave shows its response in every cycle until the next task: every answer is repeated"
+NO_BUSY = "neither manual has a PKW error number for 'busy'"
+
+
+def pkw_fault(fault: Fault | None, delay: float) -> PkwFault | None:
+    if fault is Fault.SILENT:
+        return PkwFault(answer=False)
+    if fault in (Fault.SLOW, Fault.LATE):
+        return PkwFault(delay=delay)
+    return None  # unreachable: the gateway's; the others are not supported
+
+
+def telegram_text(words: tuple[int, ...]) -> str:
+    """An output telegram as the transport's previews write it."""
+    return hex_text(b"".join(word.to_bytes(2, "big") for word in words))
+
+
+class PkwHooks:
+    """The kit's hooks of a station behind the simulated gateway: ``serve()`` notes it (:meth:`note_served`)."""
+
+    url_timeout: str | None = "timeout"
+    fixed_retries: int | None = 0  # a task is never sent again: its time limit covers the whole job
+    slow_answer: float = 2.5  # longer than the default time limit of a job (2 s)
+    served: dict[int, tuple[ProfibusGatewaySimulator, int]] | None = None  # id(starter) -> (gateway, station index)
+
+    def note_served(self, starter: SimulatedStarter, sim: ProfibusGatewaySimulator, index: int) -> None:
+        if self.served is None:
+            self.served = {}  # per test: pytest makes an instance for each
+        self.served[id(starter)] = (sim, index)
+
+    @contextlib.contextmanager
+    def faults(self, starter: SimulatedStarter) -> Iterator[DeviceTap]:
+        assert self.served is not None, "faults(starter) of a starter serve() did not serve"
+        sim, index = self.served[id(starter)]
+        slave = sim.slaves[index]
+        tap = DeviceTap({Fault.DUPLICATE: REPEATED, Fault.BUSY: NO_BUSY})
+
+        def hook(words: tuple[int, ...]) -> PkwFault | None:
+            return pkw_fault(*tap.record(telegram_text(words)))
+
+        slave.fault_hook = hook
+        sim.unreachable = lambda k: k == index and tap.fault[0] is Fault.UNREACHABLE
+        try:
+            yield tap
+        finally:
+            slave.fault_hook = None
+            sim.unreachable = None
