@@ -25,7 +25,9 @@ class PlannedRequest:
     """One request of a device's poll plan, for display (``starterbus poll FLEET --plan``).
 
     ``wire_time``: seconds the request and its answer occupy the line (silences included) at the line's speed;
-    None where the transport cannot tell (a cyclic bus whose master refreshes inputs by itself).
+    None where the transport cannot tell (a cyclic bus whose master refreshes inputs by itself). ``frames``: how
+    many frames of it reach the device: 1 for a request and its answer; a cyclic protocol's task may take more
+    (PKW: a clear and a task telegram) and a value in every cycle's inputs none.
     """
 
     text: str
@@ -33,6 +35,7 @@ class PlannedRequest:
     request_bytes: int = 0
     answer_bytes: int = 0
     wire_time: float | None = None
+    frames: int = 1
 
     def as_json(self) -> dict[str, object]:
         return {
@@ -41,6 +44,7 @@ class PlannedRequest:
             "request_bytes": self.request_bytes,
             "answer_bytes": self.answer_bytes,
             "wire_time": self.wire_time,
+            "frames": self.frames,
         }
 
 

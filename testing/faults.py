@@ -98,6 +98,22 @@ def preview_text(frames: Sequence[str]) -> list[str]:
     return [" ".join(frame.split()).upper() for frame in frames]
 
 
+#: a byte of a preview that the transport does not write (a cyclic protocol's word left as it is in the device's
+#: output area): it matches whatever byte the device then sees
+UNWRITTEN = "--"
+
+
+def same_frames(sent: Sequence[str], preview: Sequence[str]) -> bool:
+    """``sent`` (as :func:`preview_text` gives it) is what ``preview`` says, a preview's ``--`` matching any byte."""
+    if len(sent) != len(preview):
+        return False
+    for frame, planned in zip(sent, preview, strict=True):
+        got, want = frame.split(), planned.split()
+        if len(got) != len(want) or any(w not in (g, UNWRITTEN) for g, w in zip(got, want, strict=True)):
+            return False
+    return True
+
+
 def with_query(url: str, **params: object) -> str:
     """``url`` with these query parameters set (replaced in place, or appended)."""
     base, _, query = url.partition("?")

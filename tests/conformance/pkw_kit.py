@@ -1,5 +1,6 @@
-"""The conformance kit's hooks for Profibus PKW behind the simulated Modbus TCP gateway: the fault hook on the
-station's :attr:`SimulatedDpSlave.fault_hook` (every new output telegram, as the previews write it) and the
+"""The conformance kit's hooks for Profibus PKW behind the simulated Modbus TCP gateway: the requests are what the
+master writes into the station's output area (:attr:`ProfibusGatewaySimulator.written`), as the previews show a
+telegram, each time it changes; the faults act through the station's :attr:`SimulatedDpSlave.fault_hook` and the
 gateway's :attr:`ProfibusGatewaySimulator.unreachable`.
 
 What a PKW device can do wrong: a task's response lost (silent) or shown late (slow, late), and the gateway's
@@ -56,14 +57,24 @@ class PkwHooks:
         sim, index = self.served[id(starter)]
         slave = sim.slaves[index]
         tap = DeviceTap({Fault.DUPLICATE: REPEATED, Fault.BUSY: NO_BUSY})
+        last: list[tuple[int, ...]] = []
+
+        def written(k: int, words: tuple[int, ...]) -> None:
+            """What the master writes, where it changes (the first write included: a telegram the image already
+            held is still the master's)."""
+            if k == index and (not last or words != last[-1]):
+                last[:] = [words]
+                tap.record(telegram_text(words))
 
         def hook(words: tuple[int, ...]) -> PkwFault | None:
-            return pkw_fault(*tap.record(telegram_text(words)))
+            return pkw_fault(*tap.fault)
 
         slave.fault_hook = hook
+        sim.written = written
         sim.unreachable = lambda k: k == index and tap.fault[0] is Fault.UNREACHABLE
         try:
             yield tap
         finally:
             slave.fault_hook = None
+            sim.written = None
             sim.unreachable = None

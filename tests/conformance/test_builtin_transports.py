@@ -7,9 +7,6 @@ import itertools
 import os
 from collections.abc import Iterator, Sequence
 
-import pytest
-
-from starterbus.core.device import Device
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.testing import TransportConformance
 from starterbus.tests.conformance.modbus_kit import ModbusHooks, ModbusRtuKit
@@ -31,15 +28,6 @@ class TestModbusRtuJjr8000(TestModbusRtu):
     merges_requests = False  # one register per FC03 (the manual's limit)
 
 
-#: what the fault hook found in the PKW transport and is not fixed yet (each a strict xfail: fixed, it fails)
-PLAN_IS_NOT_WHAT_IS_SENT = pytest.mark.xfail(
-    strict=True,
-    reason="a PKW poll's plan is the template's (one request for every point, one for the status), where the poll "
-    "sends a clear and a task telegram for each point (and the session's start chain first) and the status "
-    "comes in every cycle's inputs",
-)
-
-
 class TestProfibusPpo1(PkwHooks, TransportConformance):
     """PKW through the simulated gateway, with the faults of its station (``pkw_kit``)."""
 
@@ -53,25 +41,9 @@ class TestProfibusPpo1(PkwHooks, TransportConformance):
             self.note_served(starter, sim, 0)
             yield sim.client_urls()[1] + "&timeout=2"
 
-    @pytest.mark.xfail(
-        strict=True,
-        reason="a PKW write's preview omits the session's start chain (3 fence reads before the first task) and, "
-        "while the link is passive on PZD, shows the next command's control word where the output area keeps "
-        "the one in force",
-    )
-    def test_previews_are_what_is_sent_and_writes_go_once(self, device: Device, starter: SimulatedStarter) -> None:
-        super().test_previews_are_what_is_sent_and_writes_go_once(device, starter)
-
-    @PLAN_IS_NOT_WHAT_IS_SENT
-    def test_plan_and_counters_tell_what_a_poll_sends(self, device: Device, starter: SimulatedStarter) -> None:
-        super().test_plan_and_counters_tell_what_a_poll_sends(device, starter)
-
 
 class TestProfibusPpo3(TestProfibusPpo1):
     ppo = 3
-
-    def test_previews_are_what_is_sent_and_writes_go_once(self, device: Device, starter: SimulatedStarter) -> None:
-        super(TestProfibusPpo1, self).test_previews_are_what_is_sent_and_writes_go_once(device, starter)
 
 
 class TestDeviceNet(TransportConformance):

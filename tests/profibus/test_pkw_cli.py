@@ -90,7 +90,10 @@ def test_errors_and_unsupported_through_the_cli(
 def test_dry_run_prints_the_telegrams(jjr8000: Profile, capsys: pytest.CaptureFixture[str]) -> None:
     url = "profibus-pkw+gateway://192.0.2.1:502?ppo=1"  # never contacted
     out = run_json(capsys, "write", url, "p7=3.5", "--model", "jjr8000", "--dry-run")
-    assert out["would_send"][0]["frames"] == ["00 00 00 00 00 08 00 00", "02 07 01 5E 00 08 00 00"]  # type: ignore[index]
+    frames = out["would_send"][0]["frames"]  # type: ignore[index]
+    # a new session: its start chain (reads of p8, p9, p10), then the write; the control word in force left alone
+    assert frames[-2:] == ["00 00 00 00 -- -- -- --", "02 07 01 5E -- -- -- --"]
+    assert frames[:6] == [f"{t} -- -- -- --" for i in (8, 9, 10) for t in ("00 00 00 00", f"01 {i:02X} 00 00")]
     out = run_json(capsys, "reset", url, "--model", "jjr8000", "--dry-run")
     assert out["would_send"][0]["frames"] == ["00 00 00 00 00 0C 00 00", "00 00 00 00 00 08 00 00"]  # type: ignore[index]
 

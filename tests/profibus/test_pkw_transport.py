@@ -266,11 +266,29 @@ def test_jjr5000_status_has_the_mains_bit_and_its_fault_table(jjr5000: Profile, 
 def test_previews_are_the_exact_output_telegrams(jjr8000: Profile) -> None:
     dev = open_device("profibus-pkw+sim://?ppo=1", jjr8000)
     t = dev.transport
-    assert t.preview_write(jjr8000.point("p7"), 350) == ["00 00 00 00 00 08 00 00", "02 07 01 5E 00 08 00 00"]
+    # not open: a new session's write, its start chain first (fence reads of p8, p9, p10), the control word in force
+    # left as it is (a session adopts it)
+    chain = [f"{text} -- -- -- --" for indl in (8, 9, 10) for text in ("00 00 00 00", f"01 {indl:02X} 00 00")]
+    write = ["00 00 00 00 -- -- -- --", "02 07 01 5E -- -- -- --"]
+    assert t.preview_write(jjr8000.point("p7"), 350) == chain + write
     assert t.preview_command(Command.START) == ["00 00 00 00 00 09 00 00"]
     assert t.preview_command(Command.FAULT_RESET) == ["00 00 00 00 00 0C 00 00", "00 00 00 00 00 08 00 00"]
     p3 = open_device("profibus-pkw+sim://?ppo=3", jjr8000).transport
     assert p3.preview_command(Command.SOFT_STOP) == ["00 08 00 00"]
+
+
+def test_an_open_links_preview_is_what_its_session_sends_next(jjr8000: Profile) -> None:
+    """Open, the preview follows the session: the start chain until it is done, then the clear and the task, with
+    the control word the link writes (none while it is passive on PZD: ``-- --``, the word in force kept)."""
+    with open_device("profibus-pkw+sim://?ppo=1", jjr8000) as dev:
+        t = dev.transport
+        assert len(t.preview_write(jjr8000.point("p7"), 350)) == 8
+        assert [p.frames for p in t.plan([jjr8000.point("p3")], True)] == [0, 2, 2, 2, 2]
+        dev.read("p3")
+        assert t.preview_write(jjr8000.point("p7"), 350) == ["00 00 00 00 -- -- -- --", "02 07 01 5E -- -- -- --"]
+        dev.send_command(Command.START)  # a command: the link writes its control word from then on
+        assert t.preview_write(jjr8000.point("p7"), 350)[-1] == "02 07 01 5E 00 09 00 00"
+        assert [p.frames for p in t.plan([jjr8000.point("p3")], True)] == [0, 2]
 
 
 class MisEcho(Channel):

@@ -13,6 +13,7 @@ client can read its outputs back). Anything outside the mapped areas answers exc
 ``unreachable`` (tests, the conformance kit): a callable given a station's index that says it has left data
 exchange; the gateway then answers every request touching that station's registers with exception 0x0B ("gateway
 target device failed to respond") and exchanges nothing with it, until the callable says otherwise.
+``written`` (tests): called with a station's index and its output words after each Modbus write into them.
 
 Programmatic use (in-process; :meth:`start` returns once the port is bound)::
 
@@ -87,6 +88,7 @@ class ProfibusGatewaySimulator(RunningSimulator):
                 self._is_input[inp + k * words + i] = True
         self.cycles = 0
         self.unreachable: Callable[[int], bool] | None = None
+        self.written: Callable[[int, tuple[int, ...]], None] | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
@@ -199,6 +201,9 @@ class ProfibusGatewaySimulator(RunningSimulator):
                 return ExcCodes.ILLEGAL_ADDRESS
             for i, value in enumerate(set_values):
                 self._out_image[address + i] = int(value) & 0xFFFF
+            if self.written is not None:
+                for k in sorted(self._stations_at(address, count)):
+                    self.written(k, self.output_words(k))
             return None
         if function_code not in (3, 4):
             return ExcCodes.ILLEGAL_FUNCTION

@@ -17,6 +17,7 @@ from starterbus.core import (
     DecodeError,
     DeviceUrl,
     Kind,
+    PlannedRequest,
     PointDef,
     PollResult,
     PollTask,
@@ -204,17 +205,44 @@ class ProfibusPkwTransport(Transport):
         bound = (limits.timeout + 1.0 + 4 * max(self.settings.cycle, 0.001)) * max(1, len(requests))
         return StationPoll(link, requests, finish, bound)
 
+    def plan(self, points: Sequence[PointDef], status: bool) -> list[PlannedRequest]:
+        """What :meth:`poll` sends: the status comes in every cycle's inputs (no telegram of its own); each point is
+        a PKW task, a clear and a task telegram. On an open link, the fence reads its handshake sends first (the
+        session's start chain, once); not open (``poll --plan``), every round's."""
+        planned = [PlannedRequest("read status (in every DP cycle's inputs)", 1, frames=0)] if status else []
+        if not points:
+            return planned
+        fences = [] if self.link is None else self.link.fences_before(self.request_for(points[0]))
+        planned += [PlannedRequest(f"fence read INDL {fence.indl:#04x}", 1, frames=2) for fence in fences]
+        planned += [PlannedRequest(f"read {point.key} ({point.address})", 1, frames=2) for point in points]
+        return planned
+
+    def _fences_before(self, request: PkwRequest) -> list[PkwRequest]:
+        """The fence reads before ``request``: the open link's engine's, else a new session's (its start chain)."""
+        if self.link is not None:
+            return self.link.fences_before(request)
+        return PkwEngine(self._errors, self.settings.limits).fences_before(request)
+
     # -- previews (--dry-run) -----------------------------------------------------------------------------
 
-    def _telegram_hex(self, pkw: PkwRequest, stw: int) -> str:
-        words = output_words(self.ppo, pkw, stw)
-        return hex_text(b"".join(w.to_bytes(2, "big") for w in words))
+    def _telegram_hex(self, pkw: PkwRequest, stw: int | None) -> str:
+        """An output telegram as text; ``stw`` None: the link is passive on PZD, so the PZD words are not written
+        and stay as they are in the output area (``-- --`` each)."""
+        words = output_words(self.ppo, pkw, 0 if stw is None else stw)
+        written = words if stw is not None else words[:2] if self.ppo is Ppo.PPO1 else ()
+        text = [hex_text(b"".join(w.to_bytes(2, "big") for w in written))] if written else []
+        return " ".join(text + ["-- --"] * (len(words) - len(written)))
 
     def _preview_write(self, point: PointDef, raw: int) -> list[str]:
-        """The output telegrams of a write: the clear cycle ("no task"), then the task repeated until answered."""
+        """The output telegrams of a write: the fence reads the handshake sends first (the session's start chain,
+        or one while the INDL is quarantined), each after a clear cycle ("no task"), then the clear cycle and the
+        task repeated until answered. The control word is the one the link puts in the output area, or ``-- --``
+        while it is passive (the area keeps the word in force)."""
         request = self.request_for(point, raw)
-        stw = self.control.word
-        return [self._telegram_hex(NO_TASK, stw), self._telegram_hex(request, stw)]
+        stw = None if self.link is None else self.link.control  # not open: a new session adopts the word in force
+        clear = self._telegram_hex(NO_TASK, stw)
+        fences = self._fences_before(request)
+        return [text for task in (*fences, request) for text in (clear, self._telegram_hex(task, stw))]
 
     def _preview_command(self, command: Command) -> list[str]:
         """The output telegrams of a command, one per control word (each held for ``hold`` exchanges)."""

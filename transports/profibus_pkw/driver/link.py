@@ -203,6 +203,13 @@ class CyclicLink:
         """The input words of the last exchange (or of the snapshot taken on open)."""
         return self.station.last_in
 
+    def fences_before(self, request: PkwRequest) -> list[PkwRequest]:
+        """The fence reads the engine would send before ``request`` (:meth:`PkwEngine.fences_before`, asked in the
+        loop): for a preview."""
+        if not self._has_pkw or not self._added:
+            return []
+        return self._in_loop(lambda now: self.station.pkw.fences_before(request), "preview")
+
     def motor_running(self) -> bool:
         """From the last status word: starting or running, and no fault."""
         words = self.last_inputs

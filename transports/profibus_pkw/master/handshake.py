@@ -103,6 +103,25 @@ class PkwEngine:
         self._queue.append(job)
         return job
 
+    def fences_before(self, request: PkwRequest) -> list[PkwRequest]:
+        """The fence reads this engine sends before ``request`` if it were next and every fence were answered at
+        once (what a preview shows; nothing changes): the rest of the session's start chain, or one fence while
+        the task's INDL is quarantined."""
+        book, indl = self._book, request.indl
+        if book.unknown:
+            used, fences = set(book.records), []
+            for _ in range(book.inherited + 1 - book.chain):
+                fence = next(((indl + step) & 0xFF for step in range(1, 256) if (indl + step) & 0xFF not in used), None)
+                if fence is None:
+                    break
+                used.add(fence)
+                fences.append(pkw_request(TaskCode.READ_PARAMETER, fence))
+            return fences
+        if book.orphan(indl) is None:
+            return []
+        fence = book.fence_indl(indl)
+        return [] if fence is None else [pkw_request(TaskCode.READ_PARAMETER, fence)]
+
     @property
     def busy(self) -> bool:
         return self._current is not None or bool(self._queue)
