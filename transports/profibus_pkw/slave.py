@@ -14,7 +14,8 @@ input words. Behaviour (the rules the master's handshake relies on, see ``handsh
 - ``fault_hook`` (tests, the conformance kit): called with the output words whenever they change (a new telegram
   reached the slave); the :class:`PkwFault` it returns applies to the PKW task that telegram carries, if it is a
   new task (not "no task"): its response lost (the task is still carried out) or shown ``delay`` seconds late:
-  as the answer if the master still sends that task, else for a moment over the response in force.
+  as the answer if the master still sends that task, else for a moment over the answer to the next task the
+  master sends (on another INDL).
 """
 
 from __future__ import annotations
@@ -49,8 +50,8 @@ class PkwFault:
     delay: float = 0.0
 
 
-#: how long a late answer to a task the master no longer sends shows over the response in force (s): a few of a
-#: master's cycles
+#: how long a late answer to a task the master no longer sends shows over the answer to its next task (s): a few
+#: of a master's cycles
 LATE_SHOWN = 0.05
 
 FaultHook = Callable[[tuple[int, ...]], "PkwFault | None"]
@@ -159,6 +160,7 @@ class SimulatedDpSlave:
         self._pending: deque[tuple[int, PkwResponse]] = deque()  # (the exchange it shows from, the response)
         self._clock = clock
         self._held: list[tuple[float, PkwRequest, PkwResponse]] = []  # a fault's late answers: (when, task, response)
+        self._overdue: list[PkwResponse] = []  # late answers due, shown when the master sends its next task
         self._flash: tuple[float, PkwResponse] | None = None  # a late answer over the response in force, until
         self.fault_hook: FaultHook | None = None
         self.tasks_executed = 0
@@ -225,6 +227,8 @@ class SimulatedDpSlave:
                 pending.append((self.exchanges + self.latency, response))
             elif fault.answer:
                 self._held.append((self._clock() + fault.delay, request, response))
+            if self._overdue and request.task != _NO_TASK:
+                self._show_overdue(request)
         while pending and pending[0][0] <= self.exchanges:
             self._shown = pending.popleft()[1]
         if self._held or self._flash is not None:
@@ -232,8 +236,7 @@ class SimulatedDpSlave:
 
     def _late(self, now: float) -> None:
         """The responses a fault held back, when their time comes: the answer to the task the master still sends
-        (a slow slave), or one that shows :data:`LATE_SHOWN` seconds over the response in force (the master has
-        moved on: a late answer, as a gateway that buffers its image shows it)."""
+        (a slow slave); else an overdue answer, shown when the master sends its next task."""
         if self._flash is not None and now >= self._flash[0]:
             self._flash = None
         for entry in [held for held in self._held if held[0] <= now]:
@@ -241,7 +244,17 @@ class SimulatedDpSlave:
             if entry[1] == self._request:
                 self._shown = entry[2]
             else:
-                self._flash = (now + LATE_SHOWN, entry[2])
+                self._overdue.append(entry[2])
+
+    def _show_overdue(self, request: PkwRequest) -> None:
+        """A late answer shows for :data:`LATE_SHOWN` seconds over the answer to ``request``, the task the master
+        sends now: the moment a late answer can be taken for another task's. Not on the late answer's own INDL:
+        a slave answers its tasks in order, so an earlier task's answer never follows a later one's there."""
+        for late in self._overdue:
+            if late.ind & 0xFF != request.indl:
+                self._overdue.remove(late)
+                self._flash = (self._clock() + LATE_SHOWN, late)
+                return
 
     def execute(self, request: PkwRequest) -> PkwResponse:
         """Carry out one PKW task on the starter now and return the response (no latching)."""
