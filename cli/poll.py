@@ -245,7 +245,7 @@ def print_plan(plans: list[BusPlan], out: TextIO) -> None:
         out.write(f"bus {bus.name}  {bus.url}\n")
         rows: list[list[object]] = []
         for device in bus.devices:
-            rows.append([device.name, device.model, len(device.requests), device.registers, _ms(device.wire_time), ""])
+            rows.append([device.name, device.model, device.sent, device.registers, _ms(device.wire_time), ""])
             rows += [["", "", "", r.registers, _ms(r.wire_time), r.text] for r in device.requests]
         table(["device", "model", "requests", "registers", "wire ms", "request"], rows, out)
         if bus.wire_time is None or bus.load is None:

@@ -36,6 +36,11 @@ class DevicePlan:
         return sum(r.registers for r in self.requests)
 
     @property
+    def sent(self) -> int:
+        """The requests that send something (a value in every cycle's inputs sends nothing of its own)."""
+        return sum(1 for r in self.requests if r.frames)
+
+    @property
     def wire_time(self) -> float | None:
         times = [r.wire_time for r in self.requests]
         return None if any(t is None for t in times) else sum(t for t in times if t is not None)

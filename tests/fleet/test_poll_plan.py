@@ -155,3 +155,21 @@ def test_probe_settings_out_of_range_are_one_line_errors(
     err = capsys.readouterr().err
     assert err.startswith("starterbus: error: probe share 0.0 must be in (0, 1]") and err.count("\n") == 1
     assert counting_line.counters.requests == 0
+
+
+def test_a_pkw_devices_plan_sends_a_task_for_each_point_and_nothing_for_the_status(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The status of a cyclic protocol comes in every cycle's inputs: not a request of its own (``frames`` 0)."""
+    fleet = tmp_path / "fleet.toml"
+    fleet.write_text(
+        '[[bus]]\nname = "dp"\nurl = "profibus-pkw+gateway://192.0.2.1:502?ppo=1"\n'  # never contacted
+        '[[bus.device]]\nname = "mill"\nmodel = "jjr8000"\nmeasurements = ["phase_a_current", "phase_b_current"]\n'
+    )
+    assert main(["poll", str(fleet), "--plan", "--json"]) == 0
+    (bus,) = json.loads(capsys.readouterr().out)["buses"]
+    (device,) = bus["devices"]
+    assert [r["frames"] for r in device["requests"]] == [0, 2, 2]
+    assert main(["poll", str(fleet), "--plan"]) == 0
+    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("mill"))
+    assert row.split()[:4] == ["mill", "jjr8000", "2", "3"], row
