@@ -13,6 +13,7 @@ from starterbus.core.profile import Profile
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.testing import TransportConformance
 from starterbus.testing.faults import DeviceTap, Fault
+from starterbus.tests.conformance.served import Served
 from starterbus.transports.modbus.codec.frames import AnyRequest
 from starterbus.transports.modbus.settings import modbus_settings
 from starterbus.transports.modbus.simulator.rtu import ModbusRtuSimulator, SlaveFault
@@ -37,21 +38,13 @@ def slave_fault(fault: Fault | None, delay: float) -> SlaveFault | None:
     }[fault]
 
 
-class ModbusHooks:
+class ModbusHooks(Served[ModbusRtuSimulator | ModbusTcpSimulator]):
     """The kit's hooks every Modbus simulator offers, RTU or TCP: the fault hook of the simulator that ``serve()``
     noted for each starter (:meth:`note_served`), and the slave's refusal codes."""
 
-    served: dict[int, tuple[ModbusRtuSimulator | ModbusTcpSimulator, int]] | None = None  # id(starter) -> (sim, unit)
-
-    def note_served(self, starter: SimulatedStarter, sim: ModbusRtuSimulator | ModbusTcpSimulator, unit: int) -> None:
-        if self.served is None:
-            self.served = {}  # per test: pytest makes an instance for each
-        self.served[id(starter)] = (sim, unit)
-
     @contextlib.contextmanager
     def faults(self, starter: SimulatedStarter) -> Iterator[DeviceTap]:
-        assert self.served is not None, "faults(starter) of a starter serve() did not serve"
-        sim, unit = self.served[id(starter)]
+        sim, unit = self.served_by(starter)
         tap = DeviceTap()
 
         def hook(request: AnyRequest) -> SlaveFault | None:

@@ -15,6 +15,7 @@ from collections.abc import Iterator
 
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.testing.faults import DeviceTap, Fault
+from starterbus.tests.conformance.served import Served
 from starterbus.transports.profibus_pkw.codec.telegram import hex_text
 from starterbus.transports.profibus_pkw.simulator import ProfibusGatewaySimulator
 from starterbus.transports.profibus_pkw.slave import PkwFault
@@ -38,23 +39,16 @@ def telegram_text(words: tuple[int, ...]) -> str:
     return hex_text(b"".join(word.to_bytes(2, "big") for word in words))
 
 
-class PkwHooks:
+class PkwHooks(Served[ProfibusGatewaySimulator]):
     """The kit's hooks of a station behind the simulated gateway: ``serve()`` notes it (:meth:`note_served`)."""
 
     url_timeout: str | None = "timeout"
     fixed_retries: int | None = 0  # a task is never sent again: its time limit covers the whole job
     slow_answer: float = 2.5  # longer than the default time limit of a job (2 s)
-    served: dict[int, tuple[ProfibusGatewaySimulator, int]] | None = None  # id(starter) -> (gateway, station index)
-
-    def note_served(self, starter: SimulatedStarter, sim: ProfibusGatewaySimulator, index: int) -> None:
-        if self.served is None:
-            self.served = {}  # per test: pytest makes an instance for each
-        self.served[id(starter)] = (sim, index)
 
     @contextlib.contextmanager
     def faults(self, starter: SimulatedStarter) -> Iterator[DeviceTap]:
-        assert self.served is not None, "faults(starter) of a starter serve() did not serve"
-        sim, index = self.served[id(starter)]
+        sim, index = self.served_by(starter)
         slave = sim.slaves[index]
         tap = DeviceTap({Fault.DUPLICATE: REPEATED, Fault.BUSY: NO_BUSY})
         last: list[tuple[int, ...]] = []

@@ -9,8 +9,10 @@ from collections.abc import Iterator, Sequence
 
 from starterbus.core.simulator import SimulatedStarter
 from starterbus.testing import TransportConformance
+from starterbus.tests.conformance.devicenet_kit import QUIET_EPR_MS, DeviceNetHooks
 from starterbus.tests.conformance.modbus_kit import ModbusHooks, ModbusRtuKit
 from starterbus.tests.conformance.pkw_kit import CYCLE, PkwHooks
+from starterbus.transports.devicenet.simulator import DeviceNetSimulator
 from starterbus.transports.modbus.codec.messages import AnyRequest
 from starterbus.transports.modbus.simulator.tcp import ModbusTcpSimulator
 from starterbus.transports.modbus.transport.tcp import adu_text
@@ -46,7 +48,9 @@ class TestProfibusPpo3(TestProfibusPpo1):
     ppo = 3
 
 
-class TestDeviceNet(TransportConformance):
+class TestDeviceNet(DeviceNetHooks, TransportConformance):
+    """DeviceNet on a virtual CAN bus, with the frames each node gets (``devicenet_kit``)."""
+
     transport = "devicenet"
     model = "jjr8000"
 
@@ -57,13 +61,12 @@ class TestDeviceNet(TransportConformance):
 
     @contextlib.contextmanager
     def serve_units(self, starters: Sequence[SimulatedStarter]) -> Iterator[list[str]]:
-        from starterbus.transports.devicenet.simulator import DeviceNetSimulator
-
         channel = f"conformance-{os.getpid()}-{next(_channels)}"
         macs = [5 + 5 * i for i in range(len(starters))]
         with DeviceNetSimulator(("virtual", channel), dup_mac_wait=0.05) as sim:  # the nodes on one bus
             for starter, mac in zip(starters, macs, strict=True):
-                sim.add_node(starter, mac)
+                sim.add_node(starter, mac, explicit_epr_ms=QUIET_EPR_MS)
+                self.note_served(starter, sim, mac)
             yield [
                 f"devicenet://virtual/{channel}?mac={mac}&assemblies=extended&dup_mac_wait=0.05&timeout=1"
                 for mac in macs

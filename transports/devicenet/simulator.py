@@ -100,6 +100,8 @@ class DeviceNetSimulator(RunningSimulator):
         self._thread: threading.Thread | None = None
         self._outbox: list[CanFrame] = []
         self.errors: list[str] = []
+        #: tests (the conformance kit): called with a node's MAC id, the CAN id and the data of each frame it gets
+        self.received: Callable[[int, int, bytes], None] | None = None
 
     # -- nodes ----------------------------------------------------------------------------------------------------
 
@@ -246,6 +248,8 @@ class DeviceNetSimulator(RunningSimulator):
             data = bytes(message.data)
             with self.lock:
                 for node, handler, response_id in targets:
+                    if self.received is not None:
+                        self.received(node.mac, message.arbitration_id, data)
                     try:
                         if response_id is not None:  # poll command: the hot path
                             response = node.poll(data, now)

@@ -4,6 +4,9 @@ on them is in :mod:`~starterbus.transports.devicenet.master.sequence`."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import replace
+
 from starterbus.core import CanFrame, TimeoutError, TransportError
 from starterbus.transports.devicenet.codec.cip import DeviceNetDecodeError, ObjectClass, Service
 from starterbus.transports.devicenet.codec.connection import (
@@ -60,6 +63,20 @@ class ExplicitMessaging:
         link.transactions.append(transaction)
         if len(link.transactions) == 1:
             self._start_transaction(link, transaction, now)
+
+    def preview_frames(
+        self, link: MasterLink, requests: Sequence[tuple[bool, ExplicitRequest]], queued: int = 0
+    ) -> list[CanFrame]:
+        """The frames of these requests (unconnected?, request) if they were queued on ``link`` after ``queued``
+        others, each with the next transaction id, all fragments listed; nothing is queued (what a preview
+        shows)."""
+        frames, xid = [], link.xid ^ (queued & 1)
+        for unconnected, request in requests:
+            xid ^= 1
+            message = replace(request, mac=self.config.master_mac, xid=xid).encode()
+            can_id = unconnected_request_id(link.mac) if unconnected else explicit_request_id(link.mac)
+            frames += [CanFrame(can_id, data) for data in frames_for(message)]
+        return frames
 
     def _start_transaction(self, link: MasterLink, transaction: Transaction, now: float) -> None:
         transaction.started = True

@@ -38,6 +38,9 @@ from starterbus.transports.devicenet.codec.explicit import ExplicitRequest
 from starterbus.transports.devicenet.master.connection import ExplicitMessaging
 from starterbus.transports.devicenet.master.link import IoPhase, LinkState, MasterLink, Transaction
 
+#: the polled connection's attributes read before its assembly set is chosen (produced, consumed size)
+SIZES = (ConnectionAttribute.PRODUCED_CONNECTION_SIZE, ConnectionAttribute.CONSUMED_CONNECTION_SIZE)
+
 
 class ConnectionSequence(ExplicitMessaging):
     """The connection sequence of every link, monitoring and control; :class:`MasterNode` builds on it."""
@@ -172,11 +175,28 @@ class ConnectionSequence(ExplicitMessaging):
 
             return done
 
-        for attribute in (ConnectionAttribute.PRODUCED_CONNECTION_SIZE, ConnectionAttribute.CONSUMED_CONNECTION_SIZE):
-            request = self._request(
-                Service.GET_ATTRIBUTE_SINGLE, ObjectClass.CONNECTION, ConnectionInstance.POLLED, attribute
-            )
-            self.enqueue(link, Transaction(request, False, got_size(attribute)), now)
+        for attribute in SIZES:
+            self.enqueue(link, Transaction(self._size_request(attribute), False, got_size(attribute)), now)
+
+    def _size_request(self, attribute: int) -> ExplicitRequest:
+        return self._request(Service.GET_ATTRIBUTE_SINGLE, ObjectClass.CONNECTION, ConnectionInstance.POLLED, attribute)
+
+    def _epr_request(self, link: MasterLink) -> ExplicitRequest:
+        return self._request(
+            Service.SET_ATTRIBUTE_SINGLE,
+            ObjectClass.CONNECTION,
+            ConnectionInstance.POLLED,
+            ConnectionAttribute.EXPECTED_PACKET_RATE,
+            struct.pack("<H", link.config.epr_ms),
+        )
+
+    def control_requests(self, link: MasterLink, *, release: bool = False) -> list[tuple[bool, ExplicitRequest]]:
+        """The explicit requests (unconnected?, request) of :meth:`take_control` on a monitored slave, or with
+        ``release`` of :meth:`release_control`, on the usual path: what a preview shows."""
+        if release:
+            return [(False, self._release_request(int(AllocationChoice.POLLED)))]
+        allocate = (True, self._allocate_request(int(AllocationChoice.POLLED)))
+        return [allocate, *((False, self._size_request(a)) for a in SIZES), (False, self._epr_request(link))]
 
     def _choose_assemblies(self, link: MasterLink, produced: int, consumed: int, now: float) -> None:
         found = AssemblySet.for_sizes(produced, consumed)
@@ -192,13 +212,7 @@ class ConnectionSequence(ExplicitMessaging):
             return
         link.assemblies = found
         link.built_seq = -1
-        request = self._request(
-            Service.SET_ATTRIBUTE_SINGLE,
-            ObjectClass.CONNECTION,
-            ConnectionInstance.POLLED,
-            ConnectionAttribute.EXPECTED_PACKET_RATE,
-            struct.pack("<H", link.config.epr_ms),
-        )
+        request = self._epr_request(link)
 
         def done(t: Transaction, at: float) -> None:
             if t.error is not None or t.response is None:

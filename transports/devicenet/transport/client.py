@@ -42,6 +42,7 @@ from starterbus.core import (
     Capability,
     Command,
     ControlWordState,
+    PlannedRequest,
     PointDef,
     PollResult,
     PollTask,
@@ -62,6 +63,7 @@ from starterbus.transports.devicenet.codec.identity import ATTRIBUTE_NAMES, deco
 from starterbus.transports.devicenet.codec.ids import poll_command_id
 from starterbus.transports.devicenet.driver.poll import DeviceNetPoll, Steps
 from starterbus.transports.devicenet.driver.scanner import Scanner, SlaveLink
+from starterbus.transports.devicenet.master.sequence import input_request
 from starterbus.transports.devicenet.transport.link import SCANNERS, ControlConflictError, LinkTransport
 from starterbus.transports.devicenet.url import NAME
 
@@ -107,7 +109,7 @@ class DeviceNetTransport(LinkTransport):
         for index, word in enumerate(words):
             taking = not link.polling
             if taking and command is Command.FAULT_RESET:  # its run = 0 would stop a motor run from elsewhere
-                self._take_control(scanner, link, "a fault reset")
+                self._refuse_conflict(scanner, link, "a fault reset")
             # set before the polled connection exists, the outputs go out with its very first poll
             seq = scanner.set_outputs(link, run=bool(word & CW_START), reset=bool(word & CW_RESET))
             if taking and not link.polling:
@@ -128,17 +130,35 @@ class DeviceNetTransport(LinkTransport):
             scanner.release_control(link)  # nothing of ours runs: give control back, monitor again
 
     def _preview_command(self, command: Command) -> list[str]:
+        """The frames of a command: the poll commands carrying its words; on a monitored slave (an open link
+        without the polled I/O connection) first the explicit requests that allocate it (a fault reset reads the
+        input assembly before: no control is taken while a motor runs under another), and with ``control=command``
+        the release once the last word leaves the run bit clear. A device not opened: the poll commands only."""
         link = self.link
         run = link.run if link is not None else False
         assemblies = (link.assemblies if link is not None else None) or (
             AssemblySet.BASIC if self.link_config.assemblies == "basic" else AssemblySet.EXTENDED
         )
         select = link.select if link is not None else 0x01
-        frames = []
-        for word in self._words(command, run):
+        words = self._words(command, run)
+        polls = []
+        for word in words:
             output: OutputAssembly = output_for_word(word, assemblies.output_instance, select)
-            frames.append(f"{poll_command_id(self.link_config.mac):03X}#{output.encode().hex().upper()}")
-        return frames
+            polls.append(f"{poll_command_id(self.link_config.mac):03X}#{output.encode().hex().upper()}")
+        if link is None or not link.established:
+            return polls
+        machine = self._require()[0].machine
+        taking = not link.polling
+        before = (
+            [(False, input_request(machine, link, assemblies))] if taking and command is Command.FAULT_RESET else []
+        )
+        if taking:
+            before += machine.control_requests(link)
+        releasing = self.control == "command" and not words[-1] & CW_START
+        after = machine.control_requests(link, release=True) if releasing else []
+        first = [frame.text() for frame in machine.preview_frames(link, before)]
+        last = [frame.text() for frame in machine.preview_frames(link, after, queued=len(before))]
+        return first + polls + last
 
     def _why_not(self, capability: Capability) -> str:
         if capability in (Capability.READ_PARAMETERS, Capability.WRITE_PARAMETERS):
@@ -182,6 +202,34 @@ class DeviceNetTransport(LinkTransport):
             raise self.unsupported(f"read {point.key}", "it has no DeviceNet status parameter address")
         with self._select_lock:
             return scanner.drive(self._status_parameter_steps(scanner, link, point, address))
+
+    # -- polls ---------------------------------------------------------------------------------------------------
+
+    def _monitors(self, points: Sequence[PointDef]) -> bool:
+        """A poll of these points is one explicit read of the input assembly: this master monitors (no polled
+        connection, ``control=command``) and they are at most the L1 current."""
+        link = self.link
+        phases = self.profile.phase_currents()
+        l1 = phases[0].key if phases else None
+        monitoring = self.control == "command" and (link is None or not link.polling)
+        return monitoring and all(point.key == l1 for point in points)
+
+    def _poll(self, points: Sequence[PointDef], status: bool) -> PollResult:
+        """Monitoring, the status and the L1 current from one explicit read, as the poll task does."""
+        if self._monitors(points) and (status or points):
+            scanner, link = self._require()
+            result: PollResult = scanner.drive(self._poll_steps(scanner, link, points, status, {}))
+            return result
+        return super()._poll(points, status)
+
+    def plan(self, points: Sequence[PointDef], status: bool) -> list[PlannedRequest]:
+        """Monitoring: one explicit read of the input assembly (the status and the L1 current)."""
+        if not self._monitors(points):
+            return super().plan(points, status)
+        what = (["status"] if status else []) + [point.key for point in points]
+        if not what:
+            return []
+        return [PlannedRequest(f"read the input assembly (explicit messaging): {', '.join(what)}", len(what))]
 
     # -- the fleet's poll without blocking ------------------------------------------------------------------------
 

@@ -224,10 +224,15 @@ class LinkTransport(Transport):
         """Allocate the polled I/O connection. With ``refuse_running``, refused while the motor runs on a command
         this master did not give (the first poll would carry run = 0: a stop nobody asked for)."""
         if refuse_running:
-            conflict = self._conflict(self._explicit_inputs(scanner, link), link, why)
-            if conflict is not None:
-                raise conflict
+            self._refuse_conflict(scanner, link, why)
         scanner.take_control(link, 4 * self.timeout)
+
+    def _refuse_conflict(self, scanner: Scanner, link: SlaveLink, why: str) -> None:
+        """Raise the :class:`ControlConflictError` if the motor runs on a command this master did not give (read
+        over explicit messaging: nothing is sent to the outputs)."""
+        conflict = self._conflict(self._explicit_inputs(scanner, link), link, why)
+        if conflict is not None:
+            raise conflict
 
     def _basic_refusal(self, point: PointDef) -> UnsupportedOperationError:
         return self.unsupported(
