@@ -79,6 +79,7 @@ def test_a_fault_during_poll_record_is_an_event_with_its_text(
     proc = spawn(["-m", "starterbus.cli.main", "poll", str(fleet), "--record", str(db), "--keep", "7d"])
     try:
         assert wait_until(lambda: count(db, "SELECT COUNT(DISTINCT device) FROM samples WHERE online = 1") == 2, WAIT)
+        line.starters[2].params["ramp_time"] = 120  # 6 s of starting on the fast clock: the poll sees it, loaded or not
         line.starters[2].start()
         assert wait_until(
             lambda: count(db, "SELECT COUNT(*) FROM samples WHERE device = 'conveyor' AND current_a > 0") > 0, WAIT
