@@ -47,14 +47,17 @@ _GATEWAY = (*_COMMON, "out", "in", "unit", "in_fc")
 
 #: the PKW cycle limit when the URL gives none, at least: with a DP cycle, as many exchanges as ``timeout`` lasts
 MIN_MAX_CYCLES = 100
+#: the largest cycle limit, given or derived
+MAX_CYCLES = 1_000_000
 
 
 def default_max_cycles(timeout: float, cycle: float) -> int:
     """The cycle limit of a URL that gives ``timeout`` and no ``max_cycles``: enough exchanges for the whole time
-    limit at the DP cycle (a slow slave gets the time the URL gives it), and never fewer than 100."""
+    limit at the DP cycle (a slow slave gets the time the URL gives it), never fewer than 100 nor more than the
+    URL may give."""
     if cycle <= 0:  # exchanges back to back: the time limit alone is no count
         return MIN_MAX_CYCLES
-    return max(MIN_MAX_CYCLES, math.ceil(timeout / cycle) + 2)  # + the clear and the task cycle
+    return min(MAX_CYCLES, max(MIN_MAX_CYCLES, math.ceil(timeout / cycle) + 2))  # + the clear and the task cycle
 
 
 @dataclass(frozen=True, slots=True)
@@ -108,7 +111,7 @@ class LinkSettings:
         # a gateway's image may lag, and a faulty one may show an older image again.
         timeout = url.get_float("timeout", 2.0, 0.001, 600.0)
         limits = Limits(
-            url.get_int("max_cycles", default_max_cycles(timeout, cycle), 2, 1_000_000),
+            url.get_int("max_cycles", default_max_cycles(timeout, cycle), 2, MAX_CYCLES),
             timeout,
             url.get_int("stale_cycles", 1 if gateway else 0, 0, 10_000),
             url.get_float("stale_time", 0.0, 0.0, 60.0),

@@ -172,10 +172,15 @@ class DeviceNetTransport(LinkTransport):
         self._retake(scanner, link, strict=True)
         return [self._read_measurement(scanner, link, point) for point in points]
 
+    @property
+    def _l1(self) -> str | None:
+        """The key of the L1 current, the one measurement the input assembly carries (None: the model has none)."""
+        phases = self.profile.phase_currents()
+        return phases[0].key if phases else None
+
     def read_refusal(self, point: PointDef) -> str | None:
         """Monitoring (``control=command``) reads the input assembly only: the status and the L1 current."""
-        phases = self.profile.phase_currents()
-        if self.control == "open" or (phases and point.key == phases[0].key):
+        if self.control == "open" or point.key == self._l1:
             return None
         return (
             "the status parameters travel only in the polled I/O connection, whose output assembly also carries "
@@ -185,15 +190,15 @@ class DeviceNetTransport(LinkTransport):
         )
 
     def _read_measurement(self, scanner: Scanner, link: SlaveLink, point: PointDef) -> Reading:
-        phases = self.profile.phase_currents()
+        l1 = self._l1
         if not link.polling:
             refusal = self.read_refusal(point)
             if refusal is not None:
                 raise self.unsupported(f"read {point.key}", refusal)
-            if phases and point.key == phases[0].key:
+            if point.key == l1:
                 return Reading(point, self._explicit_inputs(scanner, link).current_a, CURRENT_RESOLUTION_A)
         if link.assemblies is AssemblySet.BASIC:
-            if phases and point.key == phases[0].key:
+            if point.key == l1:
                 sample = self._fresh_sample(link, scanner)
                 return Reading(point, decode_input(sample.data, 1).current_a, CURRENT_RESOLUTION_A)
             raise self._basic_refusal(point)
@@ -208,9 +213,7 @@ class DeviceNetTransport(LinkTransport):
     def _monitors(self, points: Sequence[PointDef]) -> bool:
         """A poll of these points is one explicit read of the input assembly: this master monitors (no polled
         connection, ``control=command``) and they are at most the L1 current."""
-        link = self.link
-        phases = self.profile.phase_currents()
-        l1 = phases[0].key if phases else None
+        link, l1 = self.link, self._l1
         monitoring = self.control == "command" and (link is None or not link.polling)
         return monitoring and all(point.key == l1 for point in points)
 
@@ -240,8 +243,7 @@ class DeviceNetTransport(LinkTransport):
         path does (refused while a motor runs under another control: then the status is monitored and points
         fail). What the blocking path refuses polls by blocking (None), which raises its message."""
         scanner, link = self._require()
-        phases = self.profile.phase_currents()
-        l1 = phases[0].key if phases else None
+        l1 = self._l1
         if self.control == "open" and not link.polling:
             if any(point.key != l1 and not _has_address(point) for point in points):
                 return None  # refused by the blocking path, with its message

@@ -42,6 +42,7 @@ session: the last answer is its own, a verified answer, and rule 1 then holds fo
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -206,14 +207,15 @@ class Freshness:
         rec.answered = obs
         return True
 
-    def fence_indl(self, blocked: int) -> int | None:
+    def fence_indl(self, blocked: int, taken: Collection[int] = ()) -> int | None:
         """An INDL to read so that a verified answer lifts the block on ``blocked``: preferably the last one
         verifiably answered (a known address), else the next INDL not itself blocked. In the start chain: the
-        next INDL not used yet in the session (None: every one has had a lost fence read)."""
+        next INDL not used yet in the session, nor in ``taken`` (a preview's fences before it; None: every one has
+        had a lost fence read)."""
         if self.unknown:
             for step in range(1, 256):
                 indl = (blocked + step) & 0xFF
-                if indl not in self.records:
+                if indl not in self.records and indl not in taken:
                     return indl
             return None
         if self.accepted_indl is not None and self.accepted_indl != blocked and not self.orphan(self.accepted_indl):

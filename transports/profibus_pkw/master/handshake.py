@@ -109,14 +109,13 @@ class PkwEngine:
         the task's INDL is quarantined."""
         book, indl = self._book, request.indl
         if book.unknown:
-            used, fences = set(book.records), []
+            taken: list[int] = []
             for _ in range(book.inherited + 1 - book.chain):
-                fence = next(((indl + step) & 0xFF for step in range(1, 256) if (indl + step) & 0xFF not in used), None)
+                fence = book.fence_indl(indl, taken)
                 if fence is None:
                     break
-                used.add(fence)
-                fences.append(pkw_request(TaskCode.READ_PARAMETER, fence))
-            return fences
+                taken.append(fence)
+            return [pkw_request(TaskCode.READ_PARAMETER, fence) for fence in taken]
         if book.orphan(indl) is None:
             return []
         fence = book.fence_indl(indl)
